@@ -1,0 +1,173 @@
+//! Tile-based CPU rasterizer (rayon): project every Gaussian, bin it into the 16x16 screen tiles its
+//! 3σ rectangle touches, depth-sort each tile's list, then composite front to back per pixel.
+
+use super::{Image, RenderOptions};
+use crate::camera::Camera;
+use crate::math::{self, MAX_ALPHA, MIN_ALPHA, MIN_TRANSMITTANCE, TILE};
+use crate::splats::Splats;
+use glam::Vec3;
+use rayon::prelude::*;
+
+/// A Gaussian after projection to the screen. Culled Gaussians have `radius == 0`.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Projected {
+    /// Centre in continuous image coordinates (pixel `(i, j)` has its centre at `(i+0.5, j+0.5)`).
+    pub mean: [f32; 2],
+    /// Inverse 2D covariance `[A, B, C]`.
+    pub conic: [f32; 3],
+    /// Camera-space depth of the centre.
+    pub depth: f32,
+    /// 3σ radius in pixels (0 = culled).
+    pub radius: f32,
+    pub opacity: f32,
+    pub color: [f32; 3],
+}
+
+/// Projects one Gaussian; culled (near plane, singular covariance, off-screen) gives `radius = 0`.
+fn project_one(splats: &Splats, i: usize, cam: &Camera, center: Vec3, degree: u8) -> Projected {
+    let pos = Vec3::from_array(splats.positions[i]);
+    let t = cam.to_camera(pos);
+    if !(t.z > cam.znear) {
+        return Projected::default();
+    }
+    let cov3d = math::covariance_3d(splats.log_scales[i], splats.rotations[i]);
+    let Some((conic, radius)) = math::conic_and_radius(math::project_cov2d(cam, t, &cov3d)) else {
+        return Projected::default();
+    };
+    let mean = [cam.fx * t.x / t.z + cam.cx, cam.fy * t.y / t.z + cam.cy];
+    if !(mean[0].is_finite() && mean[1].is_finite()) {
+        return Projected::default();
+    }
+    let r = math::tile_rect(mean, radius, cam.width, cam.height);
+    if r[2] <= r[0] || r[3] <= r[1] {
+        return Projected::default();
+    }
+    let k = math::sh_rest_coeffs(degree);
+    let k_all = splats.rest_coeffs();
+    let rest = &splats.sh_rest[i * k_all * 3..(i * k_all + k) * 3];
+    let color = math::sh_color(degree, splats.sh_dc[i], rest, math::view_dir(center, pos));
+    Projected { mean, conic, depth: t.z, radius, opacity: math::sigmoid(splats.opacity_logits[i]), color }
+}
+
+/// Projects all Gaussians (in parallel).
+pub fn preprocess(splats: &Splats, cam: &Camera, max_sh_degree: u8) -> Vec<Projected> {
+    let degree = max_sh_degree.min(splats.sh_degree);
+    let center = cam.center();
+    (0..splats.len()).into_par_iter().map(|i| project_one(splats, i, cam, center, degree)).collect()
+}
+
+/// Per-tile, depth-sorted Gaussian index lists.
+#[derive(Debug, Clone, Default)]
+pub struct TileBins {
+    pub tiles_x: u32,
+    pub tiles_y: u32,
+    /// `ranges[t]..ranges[t+1]` indexes `ids` for tile `t = ty * tiles_x + tx`.
+    pub ranges: Vec<u32>,
+    /// Gaussian indices, front to back within each tile (ties broken by index).
+    pub ids: Vec<u32>,
+}
+
+impl TileBins {
+    pub fn tile(&self, t: usize) -> &[u32] {
+        &self.ids[self.ranges[t] as usize..self.ranges[t + 1] as usize]
+    }
+}
+
+/// Bins projected Gaussians into screen tiles, each list sorted by depth (stable on index).
+pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
+    let (tiles_x, tiles_y) = (width.div_ceil(TILE), height.div_ceil(TILE));
+    let n_tiles = (tiles_x * tiles_y) as usize;
+    // Counting pass, then scatter: memory is exactly the number of tile overlaps.
+    let rects: Vec<[u32; 4]> = proj
+        .par_iter()
+        .map(|p| if p.radius > 0.0 { math::tile_rect(p.mean, p.radius, width, height) } else { [0; 4] })
+        .collect();
+    let mut counts = vec![0u32; n_tiles + 1];
+    for r in &rects {
+        for ty in r[1]..r[3] {
+            for tx in r[0]..r[2] {
+                counts[(ty * tiles_x + tx) as usize + 1] += 1;
+            }
+        }
+    }
+    for t in 0..n_tiles {
+        counts[t + 1] += counts[t];
+    }
+    let ranges = counts.clone();
+    let mut ids = vec![0u32; ranges[n_tiles] as usize];
+    let mut cursor = counts;
+    for (g, r) in rects.iter().enumerate() {
+        for ty in r[1]..r[3] {
+            for tx in r[0]..r[2] {
+                let t = (ty * tiles_x + tx) as usize;
+                ids[cursor[t] as usize] = g as u32;
+                cursor[t] += 1;
+            }
+        }
+    }
+    // Ids are ascending within a tile, so a stable sort on depth breaks ties by index.
+    let mut chunks: Vec<&mut [u32]> = Vec::with_capacity(n_tiles);
+    let mut rest: &mut [u32] = &mut ids;
+    for t in 0..n_tiles {
+        let (head, tail) = rest.split_at_mut((ranges[t + 1] - ranges[t]) as usize);
+        chunks.push(head);
+        rest = tail;
+    }
+    chunks.into_par_iter().for_each(|c| c.sort_by(|&a, &b| proj[a as usize].depth.total_cmp(&proj[b as usize].depth)));
+    TileBins { tiles_x, tiles_y, ranges, ids }
+}
+
+/// Composites one pixel (pixel-index coordinates `px, py`) from a depth-sorted list; returns the
+/// accumulated colour and the final transmittance.
+#[inline]
+pub(crate) fn composite_pixel(proj: &[Projected], ids: &[u32], px: f32, py: f32) -> ([f32; 3], f32) {
+    let mut c = [0.0f32; 3];
+    let mut t = 1.0f32;
+    for &g in ids {
+        let p = &proj[g as usize];
+        let (dx, dy) = (p.mean[0] - 0.5 - px, p.mean[1] - 0.5 - py);
+        let power = -0.5 * (p.conic[0] * dx * dx + p.conic[2] * dy * dy) - p.conic[1] * dx * dy;
+        if power > 0.0 {
+            continue;
+        }
+        let alpha = MAX_ALPHA.min(p.opacity * power.exp());
+        if alpha < MIN_ALPHA {
+            continue;
+        }
+        let next_t = t * (1.0 - alpha);
+        if next_t < MIN_TRANSMITTANCE {
+            break;
+        }
+        for k in 0..3 {
+            c[k] += p.color[k] * alpha * t;
+        }
+        t = next_t;
+    }
+    (c, t)
+}
+
+/// Renders `splats` from `cam` with the reference 3DGS semantics (see DESIGN §3).
+pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Image {
+    let (w, h) = (cam.width, cam.height);
+    let proj = preprocess(splats, cam, opts.max_sh_degree);
+    let bins = bin_tiles(&proj, w, h);
+    let mut img = Image::filled(w, h, [0.0; 3]);
+    let row_len = (w * 3) as usize;
+    // One task per tile row; rows of pixels are disjoint slices of the output.
+    img.data.par_chunks_mut(row_len * TILE as usize).enumerate().for_each(|(ty, band)| {
+        for tx in 0..bins.tiles_x {
+            let ids = bins.tile((ty as u32 * bins.tiles_x + tx) as usize);
+            let x1 = ((tx + 1) * TILE).min(w);
+            for (ly, row) in band.chunks_mut(row_len).enumerate() {
+                let py = (ty as u32 * TILE + ly as u32) as f32;
+                for x in tx * TILE..x1 {
+                    let (c, t) = composite_pixel(&proj, ids, x as f32, py);
+                    for k in 0..3 {
+                        row[x as usize * 3 + k] = c[k] + t * opts.background[k];
+                    }
+                }
+            }
+        }
+    });
+    img
+}

@@ -1,0 +1,42 @@
+//! Rendering: per-Gaussian preprocessing, tile binning and the CPU rasterizer (f32), plus an f64
+//! brute-force reference with the same semantics for testing.
+
+mod cpu;
+pub mod reference;
+
+pub use cpu::{bin_tiles, preprocess, render, Projected, TileBins};
+
+/// A linear-in-file RGB float image, row-major, channels interleaved (`data[(y*w + x)*3 + c]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    pub data: Vec<f32>,
+}
+
+impl Image {
+    /// An image filled with one colour.
+    pub fn filled(width: u32, height: u32, rgb: [f32; 3]) -> Image {
+        Image { width, height, data: rgb.repeat((width * height) as usize) }
+    }
+
+    pub fn pixel(&self, x: u32, y: u32) -> [f32; 3] {
+        let i = ((y * self.width + x) * 3) as usize;
+        [self.data[i], self.data[i + 1], self.data[i + 2]]
+    }
+}
+
+/// Options of a render.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderOptions {
+    /// Colour behind the Gaussians (added with the final transmittance).
+    pub background: [f32; 3],
+    /// Use SH up to this degree (clamped to the scene's degree).
+    pub max_sh_degree: u8,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions { background: [0.0; 3], max_sh_degree: 3 }
+    }
+}

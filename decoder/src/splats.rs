@@ -1,0 +1,144 @@
+//! The scene: Gaussians as structure-of-arrays.
+
+use crate::math::sh_rest_coeffs;
+
+/// A problem with the contents of a scene.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SceneError {
+    #[error("SH degree {0} is not supported (0..=3)")]
+    BadShDegree(u8),
+    #[error("array `{name}` has {got} entries, expected {expected}")]
+    LengthMismatch { name: &'static str, got: usize, expected: usize },
+    #[error("Gaussian {index}: `{name}` is not finite")]
+    NonFinite { index: usize, name: &'static str },
+    #[error("Gaussian {index}: rotation quaternion has zero norm")]
+    ZeroQuaternion { index: usize },
+}
+
+/// 3D Gaussians, structure-of-arrays, in the parameterisation of the reference 3DGS trainer.
+///
+/// * `rotations` are quaternions `(w, x, y, z)`; they need not be normalised (the renderer does).
+/// * `log_scales` are natural logs of the three standard deviations.
+/// * `opacity_logits` go through a sigmoid.
+/// * `sh_dc` is the degree-0 SH coefficient per channel (colour = SH + 0.5).
+/// * `sh_rest` holds, for Gaussian `i`, coefficient `k` (1-based band order minus the DC term,
+///   `k < K = (d+1)^2 - 1`) of channel `c` at `sh_rest[(i * K + k) * 3 + c]`
+///   (coefficient-major, channels interleaved — unlike the channel-major `.ply` layout).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Splats {
+    pub sh_degree: u8,
+    pub positions: Vec<[f32; 3]>,
+    pub log_scales: Vec<[f32; 3]>,
+    pub rotations: Vec<[f32; 4]>,
+    pub opacity_logits: Vec<f32>,
+    pub sh_dc: Vec<[f32; 3]>,
+    pub sh_rest: Vec<f32>,
+}
+
+impl Splats {
+    /// An empty scene of the given SH degree.
+    pub fn new(sh_degree: u8) -> Self {
+        Splats { sh_degree, ..Default::default() }
+    }
+
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    /// Number of non-DC SH coefficients per channel, `(d+1)^2 - 1`.
+    pub fn rest_coeffs(&self) -> usize {
+        sh_rest_coeffs(self.sh_degree)
+    }
+
+    /// The `K*3` rest coefficients of Gaussian `i` (`[k][channel]`).
+    pub fn rest_of(&self, i: usize) -> &[f32] {
+        let k3 = self.rest_coeffs() * 3;
+        &self.sh_rest[i * k3..(i + 1) * k3]
+    }
+
+    /// Appends one Gaussian; `rest` must hold `rest_coeffs() * 3` values.
+    pub fn push(&mut self, pos: [f32; 3], log_scale: [f32; 3], rot: [f32; 4], opacity_logit: f32, dc: [f32; 3], rest: &[f32]) {
+        debug_assert_eq!(rest.len(), self.rest_coeffs() * 3);
+        self.positions.push(pos);
+        self.log_scales.push(log_scale);
+        self.rotations.push(rot);
+        self.opacity_logits.push(opacity_logit);
+        self.sh_dc.push(dc);
+        self.sh_rest.extend_from_slice(rest);
+    }
+
+    /// Keeps the Gaussians for which `keep(i)` is true, in order.
+    pub fn retain_indices(&mut self, keep: impl Fn(usize) -> bool) {
+        let k3 = self.rest_coeffs() * 3;
+        let mut out = Splats::new(self.sh_degree);
+        for i in 0..self.len() {
+            if keep(i) {
+                out.push(self.positions[i], self.log_scales[i], self.rotations[i], self.opacity_logits[i], self.sh_dc[i], &self.sh_rest[i * k3..(i + 1) * k3]);
+            }
+        }
+        *self = out;
+    }
+
+    /// The same scene with SH truncated (or zero-extended) to `degree`.
+    pub fn with_sh_degree(&self, degree: u8) -> Splats {
+        let (k_old, k_new) = (self.rest_coeffs(), sh_rest_coeffs(degree));
+        let mut out = Splats { sh_degree: degree, sh_rest: Vec::with_capacity(self.len() * k_new * 3), ..self.clone() };
+        for i in 0..self.len() {
+            for k in 0..k_new {
+                for c in 0..3 {
+                    out.sh_rest.push(if k < k_old { self.sh_rest[(i * k_old + k) * 3 + c] } else { 0.0 });
+                }
+            }
+        }
+        out
+    }
+
+    /// Checks array lengths, finiteness and non-zero quaternions.
+    pub fn validate(&self) -> Result<(), SceneError> {
+        if self.sh_degree > 3 {
+            return Err(SceneError::BadShDegree(self.sh_degree));
+        }
+        let n = self.len();
+        let check = |name, got| if got == n { Ok(()) } else { Err(SceneError::LengthMismatch { name, got, expected: n }) };
+        check("log_scales", self.log_scales.len())?;
+        check("rotations", self.rotations.len())?;
+        check("opacity_logits", self.opacity_logits.len())?;
+        check("sh_dc", self.sh_dc.len())?;
+        let k3 = self.rest_coeffs() * 3;
+        if self.sh_rest.len() != n * k3 {
+            return Err(SceneError::LengthMismatch { name: "sh_rest", got: self.sh_rest.len(), expected: n * k3 });
+        }
+        for i in 0..n {
+            let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+            let fields: [(&'static str, bool); 6] = [
+                ("position", finite(&self.positions[i])),
+                ("scale", finite(&self.log_scales[i])),
+                ("rotation", finite(&self.rotations[i])),
+                ("opacity", self.opacity_logits[i].is_finite()),
+                ("f_dc", finite(&self.sh_dc[i])),
+                ("f_rest", finite(&self.sh_rest[i * k3..(i + 1) * k3])),
+            ];
+            if let Some((name, _)) = fields.iter().find(|(_, ok)| !ok) {
+                return Err(SceneError::NonFinite { index: i, name });
+            }
+            if self.rotations[i].iter().all(|&x| x == 0.0) {
+                return Err(SceneError::ZeroQuaternion { index: i });
+            }
+        }
+        Ok(())
+    }
+
+    /// Axis-aligned bounds of the positions, `None` when empty.
+    pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
+        let mut it = self.positions.iter();
+        let first = *it.next()?;
+        Some(it.fold((first, first), |(lo, hi), p| {
+            (std::array::from_fn(|a| lo[a].min(p[a])), std::array::from_fn(|a| hi[a].max(p[a])))
+        }))
+    }
+}

@@ -1,0 +1,19 @@
+//! The `gscodec` command line (DESIGN §10). One file per subcommand; each exposes `Args` and `run`.
+
+use clap::{Parser, Subcommand};
+
+/// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
+#[derive(Debug, Parser)]
+#[command(name = "gscodec", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> crate::Result<()> {
+    match cli.command {}
+}

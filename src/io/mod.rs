@@ -1,0 +1,6 @@
+//! Reading and writing scenes, datasets and images.
+
+pub mod atomic;
+pub mod dataset;
+
+pub use dataset::{Dataset, Frame, Split};

@@ -1,0 +1,11 @@
+//! `gscodec`: the encoder side — scene I/O, trainer, metrics and the CLI.
+
+pub use gscodec_decoder as decoder;
+
+pub mod cli;
+pub mod error;
+pub mod io;
+pub mod loss;
+pub mod metrics;
+
+pub use error::{Error, Result};
