@@ -7,5 +7,7 @@ pub mod error;
 pub mod io;
 pub mod loss;
 pub mod metrics;
+pub mod raster;
+pub mod train;
 
 pub use error::{Error, Result};

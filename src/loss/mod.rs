@@ -1,6 +1,9 @@
 //! Image losses with analytic gradients: L1, SSIM, WD, WD-R.
 
+pub mod l1;
 pub mod ssim;
+
+pub use l1::{l1_and_grad, L1Ssim};
 
 use gscodec_decoder::Image;
 

@@ -1,0 +1,100 @@
+//! Differentiable rasterizer: the decoder's forward render with saved state, and its analytic
+//! backward pass to every Gaussian parameter.
+//!
+//! The forward pass *is* the decoder's renderer (`preprocess`, `bin_tiles`, and the same per-pixel
+//! compositing), so a trained scene renders identically in any player. It additionally keeps, per
+//! pixel, the final transmittance and how many entries of its tile list were visited; the backward
+//! pass walks each pixel's list back to front from there (as the reference CUDA rasterizer does),
+//! recovering each transmittance by division, so memory is bounded by the image size plus the
+//! tile overlaps.
+//!
+//! Determinism: per-tile partial gradients are written into one slot per tile-list entry and then
+//! summed per Gaussian in tile-list order, so the result does not depend on the thread count.
+
+mod backward;
+
+pub use backward::{backward, Gradients};
+
+use gscodec_decoder::math::TILE;
+use gscodec_decoder::render::{bin_tiles, composite_pixel_counted, preprocess, Projected, TileBins};
+use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// What the backward pass needs from a forward render.
+#[derive(Debug, Clone)]
+pub struct RasterState {
+    pub camera: Camera,
+    pub options: RenderOptions,
+    /// SH degree actually used (`min(options.max_sh_degree, splats.sh_degree)`).
+    pub degree: u8,
+    pub projected: Vec<Projected>,
+    pub bins: TileBins,
+    /// Final transmittance per pixel.
+    pub final_t: Vec<f32>,
+    /// Number of tile-list entries visited per pixel.
+    pub n_visited: Vec<u32>,
+}
+
+/// Wall time of the forward stages, seconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct ForwardTimings {
+    pub project: f64,
+    pub sort: f64,
+    pub rasterize: f64,
+}
+
+/// Renders like [`gscodec_decoder::render::render`] (bit-identical) and keeps the state for
+/// [`backward`].
+pub fn forward(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, RasterState) {
+    let (img, state, _) = forward_timed(splats, cam, opts);
+    (img, state)
+}
+
+/// [`forward`] with per-stage wall times.
+pub fn forward_timed(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, RasterState, ForwardTimings) {
+    let (w, h) = (cam.width, cam.height);
+    let t0 = Instant::now();
+    let projected = preprocess(splats, cam, opts.max_sh_degree);
+    let t1 = Instant::now();
+    let bins = bin_tiles(&projected, w, h);
+    let t2 = Instant::now();
+    let n_pix = (w * h) as usize;
+    let mut img = Image::filled(w, h, [0.0; 3]);
+    let mut final_t = vec![0.0f32; n_pix];
+    let mut n_visited = vec![0u32; n_pix];
+    let band_pix = (w * TILE) as usize;
+    img.data
+        .par_chunks_mut(band_pix * 3)
+        .zip(final_t.par_chunks_mut(band_pix))
+        .zip(n_visited.par_chunks_mut(band_pix))
+        .enumerate()
+        .for_each(|(ty, ((band, band_t), band_n))| {
+            let ty = ty as u32;
+            let rows = (band_t.len() / w as usize) as u32;
+            for tx in 0..bins.tiles_x {
+                let ids = bins.tile((ty * bins.tiles_x + tx) as usize);
+                let x1 = ((tx + 1) * TILE).min(w);
+                for ly in 0..rows {
+                    let py = (ty * TILE + ly) as f32;
+                    for x in tx * TILE..x1 {
+                        let (c, t, n) = composite_pixel_counted(&projected, ids, x as f32, py);
+                        let p = (ly * w + x) as usize;
+                        for k in 0..3 {
+                            band[p * 3 + k] = c[k] + t * opts.background[k];
+                        }
+                        band_t[p] = t;
+                        band_n[p] = n;
+                    }
+                }
+            }
+        });
+    let t3 = Instant::now();
+    let degree = opts.max_sh_degree.min(splats.sh_degree);
+    let timings = ForwardTimings {
+        project: (t1 - t0).as_secs_f64(),
+        sort: (t2 - t1).as_secs_f64(),
+        rasterize: (t3 - t2).as_secs_f64(),
+    };
+    (img, RasterState { camera: *cam, options: *opts, degree, projected, bins, final_t, n_visited }, timings)
+}
