@@ -6,6 +6,7 @@ pub mod adam;
 pub mod densify;
 pub mod init;
 pub mod rng;
+pub mod targets;
 
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::ImageLoss;
