@@ -65,9 +65,14 @@ pub fn load_dataset(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
     Ok(ds)
 }
 
-/// Median distance of the camera centres to their mean; 1 when degenerate (one camera, all equal).
+/// Median distance of the frames' camera centres to their mean; 1 when degenerate.
 pub fn scene_scale(ds: &Dataset) -> f32 {
-    let centres: Vec<glam::Vec3> = ds.frames.iter().map(|f| f.camera.center()).collect();
+    camera_spread(ds.frames.iter().map(|f| f.camera.center()))
+}
+
+/// Median distance of camera centres to their mean; 1 when degenerate (none, one, all equal).
+pub fn camera_spread(centres: impl Iterator<Item = glam::Vec3>) -> f32 {
+    let centres: Vec<glam::Vec3> = centres.collect();
     if centres.is_empty() {
         return 1.0;
     }

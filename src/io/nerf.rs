@@ -44,7 +44,7 @@ pub fn load_nerf(train: &Path, test: Option<&Path>, opts: &LoadOptions) -> Resul
 }
 
 /// One frame as the JSON describes it, before its image is read.
-struct FrameSpec {
+pub(crate) struct FrameSpec {
     json: PathBuf,
     image: Option<PathBuf>,
     c2w: [[f32; 4]; 4],
@@ -88,7 +88,7 @@ impl Intrinsics {
     }
 }
 
-fn parse_transforms(path: &Path) -> Result<Vec<FrameSpec>> {
+pub(crate) fn parse_transforms(path: &Path) -> Result<Vec<FrameSpec>> {
     let bad = |msg: String| Error::input(path, msg);
     let text = std::fs::read_to_string(path).map_err(|e| bad(format!("cannot read: {e}")))?;
     let root: Value = serde_json::from_str(&text).map_err(|e| bad(format!("invalid JSON: {e}")))?;
@@ -143,31 +143,38 @@ fn find_image(p: &Path) -> Option<PathBuf> {
 impl FrameSpec {
     /// Loads the image and builds the camera; `None` when the image file is missing.
     fn load(self, index: usize, opts: &LoadOptions) -> Result<Option<Frame>> {
-        let Some(path) = self.image else { return Ok(None) };
-        let image = load_image(&path, NERF_BACKGROUND)?;
-        let (w, h) = (image.width as f64, image.height as f64);
+        let Some(path) = &self.image else { return Ok(None) };
+        let full = load_image(path, NERF_BACKGROUND)?;
+        let image = downscale(&full, opts.downscale);
+        let camera = self.camera(full.width, full.height, opts.downscale).map_err(|m| Error::input(&self.json, format!("frame {index}: {m}")))?;
+        let camera = gscodec_decoder::Camera { width: image.width, height: image.height, ..camera };
+        let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
+        Ok(Some(Frame { index, name, camera, image }))
+    }
+
+    /// The camera for an image of `w × h` pixels on disk, downscaled by `k`.
+    pub(crate) fn camera(&self, w: u32, h: u32, k: u32) -> std::result::Result<Camera, String> {
+        let (w, h) = (w as f64, h as f64);
         let i = self.intr;
         // Intrinsics are given for a `w × h` image (default: the image as it is on disk).
-        let (sx, sy) = (w / i.w.unwrap_or(w), h / i.h.unwrap_or(h));
         let (decl_w, decl_h) = (i.w.unwrap_or(w), i.h.unwrap_or(h));
+        let (sx, sy) = (w / decl_w, h / decl_h);
         let fx = i.fl_x.unwrap_or_else(|| 0.5 * decl_w / (0.5 * i.angle_x.unwrap()).tan());
         let fy = i.fl_y.or_else(|| i.angle_y.map(|a| 0.5 * decl_h / (0.5 * a).tan())).unwrap_or(fx);
         let (cx, cy) = (i.cx.unwrap_or(decl_w / 2.0), i.cy.unwrap_or(decl_h / 2.0));
         if !(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0) {
-            return Err(Error::input(&self.json, format!("frame {index}: bad focal length")));
+            return Err("bad focal length".into());
         }
-        let k = opts.downscale.max(1) as f64;
-        let image = downscale(&image, opts.downscale);
-        let camera = Camera::from_nerf_c2w(
+        let k = k.max(1);
+        let kf = k as f64;
+        Ok(Camera::from_nerf_c2w(
             self.c2w,
-            image.width,
-            image.height,
-            (fx * sx / k) as f32,
-            (fy * sy / k) as f32,
-            (cx * sx / k) as f32,
-            (cy * sy / k) as f32,
-        );
-        let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
-        Ok(Some(Frame { index, name, camera, image }))
+            w as u32 / k,
+            h as u32 / k,
+            (fx * sx / kf) as f32,
+            (fy * sy / kf) as f32,
+            (cx * sx / kf) as f32,
+            (cy * sy / kf) as f32,
+        ))
     }
 }
