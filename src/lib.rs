@@ -9,5 +9,6 @@ pub mod loss;
 pub mod metrics;
 pub mod raster;
 pub mod train;
+pub mod sample;
 
 pub use error::{Error, Result};
