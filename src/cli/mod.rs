@@ -4,6 +4,7 @@ use clap::{Parser, Subcommand};
 
 pub mod progress;
 pub mod sample;
+pub mod train;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
 #[derive(Debug, Parser)]
@@ -16,11 +17,13 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     Sample(sample::Args),
+    Train(train::Args),
 }
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
+        Command::Train(a) => train::run(a),
     }
 }

@@ -2,7 +2,7 @@
 //! back to front) -> parameter gradients through the EWA projection, the 3D covariance, the
 //! quaternion normalisation, the sigmoid and the SH colour (with its clamp at 0).
 
-use super::RasterState;
+use super::{cull_thresholds, gather_tile, RasterState};
 use gscodec_decoder::math::{self, MAX_ALPHA, MIN_ALPHA, SH_C1, SH_C2, SH_C3, TILE};
 use gscodec_decoder::Splats;
 use glam::{Mat3, Vec3};
@@ -60,11 +60,13 @@ pub fn backward(splats: &Splats, state: &RasterState, dl_dimg: &[f32]) -> Gradie
         chunks.push(head);
         rest = tail;
     }
-    chunks.into_par_iter().enumerate().for_each(|(t, out)| {
+    let cull = cull_thresholds(proj);
+    chunks.into_par_iter().enumerate().for_each_init(Vec::new, |local, (t, out)| {
         let ids = bins.tile(t);
         if ids.is_empty() {
             return;
         }
+        gather_tile(proj, &cull, ids, local);
         let (tx, ty) = (t as u32 % bins.tiles_x, t as u32 / bins.tiles_x);
         for y in ty * TILE..((ty + 1) * TILE).min(h) {
             for x in tx * TILE..((tx + 1) * TILE).min(w) {
@@ -81,11 +83,11 @@ pub fn backward(splats: &Splats, state: &RasterState, dl_dimg: &[f32]) -> Gradie
                 let mut accum = [0.0f32; 3];
                 let (mut last_alpha, mut last_color) = (0.0f32, [0.0f32; 3]);
                 for j in (0..n).rev() {
-                    let pr = &proj[ids[j] as usize];
+                    let pr = &local[j];
                     // Same arithmetic as the forward pass, so the same entries are skipped.
-                    let (dx, dy) = (pr.mean[0] - 0.5 - px, pr.mean[1] - 0.5 - py);
+                    let (dx, dy) = (pr.mx - px, pr.my - py);
                     let power = -0.5 * (pr.conic[0] * dx * dx + pr.conic[2] * dy * dy) - pr.conic[1] * dx * dy;
-                    if power > 0.0 {
+                    if power > 0.0 || power < pr.cull {
                         continue;
                     }
                     let gauss = power.exp();

@@ -121,19 +121,9 @@ pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
 /// accumulated colour and the final transmittance.
 #[inline]
 pub(crate) fn composite_pixel(proj: &[Projected], ids: &[u32], px: f32, py: f32) -> ([f32; 3], f32) {
-    let (c, t, _) = composite_pixel_counted(proj, ids, px, py);
-    (c, t)
-}
-
-/// [`composite_pixel`], also returning how many entries of `ids` were visited (the entries after
-/// them cannot contribute). The differentiable rasterizer saves this count for its backward pass.
-#[inline]
-pub fn composite_pixel_counted(proj: &[Projected], ids: &[u32], px: f32, py: f32) -> ([f32; 3], f32, u32) {
-    let mut n = 0u32;
     let mut c = [0.0f32; 3];
     let mut t = 1.0f32;
     for &g in ids {
-        n += 1;
         let p = &proj[g as usize];
         let (dx, dy) = (p.mean[0] - 0.5 - px, p.mean[1] - 0.5 - py);
         let power = -0.5 * (p.conic[0] * dx * dx + p.conic[2] * dy * dy) - p.conic[1] * dx * dy;
@@ -146,7 +136,6 @@ pub fn composite_pixel_counted(proj: &[Projected], ids: &[u32], px: f32, py: f32
         }
         let next_t = t * (1.0 - alpha);
         if next_t < MIN_TRANSMITTANCE {
-            n -= 1;
             break;
         }
         for k in 0..3 {
@@ -154,7 +143,7 @@ pub fn composite_pixel_counted(proj: &[Projected], ids: &[u32], px: f32, py: f32
         }
         t = next_t;
     }
-    (c, t, n)
+    (c, t)
 }
 
 /// Renders `splats` from `cam` with the reference 3DGS semantics (see DESIGN §3).

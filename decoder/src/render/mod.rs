@@ -4,7 +4,7 @@
 mod cpu;
 pub mod reference;
 
-pub use cpu::{bin_tiles, composite_pixel_counted, preprocess, render, Projected, TileBins};
+pub use cpu::{bin_tiles, preprocess, render, Projected, TileBins};
 
 /// A linear-in-file RGB float image, row-major, channels interleaved (`data[(y*w + x)*3 + c]`).
 #[derive(Debug, Clone, PartialEq)]
