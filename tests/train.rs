@@ -15,12 +15,12 @@ fn dataset(scale: f32) -> Dataset {
     for l in &mut scene.log_scales {
         *l = l.map(|v| v + scale.ln());
     }
-    let cams: Vec<_> = orbit_cameras(24, 3.5, 40, 40).into_iter().map(|c| c.scaled(scale)).collect();
+    let cams: Vec<_> = orbit_cameras(16, 3.5, 32, 32).into_iter().map(|c| c.scaled(scale)).collect();
     render_targets(&scene, &cams, [1.0; 3])
 }
 
 fn cfg(iters: usize) -> TrainConfig {
-    TrainConfig { iters, seed: 5, init_points: 1500, eval_interval: 0, ..Default::default() }
+    TrainConfig { iters, seed: 5, init_points: 800, eval_interval: 0, ..Default::default() }
 }
 
 fn run(ds: &Dataset, c: &TrainConfig, rd: Option<Box<dyn RdTerm>>) -> (Splats, gscodec::train::TrainReport) {
@@ -30,7 +30,7 @@ fn run(ds: &Dataset, c: &TrainConfig, rd: Option<Box<dyn RdTerm>>) -> (Splats, g
 #[test]
 fn short_run_improves_held_out_psnr() {
     let ds = dataset(1.0);
-    let c = cfg(600);
+    let c = cfg(400);
     let mut rng = gscodec::train::rng::Rng::new(c.seed);
     let init = gscodec::train::init::initial_splats(&ds, c.init_points, 3, &mut rng);
     let (before, _) = evaluate(&init, &ds.split(Split::Test), ds.background).unwrap();
@@ -47,7 +47,7 @@ fn short_run_improves_held_out_psnr() {
 
 #[test]
 fn rescaled_scenes_train_alike() {
-    let c = cfg(300);
+    let c = cfg(150);
     let psnr: Vec<f64> = [1.0f32, 1e-3, 1e3].iter().map(|&s| run(&dataset(s), &c, None).1.test_psnr.unwrap()).collect();
     eprintln!("held-out PSNR at scale 1, 1e-3, 1e3: {psnr:?}");
     assert!((psnr[1] - psnr[0]).abs() < 0.5 && (psnr[2] - psnr[0]).abs() < 0.5, "{psnr:?}");
@@ -91,7 +91,7 @@ impl RdTerm for OpacityL2 {
 #[test]
 fn rd_term_penalty_lowers_opacity() {
     let ds = dataset(1.0);
-    let c = TrainConfig { densify: false, ..cfg(150) };
+    let c = TrainConfig { densify: false, ..cfg(100) };
     let mean_op = |s: &Splats| s.opacity_logits.iter().map(|&l| gscodec_decoder::math::sigmoid(l) as f64).sum::<f64>() / s.len() as f64;
     let (plain, _) = run(&ds, &c, None);
     let (pen, _) = run(&ds, &c, Some(Box::new(OpacityL2(1e-3))));

@@ -49,7 +49,7 @@ pub struct Args {
     #[arg(long, default_value_t = 10_000)]
     pub init_points: usize,
     /// Upper bound on the number of Gaussians densification may reach.
-    #[arg(long, default_value_t = 150_000)]
+    #[arg(long, default_value_t = 100_000)]
     pub max_gaussians: usize,
     /// Turn off densification and pruning (fine-tuning).
     #[arg(long)]
@@ -83,10 +83,15 @@ pub fn run(args: Args) -> Result<()> {
         ..Default::default()
     };
     let pb = super::progress::bar(args.iters as u64, "train", args.quiet);
+    // Without a terminal (logs), a line per evaluation instead of the bar.
+    let log_lines = !args.quiet && pb.is_hidden();
     let mut last_psnr = None;
     let (splats, report) = train(&ds, init, &cfg, args.loss.build()?, None, &mut |p| {
         if p.test_psnr.is_some() {
             last_psnr = p.test_psnr;
+            if log_lines {
+                eprintln!("iteration {}/{}: loss {:.4}, {} Gaussians, held-out PSNR {:.2} dB", p.iteration, p.iters, p.loss, p.gaussians, p.test_psnr.unwrap_or(0.0));
+            }
         }
         pb.set_position(p.iteration as u64);
         if p.iteration % 10 == 0 || p.test_psnr.is_some() {

@@ -63,7 +63,7 @@ impl Default for TrainConfig {
             lr_scale: 1.0,
             eval_interval: 500,
             init_points: 10_000,
-            max_gaussians: 150_000,
+            max_gaussians: 100_000,
             densify_grad_threshold: 2e-4,
         }
     }
