@@ -10,5 +10,6 @@ pub mod metrics;
 pub mod raster;
 pub mod train;
 pub mod sample;
+pub mod views;
 
 pub use error::{Error, Result};

@@ -2,7 +2,10 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod convert;
+pub mod eval;
 pub mod progress;
+pub mod render;
 pub mod sample;
 pub mod train;
 
@@ -18,6 +21,9 @@ pub struct Cli {
 pub enum Command {
     Sample(sample::Args),
     Train(train::Args),
+    Render(render::Args),
+    Convert(convert::Args),
+    Eval(eval::Args),
 }
 
 /// Runs a parsed command line.
@@ -25,5 +31,8 @@ pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
         Command::Train(a) => train::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Eval(a) => eval::run(a),
     }
 }
