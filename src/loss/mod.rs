@@ -1,6 +1,10 @@
 //! Image losses with analytic gradients: L1, SSIM, WD, WD-R.
 
+pub mod features;
 pub mod ssim;
+pub mod tensor;
+pub mod wd;
+pub mod wdr;
 
 use gscodec_decoder::Image;
 
