@@ -166,6 +166,17 @@ impl<T: Real> Tensor<T> {
         self.map_planes(h, w, |g, o| subsample_adjoint_into(g, self.w, oy, ox, w, o))
     }
 
+    /// `blur().subsample(0, 0)` computed only at the kept samples (¼ of the work).
+    pub fn blur_subsample(&self) -> Self {
+        let (h2, w2) = (half(self.h), half(self.w));
+        self.map_planes(h2, w2, |x, o| blur_subsample_into(x, self.h, self.w, o))
+    }
+
+    /// Adjoint of [`Tensor::blur_subsample`] back to an `h × w` grid.
+    pub fn blur_subsample_adjoint(&self, h: usize, w: usize) -> Self {
+        self.map_planes(h, w, |g, o| blur_subsample_adjoint_into(g, self.h, self.w, h, w, o))
+    }
+
     /// Stride-2 low-pass with XLA "SAME" padding, as the reference's `lowpass(x, stride=2)`:
     /// output size ⌈n/2⌉, centred on odd samples when n is even and on even ones when n is odd.
     pub fn lowpass2(&self) -> Self {
@@ -241,6 +252,58 @@ fn subsample_adjoint_into<T: Real>(g: &[T], w2: usize, oy: usize, ox: usize, w: 
             if y < h && xx < w {
                 out[y * w + xx] = *v;
             }
+        }
+    }
+}
+
+/// `K * x` sampled at even rows and columns (zero padding).
+fn blur_subsample_into<T: Real>(x: &[T], h: usize, w: usize, out: &mut [T]) {
+    let (h2, w2) = (half(h), half(w));
+    let (q, hf) = (T::c(0.25), T::c(0.5));
+    // horizontal pass at even columns for every row, then vertical at even rows
+    let mut tmp = vec![T::zero(); h * w2];
+    for y in 0..h {
+        let row = &x[y * w..(y + 1) * w];
+        for i in 0..w2 {
+            let c = 2 * i;
+            let l = if c > 0 { row[c - 1] } else { T::zero() };
+            let r = if c + 1 < w { row[c + 1] } else { T::zero() };
+            tmp[y * w2 + i] = hf * row[c] + q * (l + r);
+        }
+    }
+    for j in 0..h2 {
+        let y = 2 * j;
+        for i in 0..w2 {
+            let up = if y > 0 { tmp[(y - 1) * w2 + i] } else { T::zero() };
+            let dn = if y + 1 < h { tmp[(y + 1) * w2 + i] } else { T::zero() };
+            out[j * w2 + i] = hf * tmp[y * w2 + i] + q * (up + dn);
+        }
+    }
+}
+
+/// Adjoint of [`blur_subsample_into`]: fine sample y gets ½·g[y/2] when even, else
+/// ¼·(g[(y−1)/2] + g[(y+1)/2]), separably in both directions.
+fn blur_subsample_adjoint_into<T: Real>(g: &[T], h2: usize, w2: usize, h: usize, w: usize, out: &mut [T]) {
+    let (q, hf) = (T::c(0.25), T::c(0.5));
+    let spread = |src: &dyn Fn(usize) -> T, n2: usize, y: usize| -> T {
+        if y % 2 == 0 {
+            hf * src(y / 2)
+        } else {
+            let a = src((y - 1) / 2);
+            let b = if (y + 1) / 2 < n2 { src((y + 1) / 2) } else { T::zero() };
+            q * (a + b)
+        }
+    };
+    let mut tmp = vec![T::zero(); h * w2];
+    for y in 0..h {
+        for i in 0..w2 {
+            tmp[y * w2 + i] = spread(&|j| g[j * w2 + i], h2, y);
+        }
+    }
+    for y in 0..h {
+        let row = &tmp[y * w2..(y + 1) * w2];
+        for x in 0..w {
+            out[y * w + x] = spread(&|i| row[i], w2, x);
         }
     }
 }

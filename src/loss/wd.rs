@@ -125,17 +125,21 @@ fn moments<T: Real>(x: &Tensor<T>, plan: &Plan<T>) -> Moments<T> {
     let mut run_x = x.clone();
     let mut run_q = square(x);
     for k in 1..=top {
+        if plan.weights[k].is_none() {
+            // Only the subsampled running arrays are needed from this level.
+            run_x = run_x.blur_subsample();
+            run_q = run_q.blur_subsample();
+            continue;
+        }
         let m = run_x.blur();
         let p = run_q.blur();
-        if plan.weights[k].is_some() {
-            let v = Tensor { data: p.data.iter().zip(&m.data).map(|(&p, &m)| p - m * m).collect(), ..m };
-            var[k] = Some(v);
-            mean[k] = Some(m.clone());
-        }
+        let v = Tensor { data: p.data.iter().zip(&m.data).map(|(&p, &m)| p - m * m).collect(), ..m };
         if k < top {
             run_x = m.subsample(0, 0);
             run_q = p.subsample(0, 0);
         }
+        var[k] = Some(v);
+        mean[k] = Some(m);
     }
     Moments { mean, var }
 }
@@ -281,11 +285,18 @@ fn array_value_and_grad<T: Real>(r: &ArrayReference<T>, x: &Tensor<T>) -> (f64, 
     }
     for k in (1..=top).rev() {
         let (h, w) = shapes[k - 1];
+        let Some(wk) = &r.plan.weights[k] else {
+            // Level k only fed the next level: fused adjoint of blur + subsample.
+            let (a, b) = (gx.take().expect("a higher level"), gq.take().expect("a higher level"));
+            gx = Some(a.blur_subsample_adjoint(h, w));
+            gq = Some(b.blur_subsample_adjoint(h, w));
+            continue;
+        };
         let (mut gm, mut gp) = match (gx.take(), gq.take()) {
             (Some(a), Some(b)) => (a.subsample_adjoint(h, w, 0, 0), b.subsample_adjoint(h, w, 0, 0)),
             _ => (Tensor::zeros(x.c, h, w), Tensor::zeros(x.c, h, w)),
         };
-        if let Some(wk) = &r.plan.weights[k] {
+        {
             let (m, v) = (mo.mean[k].as_ref().unwrap(), mo.var[k].as_ref().unwrap());
             let (mr, sr) = (r.mean[k].as_ref().unwrap(), r.sd[k].as_ref().unwrap());
             let n = h * w;

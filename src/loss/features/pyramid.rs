@@ -52,24 +52,20 @@ fn taps() -> ([f64; 2 * RADIUS + 1], [f64; 2 * RADIUS + 1], [f64; 2 * RADIUS + 1
 
 /// Separable correlation with zero padding: `out[y][x] = Σ ky[j] kx[i] in[y+j−r][x+i−r]`.
 fn correlate<T: Real>(x: &[T], h: usize, w: usize, kx: &[T], ky: &[T]) -> Vec<T> {
-    let r = (kx.len() / 2) as isize;
+    let r = kx.len() / 2;
     let mut tmp = vec![T::zero(); h * w];
+    // Horizontal pass on a zero-padded copy of each row (no bounds checks in the inner loop).
+    let mut padded = vec![T::zero(); w + 2 * r];
     for y in 0..h {
-        for i in 0..w {
-            let mut s = T::zero();
-            for (k, &t) in kx.iter().enumerate() {
-                let xx = i as isize + k as isize - r;
-                if xx >= 0 && (xx as usize) < w {
-                    s = s + t * x[y * w + xx as usize];
-                }
-            }
-            tmp[y * w + i] = s;
+        padded[r..r + w].copy_from_slice(&x[y * w..(y + 1) * w]);
+        for (i, o) in tmp[y * w..(y + 1) * w].iter_mut().enumerate() {
+            *o = padded[i..i + kx.len()].iter().zip(kx).fold(T::zero(), |s, (&v, &t)| s + t * v);
         }
     }
     let mut out = vec![T::zero(); h * w];
     for y in 0..h {
         for (k, &t) in ky.iter().enumerate() {
-            let yy = y as isize + k as isize - r;
+            let yy = y as isize + k as isize - r as isize;
             if yy < 0 || yy as usize >= h {
                 continue;
             }
@@ -123,33 +119,33 @@ fn rectify<T: Real>(resp: &[Vec<T>; 5], h: usize, w: usize) -> Tensor<T> {
     out
 }
 
-/// Gradient of [`rectify`] w.r.t. the five basis responses.
+/// Gradient of [`rectify`] w.r.t. the five basis responses (one basis filter per task).
 fn rectify_adjoint<T: Real>(out: &Tensor<T>, grad: &Tensor<T>) -> [Vec<T>; 5] {
     let n = out.plane_len();
     let st = steering();
     let gain = T::c(GAIN);
-    let mut g: [Vec<T>; 5] = std::array::from_fn(|_| vec![T::zero(); n]);
-    for ch in 0..STAGE_CHANNELS {
-        let (orient, phase, sign) = (ch / 4, (ch / 2) % 2, ch % 2);
-        let (odd, even) = st[orient];
-        let sgn = if sign == 0 { gain } else { -gain };
-        let (o, gr) = (&out.data[ch * n..(ch + 1) * n], &grad.data[ch * n..(ch + 1) * n]);
-        for i in 0..n {
-            if o[i] <= T::zero() {
-                continue;
+    let parts: Vec<Vec<T>> = (0..5)
+        .into_par_iter()
+        .map(|b| {
+            let mut g = vec![T::zero(); n];
+            // basis b ∈ {Gx, Gy} feeds the odd channels, {Gxx, Gxy, Gyy} the even ones
+            let phase = if b < 2 { 0 } else { 1 };
+            for ch in (0..STAGE_CHANNELS).filter(|ch| (ch / 2) % 2 == phase) {
+                let (orient, sign) = (ch / 4, ch % 2);
+                let (odd, even) = st[orient];
+                let coef = if phase == 0 { odd[b] } else { even[b - 2] };
+                let k = if sign == 0 { gain } else { -gain } * T::c(coef);
+                let (o, gr) = (&out.data[ch * n..(ch + 1) * n], &grad.data[ch * n..(ch + 1) * n]);
+                for i in 0..n {
+                    if o[i] > T::zero() {
+                        g[i] = g[i] + k * gr[i];
+                    }
+                }
             }
-            let d = sgn * gr[i];
-            if phase == 0 {
-                g[0][i] = g[0][i] + T::c(odd[0]) * d;
-                g[1][i] = g[1][i] + T::c(odd[1]) * d;
-            } else {
-                g[2][i] = g[2][i] + T::c(even[0]) * d;
-                g[3][i] = g[3][i] + T::c(even[1]) * d;
-                g[4][i] = g[4][i] + T::c(even[2]) * d;
-            }
-        }
-    }
-    g
+            g
+        })
+        .collect();
+    parts.try_into().unwrap_or_else(|_| unreachable!("five basis filters"))
 }
 
 struct Tape<T> {

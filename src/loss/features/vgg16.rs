@@ -97,6 +97,32 @@ impl<T: Real> Vgg16<T> {
         Ok(Vgg16 { convs: Arc::new(convs) })
     }
 
+    /// A network of VGG-16 topology with the given output widths and He-initialised random
+    /// weights (deterministic in `seed`): for tests and benchmarks, never for real use.
+    pub fn random(widths: &[usize; 13], seed: u64) -> Self {
+        let mut state = seed.wrapping_mul(0x9e3779b97f4a7c15) | 1;
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut cin = 3;
+        let convs = widths
+            .iter()
+            .map(|&cout| {
+                // uniform on [−a, a] with variance 2 / fan-in
+                let a = (6.0 / (cin * 9) as f64).sqrt();
+                let weight = (0..cout * cin * 9).map(|_| T::c(a * uniform())).collect();
+                let bias = (0..cout).map(|_| T::c(0.05 * uniform())).collect();
+                let c = Conv { cin, cout, weight, bias };
+                cin = cout;
+                c
+            })
+            .collect();
+        Vgg16 { convs: Arc::new(convs) }
+    }
+
     /// Whether the channel widths are those of the real VGG-16.
     pub fn is_full_size(&self) -> bool {
         self.convs.iter().map(|c| c.cout).eq(VGG16_CHANNELS)
