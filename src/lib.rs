@@ -7,5 +7,7 @@ pub mod error;
 pub mod io;
 pub mod loss;
 pub mod metrics;
+pub mod sample;
+pub mod views;
 
 pub use error::{Error, Result};

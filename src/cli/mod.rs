@@ -2,6 +2,12 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod convert;
+pub mod eval;
+pub mod progress;
+pub mod render;
+pub mod sample;
+
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
 #[derive(Debug, Parser)]
 #[command(name = "gscodec", version, about)]
@@ -11,9 +17,19 @@ pub struct Cli {
 }
 
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    Sample(sample::Args),
+    Render(render::Args),
+    Convert(convert::Args),
+    Eval(eval::Args),
+}
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> crate::Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Sample(a) => sample::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Eval(a) => eval::run(a),
+    }
 }
