@@ -270,3 +270,8 @@ impl ImageLoss for TemporaryL1Ssim {
         "l1ssim"
     }
 }
+
+/// d_WD in the default feature space (`pyramid`, σ = 4) between two images, for metrics.
+pub fn wd_metric(rendered: &Image, target: &Image) -> f64 {
+    WdDistortion::new(Box::new(super::features::pyramid::Pyramid)).value(rendered, target, None)
+}
