@@ -520,3 +520,26 @@ fn loss_options_parse_and_fail_cleanly() {
     let ok = Cli::try_parse_from(["x", "--loss", "wd", "--wd-gamma", "0.5"]).unwrap();
     assert_eq!(build_loss(&ok.loss, 10).unwrap().name(), "wd");
 }
+
+#[test]
+fn sigma_maps_resize_like_the_reference() {
+    // a constant map at any resolution is the constant σ
+    let mut rng = Rng(88);
+    let a = random_image::<f64>(&mut rng, 40, 30);
+    let b = random_image::<f64>(&mut rng, 40, 30);
+    let c = wd_of(&Pyramid, &a, &b, &Sigma::Constant(4.0));
+    for (h, w) in [(40, 30), (7, 5), (80, 61)] {
+        let m = wd_of(&Pyramid, &a, &b, &Sigma::map(h, w, &vec![4.0; h * w]));
+        assert!((m - c).abs() < 1e-12 * c, "{h}x{w}: {m} vs {c}");
+    }
+    // linear, antialiased resize: halving averages pairs with weights ¼ ¾ ¾ ¼ (triangle of
+    // radius 2), upsampling interpolates between sample centres
+    let ramp: Vec<f64> = (0..8).map(|i| i as f64).collect();
+    let down = wd::resize_linear_antialias(&ramp, 1, 8, 1, 4);
+    let want = [0.0 * 0.0 + (0.0 * 0.75 + 1.0 * 0.75 + 2.0 * 0.25) / 1.75, 2.5, 4.5, (5.0 * 0.25 + 6.0 * 0.75 + 7.0 * 0.75) / 1.75];
+    for (d, w) in down.iter().zip(want) {
+        assert!((d - w).abs() < 1e-12, "{down:?}");
+    }
+    let up = wd::resize_linear_antialias(&[0.0, 4.0], 1, 2, 1, 4);
+    assert_eq!(up, vec![0.0, 1.0, 3.0, 4.0]);
+}
