@@ -38,25 +38,28 @@ impl DecoderModel<PRECISION> for &FreqTable {
     }
 }
 
-/// Sixteen raw bits: the uniform distribution over `0..2^16`.
+/// `k` raw bits (1..=16): the uniform distribution over `0..2^k`, each value with frequency `2^(16-k)`.
 #[derive(Clone, Copy)]
-struct Raw16;
+struct RawBits(u32);
 
-impl EntropyModel<PRECISION> for Raw16 {
+impl EntropyModel<PRECISION> for RawBits {
     type Symbol = u32;
     type Probability = u32;
 }
 
-impl EncoderModel<PRECISION> for Raw16 {
+impl EncoderModel<PRECISION> for RawBits {
     fn left_cumulative_and_probability(&self, symbol: impl core::borrow::Borrow<u32>) -> Option<(u32, NonZeroU32)> {
         let s = *symbol.borrow();
-        (s < 1 << PRECISION).then_some((s, NonZeroU32::MIN))
+        let shift = PRECISION as u32 - self.0;
+        (s < 1 << self.0).then(|| (s << shift, NonZeroU32::new(1 << shift).expect("non-zero")))
     }
 }
 
-impl DecoderModel<PRECISION> for Raw16 {
+impl DecoderModel<PRECISION> for RawBits {
     fn quantile_function(&self, quantile: u32) -> (u32, u32, NonZeroU32) {
-        (quantile, quantile, NonZeroU32::MIN)
+        let shift = PRECISION as u32 - self.0;
+        let s = quantile >> shift;
+        (s, s << shift, NonZeroU32::new(1 << shift).expect("non-zero"))
     }
 }
 
@@ -116,20 +119,20 @@ impl<'a> SymbolDecoder<'a> {
         Ok(s)
     }
 
-    /// Sixteen raw bits.
-    pub fn raw16(&mut self) -> Result<u32, DecodeError> {
-        let s = self.inner.decode_symbol(Raw16).map_err(|_| DecodeError::Corrupt("invalid symbol stream"))?;
+    /// `k` raw bits, 1..=16.
+    fn raw_piece(&mut self, k: u32) -> Result<u32, DecodeError> {
+        let s = self.inner.decode_symbol(RawBits(k)).map_err(|_| DecodeError::Corrupt("invalid symbol stream"))?;
         self.check()?;
         Ok(s)
     }
 
-    /// `bits` (0..=32) raw bits, most significant 16-bit piece first.
+    /// `bits` (0..=32) raw bits in pieces of at most 16, most significant piece first.
     pub fn raw_bits(&mut self, bits: u32) -> Result<u32, DecodeError> {
         let mut v: u64 = 0;
         let mut left = bits;
         while left > 0 {
             let take = left.min(16);
-            let piece = self.raw16()? & ((1 << take) - 1);
+            let piece = self.raw_piece(take)?;
             v = (v << take) | u64::from(piece);
             left -= take;
         }
@@ -179,7 +182,7 @@ impl SymbolEncoder {
             let take = left.min(16);
             left -= take;
             let piece = ((u64::from(value) >> left) & ((1 << take) - 1)) as u32;
-            self.inner.encode_symbol(piece, Raw16).expect("16-bit raw symbol");
+            self.inner.encode_symbol(piece, RawBits(take)).expect("raw bits");
         }
     }
 
