@@ -8,5 +8,6 @@ pub mod io;
 pub mod loss;
 pub mod metrics;
 pub mod rate;
+pub mod sample;
 
 pub use error::{Error, Result};
