@@ -2,6 +2,9 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod decode;
+pub mod encode;
+pub mod info;
 pub mod progress;
 pub mod sample;
 
@@ -16,11 +19,17 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     Sample(sample::Args),
+    Encode(encode::Args),
+    Decode(decode::Args),
+    Info(info::Args),
 }
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
+        Command::Encode(a) => encode::run(a),
+        Command::Decode(a) => decode::run(a),
+        Command::Info(a) => info::run(a),
     }
 }
