@@ -25,7 +25,8 @@ fn main() {
         let spz_psnr = score(&spz_scene);
         println!("{name}: spz {spz_bytes} bytes, PSNR {spz_psnr:.2} dB");
         for &l in &lambdas {
-            let (bytes, report, _) = rate::encode(&orig, &EncodeConfig::for_lambda(l)).expect("encode");
+            let config = if std::env::var("RD").is_ok() { rate::rd::search(&orig, l, |_| {}).expect("rd").0 } else { EncodeConfig::for_lambda(l) };
+            let (bytes, report, _) = rate::encode(&orig, &config).expect("encode");
             let dec = decode(&bytes, &DecodeOptions::default()).expect("decode");
             let p = score(&dec);
             let groups: Vec<String> = report.groups.iter().map(|g| format!("{}={:.1}", g.group, 8.0 * (g.stream_bytes + g.table_bytes) as f64 / report.gaussians.max(1) as f64)).collect();

@@ -7,6 +7,7 @@
 
 pub mod encode;
 pub mod quantise;
+pub mod rd;
 pub mod tables;
 
 use gscodec_decoder::{SceneError, Splats};
