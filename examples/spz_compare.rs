@@ -25,7 +25,7 @@ fn main() {
         let spz_psnr = score(&spz_scene);
         println!("{name}: spz {spz_bytes} bytes, PSNR {spz_psnr:.2} dB");
         for &l in &lambdas {
-            let config = if std::env::var("RD").is_ok() { rate::rd::search(&orig, l, |_| {}).expect("rd").0 } else { EncodeConfig::for_lambda(l) };
+            let config = if std::env::var("RD").is_ok() { rate::rd::search(&orig, l, |p| if std::env::var("RD").as_deref() == Ok("v") { eprintln!("    {:?}", p) }).expect("rd").0 } else { EncodeConfig::for_lambda(l) };
             let (bytes, report, _) = rate::encode(&orig, &config).expect("encode");
             let dec = decode(&bytes, &DecodeOptions::default()).expect("decode");
             let p = score(&dec);

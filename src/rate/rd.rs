@@ -2,20 +2,20 @@
 //! pruning threshold and the SH degree, greedily coarsened while `J = D + λ·R` falls.
 //!
 //! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
-//!   ([`crate::io::scene_orbit`], 8 views at 192×192) against the views of the input scene.
+//!   ([`crate::io::scene_orbit`], 4 views at 128×128) against the views of the input scene.
 //! * `R` = file size in megabits (bits / 10⁶): a fixed constant, so λ means the same everywhere.
 
 use gscodec_decoder::render::render;
 use gscodec_decoder::{Image, RenderOptions, SceneError, Splats};
 use serde::Serialize;
 
-use super::quantise::{dequantise, prune, quantise, Steps};
+use super::quantise::{dequantise, Steps};
 use super::{encode, EncodeConfig};
 use crate::io::scene_orbit;
 
 /// Views and resolution the search renders.
-pub const VIEWS: usize = 8;
-pub const SIZE: u32 = 192;
+pub const VIEWS: usize = 4;
+pub const SIZE: u32 = 128;
 
 /// One accepted step of the search.
 #[derive(Debug, Clone, Serialize)]
@@ -57,58 +57,85 @@ fn psnr_of(d: f64) -> f64 {
     10.0 * (255.0f64 * 255.0 / d.max(1e-12)).log10()
 }
 
-/// Greedy search from a fine configuration; returns the best configuration and the path taken.
+/// Knobs of the search: one step multiplier per group.
+const KNOBS: [&str; 8] = ["position", "scale", "rotation", "opacity", "sh_dc", "sh_band1", "sh_band2", "sh_band3"];
+const MULTIPLIERS: [f32; 5] = [1.0, 2.0, 4.0, 8.0, 16.0];
+
+fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
+    let mut c = *c;
+    let s = &mut c.steps;
+    match knob {
+        0 => s.position_rel *= m,
+        1 => s.scale *= m,
+        2 => s.rotation *= m,
+        3 => s.opacity *= m,
+        4 => s.sh_dc *= m,
+        k => s.sh_rest[k - 5] *= m,
+    }
+    c
+}
+
+/// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
+/// (each group's coarsening is measured alone) and group rates as independent, so each group's
+/// step is chosen separately: first the pruning threshold, then per group the multiplier of
+/// the fine step minimising `ΔD_g + λ·R_g`, then the SH degree. `on_step` sees each trial.
 pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
     scene.validate()?;
     let ev = Evaluator::new(scene);
     let j = |bytes: usize, d: f64| d + lambda * bytes as f64 * 8.0 / 1e6;
-    let mut cur = EncodeConfig { steps: Steps::default().scaled(0.7), ..EncodeConfig::default() };
-    let (b, d) = ev.eval(&cur)?;
-    let mut best_j = j(b, d);
-    let mut path = vec![RdPoint { step: 0, change: "start".into(), bytes: b, d, psnr: psnr_of(d), j: best_j }];
-    on_step(&path[0]);
-    let r2 = std::f32::consts::SQRT_2;
-    for step in 1..=60 {
-        let mut moves: Vec<(String, EncodeConfig)> = Vec::new();
-        let mut push = |name: &str, f: &dyn Fn(&mut EncodeConfig)| {
-            let mut c = cur;
-            f(&mut c);
-            moves.push((name.to_string(), c));
-        };
-        push("position", &|c| c.steps.position_rel *= r2);
-        push("scale", &|c| c.steps.scale *= r2);
-        push("rotation", &|c| c.steps.rotation *= r2);
-        push("opacity", &|c| c.steps.opacity *= r2);
-        push("sh_dc", &|c| c.steps.sh_dc *= r2);
-        for b in 0..3 {
-            push(&format!("sh_band{}", b + 1), &|c| c.steps.sh_rest[b] *= r2);
-        }
-        push("prune", &|c| c.min_opacity = (c.min_opacity * 1.5).min(1.5));
-        if cur.max_sh_degree > 0 && scene.sh_degree >= cur.max_sh_degree {
-            push("drop_band", &|c| c.max_sh_degree -= 1);
-        }
-        let mut best: Option<(String, EncodeConfig, usize, f64, f64)> = None;
-        for (name, c) in moves {
-            let (b, d) = ev.eval(&c)?;
-            let jj = j(b, d);
-            if jj < best_j && best.as_ref().is_none_or(|x| jj < x.4) {
-                best = Some((name, c, b, d, jj));
-            }
-        }
-        let Some((name, c, b, d, jj)) = best else { break };
-        cur = c;
-        best_j = jj;
-        let p = RdPoint { step, change: name, bytes: b, d, psnr: psnr_of(d), j: jj };
+    let mut path = Vec::new();
+    let mut record = |change: String, bytes: usize, d: f64, path: &mut Vec<RdPoint>| {
+        let p = RdPoint { step: path.len(), change, bytes, d, psnr: psnr_of(d), j: j(bytes, d) };
         on_step(&p);
         path.push(p);
+    };
+    let fine = EncodeConfig { steps: Steps::default().scaled(0.7), ..EncodeConfig::default() };
+    // 1. Pruning threshold (at fine steps), including "everything" (an empty file).
+    let mut best = (f64::INFINITY, fine);
+    for t in [1.0f32, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 512.0] {
+        let c = EncodeConfig { min_opacity: t / 255.0, ..fine };
+        let (b, d) = ev.eval(&c)?;
+        record(format!("prune<{t}/255"), b, d, &mut path);
+        if j(b, d) < best.0 {
+            best = (j(b, d), c);
+        }
     }
-    // Make sure the file is not worse than pruning everything (huge λ).
-    let empty = EncodeConfig { min_opacity: 2.0, ..cur };
-    let (b, d) = ev.eval(&empty)?;
-    if j(b, d) < best_j {
-        cur = empty;
-        path.push(RdPoint { step: path.len(), change: "empty".into(), bytes: b, d, psnr: psnr_of(d), j: j(b, d) });
+    let base = best.1;
+    let (b0, d0) = ev.eval(&base)?;
+    if b0 < 200 {
+        return Ok((base, path)); // nothing (or almost nothing) left to allocate
     }
-    let _ = prune; // pruning itself happens inside `encode`
-    Ok((cur, path))
+    let (_, r0, _) = encode(scene, &base)?;
+    let group_bytes = |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
+    // 2. Per group step multipliers.
+    let mut chosen = base;
+    for k in 0..KNOBS.len() {
+        if group_bytes(&r0, k) == 0 {
+            continue;
+        }
+        let mut best_k = (f64::INFINITY, 1.0f32);
+        for &m in &MULTIPLIERS {
+            let c = with_knob(&base, k, m);
+            let (b, d) = if m == 1.0 { (b0, d0) } else { ev.eval(&c)? };
+            let (_, r, _) = encode(scene, &c)?;
+            let gb = group_bytes(&r, k);
+            record(format!("{}x{m}", KNOBS[k]), b, d, &mut path);
+            let cost = (d - d0) + lambda * gb as f64 * 8.0 / 1e6;
+            if cost < best_k.0 {
+                best_k = (cost, m);
+            }
+        }
+        chosen = with_knob(&chosen, k, best_k.1);
+    }
+    // 3. SH degree: keep the degree with the lowest J.
+    let mut best = (f64::INFINITY, chosen);
+    for deg in (0..=scene.sh_degree.min(3)).rev() {
+        let c = EncodeConfig { max_sh_degree: deg, ..chosen };
+        let (b, d) = ev.eval(&c)?;
+        record(format!("sh_degree={deg}"), b, d, &mut path);
+        if j(b, d) < best.0 {
+            best = (j(b, d), c);
+        }
+    }
+    Ok((best.1, path))
 }
