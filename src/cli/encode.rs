@@ -6,7 +6,7 @@ use std::time::Instant;
 use serde_json::json;
 
 use crate::io::scene::scene_orbit;
-use crate::rate::{self, EncodeConfig};
+use crate::rate;
 use crate::Error;
 use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
@@ -19,8 +19,9 @@ pub struct Args {
     /// Output .gsc file.
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Rate–distortion trade-off: larger gives smaller files (0 = finest).
-    #[arg(long, default_value_t = 1.0)]
+    /// Rate–distortion trade-off λ in J = D + λ·R, D = 255²·MSE of orbit renders, R = megabits.
+    /// Larger gives smaller files; 0 = finest.
+    #[arg(long, default_value_t = 20.0)]
     pub lambda: f64,
     /// Distortion for training (l1ssim, wd, wdr).
     #[arg(long, default_value = "l1ssim")]
@@ -55,7 +56,11 @@ pub fn run(args: Args) -> crate::Result<()> {
     if args.iters > 0 && !args.quiet {
         eprintln!("note: fine-tuning is not available in this build; coding the input as is");
     }
-    let config = EncodeConfig::for_lambda(args.lambda);
+    let mut series = Vec::new();
+    let (config, _) = rate::rd::search(&scene, args.lambda, |p| {
+        series.push(json!({"iteration": p.step, "trial": p.change, "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": 8.0 * p.bytes as f64, "d": p.d, "heldout_psnr": p.psnr}));
+    })
+    .map_err(|e| Error::input(&args.input, e))?;
     let (bytes, report, q) = rate::encode(&scene, &config).map_err(|e| Error::input(&args.input, e))?;
     crate::io::atomic::write_bytes_atomic(&args.output, &bytes)?;
     if !args.quiet {
@@ -84,7 +89,9 @@ pub fn run(args: Args) -> crate::Result<()> {
             "sh_degree": report.sh_degree,
             "position_bits": report.position_bits,
             "groups": report.groups,
-            "series": [{"iteration": 0, "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": estimated, "d": null, "heldout_psnr": psnr}],
+            "orbit_psnr": psnr,
+            "wall_s": start.elapsed().as_secs_f64(),
+            "series": series,
         });
         let text = serde_json::to_string_pretty(&v).expect("json");
         crate::io::atomic::write_bytes_atomic(path, text.as_bytes())?;

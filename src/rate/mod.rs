@@ -6,8 +6,10 @@
 //! * [`encode`] — streams per (group, chunk) and the container.
 
 pub mod encode;
+pub mod model;
 pub mod quantise;
 pub mod rd;
+pub mod term;
 pub mod tables;
 
 use gscodec_decoder::{SceneError, Splats};

@@ -2,7 +2,7 @@
 //! pruning threshold and the SH degree, greedily coarsened while `J = D + λ·R` falls.
 //!
 //! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
-//!   ([`crate::io::scene_orbit`], 4 views at 128×128) against the views of the input scene.
+//!   ([`crate::io::scene_orbit`], 8 views at 128×128) against the views of the input scene.
 //! * `R` = file size in megabits (bits / 10⁶): a fixed constant, so λ means the same everywhere.
 
 use gscodec_decoder::render::render;
@@ -14,7 +14,7 @@ use super::{encode, EncodeConfig};
 use crate::io::scene_orbit;
 
 /// Views and resolution the search renders.
-pub const VIEWS: usize = 4;
+pub const VIEWS: usize = 8;
 pub const SIZE: u32 = 128;
 
 /// One accepted step of the search.
@@ -46,10 +46,15 @@ impl<'a> Evaluator<'a> {
 
     /// (bytes, D) of `config`.
     pub fn eval(&self, config: &EncodeConfig) -> Result<(usize, f64), SceneError> {
-        let (bytes, _, q) = encode(self.scene, config)?;
+        self.eval_report(config).map(|(b, d, _)| (b, d))
+    }
+
+    /// (bytes, D, encoder report) of `config`.
+    pub fn eval_report(&self, config: &EncodeConfig) -> Result<(usize, f64, super::EncodeReport), SceneError> {
+        let (bytes, report, q) = encode(self.scene, config)?;
         let dec = dequantise(&q);
         let mse = self.cams.iter().zip(&self.refs).map(|(c, r)| crate::metrics::mse(r, &render(&dec, c, &self.opts))).sum::<f64>() / self.cams.len() as f64;
-        Ok((bytes.len(), mse * 255.0 * 255.0))
+        Ok((bytes.len(), mse * 255.0 * 255.0, report))
     }
 }
 
@@ -59,7 +64,7 @@ fn psnr_of(d: f64) -> f64 {
 
 /// Knobs of the search: one step multiplier per group.
 const KNOBS: [&str; 8] = ["position", "scale", "rotation", "opacity", "sh_dc", "sh_band1", "sh_band2", "sh_band3"];
-const MULTIPLIERS: [f32; 5] = [1.0, 2.0, 4.0, 8.0, 16.0];
+const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 
 fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
     let mut c = *c;
@@ -77,8 +82,8 @@ fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
 
 /// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
-/// step is chosen separately: first the pruning threshold, then per group the multiplier of
-/// the fine step minimising `ΔD_g + λ·R_g`, then the SH degree. `on_step` sees each trial.
+/// step is chosen separately: first the pruning threshold, then the SH degree, then per group
+/// the multiplier of the fine step minimising `ΔD_g + λ·R_g`. `on_step` sees each trial.
 pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
     scene.validate()?;
     let ev = Evaluator::new(scene);
@@ -101,13 +106,24 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
         }
     }
     let base = best.1;
-    let (b0, d0) = ev.eval(&base)?;
+    let (b0, _) = ev.eval(&base)?;
     if b0 < 200 {
         return Ok((base, path)); // nothing (or almost nothing) left to allocate
     }
-    let (_, r0, _) = encode(scene, &base)?;
+    // 2. SH degree (at fine steps): keep the degree with the lowest J.
+    let mut best = (f64::INFINITY, base);
+    for deg in (0..=scene.sh_degree.min(3)).rev() {
+        let c = EncodeConfig { max_sh_degree: deg, ..base };
+        let (b, d) = ev.eval(&c)?;
+        record(format!("sh_degree={deg}"), b, d, &mut path);
+        if j(b, d) < best.0 {
+            best = (j(b, d), c);
+        }
+    }
+    let base = best.1;
+    let (b0, d0, r0) = ev.eval_report(&base)?;
     let group_bytes = |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
-    // 2. Per group step multipliers.
+    // 3. Per group step multipliers.
     let mut chosen = base;
     for k in 0..KNOBS.len() {
         if group_bytes(&r0, k) == 0 {
@@ -116,9 +132,12 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
         let mut best_k = (f64::INFINITY, 1.0f32);
         for &m in &MULTIPLIERS {
             let c = with_knob(&base, k, m);
-            let (b, d) = if m == 1.0 { (b0, d0) } else { ev.eval(&c)? };
-            let (_, r, _) = encode(scene, &c)?;
-            let gb = group_bytes(&r, k);
+            let (b, d, gb) = if m == 1.0 {
+                (b0, d0, group_bytes(&r0, k))
+            } else {
+                let (b, d, r) = ev.eval_report(&c)?;
+                (b, d, group_bytes(&r, k))
+            };
             record(format!("{}x{m}", KNOBS[k]), b, d, &mut path);
             let cost = (d - d0) + lambda * gb as f64 * 8.0 / 1e6;
             if cost < best_k.0 {
@@ -127,15 +146,5 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
         }
         chosen = with_knob(&chosen, k, best_k.1);
     }
-    // 3. SH degree: keep the degree with the lowest J.
-    let mut best = (f64::INFINITY, chosen);
-    for deg in (0..=scene.sh_degree.min(3)).rev() {
-        let c = EncodeConfig { max_sh_degree: deg, ..chosen };
-        let (b, d) = ev.eval(&c)?;
-        record(format!("sh_degree={deg}"), b, d, &mut path);
-        if j(b, d) < best.0 {
-            best = (j(b, d), c);
-        }
-    }
-    Ok((best.1, path))
+    Ok((chosen, path))
 }
