@@ -30,6 +30,8 @@ fn main() {
             let dec = decode(&bytes, &DecodeOptions::default()).expect("decode");
             let p = score(&dec);
             let groups: Vec<String> = report.groups.iter().map(|g| format!("{}={:.1}", g.group, 8.0 * (g.stream_bytes + g.table_bytes) as f64 / report.gaussians.max(1) as f64)).collect();
+            let learned: Vec<String> = report.groups.iter().map(|g| format!("{}: hist {:.0} B learned {:.0} B", g.group, g.histogram_bits / 8.0, g.learned_bits / 8.0)).collect();
+            println!("    static histogram vs learned density per group: {}", learned.join("; "));
             println!(
                 "  λ={l:<6} {:>8} bytes ({:.2}x smaller than spz) PSNR {p:.2} dB  est/actual {:.4}  N={} d={}  bits/G: {}",
                 bytes.len(),

@@ -23,6 +23,10 @@ pub struct GroupReport {
     pub estimated_bits: f64,
     /// Channels stored once as a constant.
     pub constant_channels: usize,
+    /// Table + stream bits under the static-histogram model alone (the non-learned baseline).
+    pub histogram_bits: f64,
+    /// Table + stream bits under the learned density alone.
+    pub learned_bits: f64,
 }
 
 /// What an encode produced.
@@ -67,29 +71,37 @@ struct GroupPlan {
     group: Group,
     params: Vec<u8>,
     tables: Vec<ChosenTable>,
+    histogram_bits: f64,
+    learned_bits: f64,
 }
 
 fn plan(q: &Quantised) -> Vec<GroupPlan> {
     let mut plans = Vec::new();
     let deltas = morton_deltas(&q.morton);
     let lens: Vec<i32> = deltas.iter().map(|&d| bit_len(d) as i32).collect();
-    let t = tables::choose(&lens);
+    let cmp = tables::compare(&lens);
+    let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
+    let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
+    let t = cmp.best;
     let mut w = ByteWriter::new();
     let (origin, step, bits) = q.grid;
     origin.iter().for_each(|&v| w.f32(v));
     step.iter().for_each(|&v| w.f32(v));
     w.u8(bits);
     w.bytes(&t.bytes);
-    plans.push(GroupPlan { group: Group::Position, params: w.buf, tables: vec![t] });
+    plans.push(GroupPlan { group: Group::Position, params: w.buf, tables: vec![t], histogram_bits: hb, learned_bits: lb });
     for (g, steps, chans) in &q.groups {
-        let ts: Vec<ChosenTable> = chans.par_iter().map(|c| tables::choose(c)).collect();
+        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| tables::compare(c)).collect();
+        let histogram_bits = cmps.iter().map(|c| c.histogram_bits).sum();
+        let learned_bits = cmps.iter().map(|c| c.learned_bits).sum();
+        let ts: Vec<ChosenTable> = cmps.into_iter().map(|c| c.best).collect();
         let mut w = ByteWriter::new();
         w.u8(chans.len() as u8);
         for (s, t) in steps.iter().zip(&ts) {
             w.f32(*s);
             w.bytes(&t.bytes);
         }
-        plans.push(GroupPlan { group: *g, params: w.buf, tables: ts });
+        plans.push(GroupPlan { group: *g, params: w.buf, tables: ts, histogram_bits, learned_bits });
     }
     plans
 }
@@ -145,6 +157,8 @@ pub fn write(q: &Quantised, input: (usize, u8)) -> (Vec<u8>, EncodeReport) {
                 estimated_bits: p.tables.iter().map(|t| t.bits).sum::<f64>()
                     + if p.group == Group::Position { deltas.iter().map(|&d| bit_len(d).saturating_sub(1) as f64).sum() } else { 0.0 },
                 constant_channels: p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Constant(_))).count(),
+                histogram_bits: p.histogram_bits,
+                learned_bits: p.learned_bits,
             });
         }
         for (&(p, c), s) in jobs.iter().zip(streams) {

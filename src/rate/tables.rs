@@ -69,6 +69,32 @@ pub fn choose_with(values: &[i32], model: Option<&dyn Fn(i32, usize) -> Vec<f64>
     best.unwrap_or_else(|| wide(values))
 }
 
+/// Both models for one channel: the static histogram and the learned (trained Laplace) density,
+/// each with its table; the cheaper (table bytes + coded bits) is the one to store.
+pub struct Compared {
+    pub best: ChosenTable,
+    /// Total bits (table + stream) under the static histogram.
+    pub histogram_bits: f64,
+    /// Total bits (table + stream) under the learned density.
+    pub learned_bits: f64,
+}
+
+/// Builds both tables for `values` and keeps the cheaper.
+pub fn compare(values: &[i32]) -> Compared {
+    let hist = choose(values);
+    if matches!(hist.table, ChannelTable::Constant(_)) {
+        let b = hist.total_bits();
+        return Compared { best: hist, histogram_bits: b, learned_bits: b };
+    }
+    let as_f32: Vec<f32> = values.iter().map(|&v| v as f32).collect();
+    let mut model = crate::rate::model::LearnedChannel::fit_init(&as_f32);
+    model.train(&as_f32, 1.0, 60);
+    let shape = move |lo: i32, n: usize| model.weights(lo, n, 1.0);
+    let learned = choose_with(values, Some(&shape));
+    let (h, l) = (hist.total_bits(), learned.total_bits());
+    Compared { best: if l < h { learned } else { hist }, histogram_bits: h, learned_bits: l }
+}
+
 impl ChosenTable {
     /// Table bytes plus coded bits.
     pub fn total_bits(&self) -> f64 {
