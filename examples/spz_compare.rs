@@ -2,9 +2,10 @@
 //!
 //! `cargo run --release --example spz_compare -- [DATA_DIR] [λ,λ,...]`
 //! Renders the original, the SPZ-decoded scene and our decoded scene from the same 8 orbit
-//! cameras (256×256, `scene_orbit` of the original) and prints PSNR vs the original and bytes.
+//! cameras (256×256, `views::orbit_cameras` of the original, up −y: the cameras of `gscodec eval --reference X --orbit 8`) and prints PSNR vs the original and bytes.
 
-use gscodec::io::{read_ply, scene_orbit};
+use gscodec::io::read_ply;
+use gscodec::views::{orbit_cameras, UpAxis};
 use gscodec::metrics::psnr;
 use gscodec::rate::{self, EncodeConfig};
 use gscodec_decoder::render::render;
@@ -19,7 +20,7 @@ fn main() {
         let orig = read_ply(format!("{data}/scenes/{name}.ply").as_ref()).expect("scene");
         let spz_scene = read_ply(format!("{data}/spz-baseline/{spz}_spz_decoded.ply").as_ref()).expect("spz");
         let spz_bytes = std::fs::metadata(format!("{data}/spz-baseline/{spz}.spz")).expect("spz").len();
-        let cams = scene_orbit(&orig, 8, 256, 256);
+        let cams = orbit_cameras(&orig, 8, 256, 256, UpAxis::NegY.vector());
         let refs: Vec<_> = cams.iter().map(|c| render(&orig, c, &opts)).collect();
         let score = |s: &gscodec_decoder::Splats| cams.iter().zip(&refs).map(|(c, r)| psnr(r, &render(s, c, &opts))).sum::<f64>() / cams.len() as f64;
         let spz_psnr = score(&spz_scene);

@@ -9,5 +9,6 @@ pub mod loss;
 pub mod metrics;
 pub mod rate;
 pub mod sample;
+pub mod views;
 
 pub use error::{Error, Result};

@@ -22,6 +22,6 @@ pub struct Args {
 
 pub fn run(args: Args) -> crate::Result<()> {
     let opts = DecodeOptions { max_sh_degree: args.max_sh_degree, threads: 0 };
-    let scene = crate::io::scene::load_scene_with(&args.input, &opts)?;
+    let scene = crate::io::read_scene_with(&args.input, &opts)?;
     crate::io::write_ply(&args.output, &scene)
 }

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use serde_json::json;
 
-use crate::io::scene::scene_orbit;
+use crate::views::{orbit_cameras, UpAxis};
 use crate::rate;
 use crate::Error;
 use gscodec_decoder::render::render;
@@ -40,7 +40,7 @@ pub struct Args {
 /// Mean PSNR of `b` against `a` over the standard 8 orbit views of `a` at 256×256.
 pub fn orbit_psnr(a: &Splats, b: &Splats) -> f64 {
     let opts = RenderOptions::default();
-    let cams = scene_orbit(a, 8, 256, 256);
+    let cams = orbit_cameras(a, 8, 256, 256, UpAxis::NegY.vector());
     cams.iter().map(|c| crate::metrics::psnr(&render(a, c, &opts), &render(b, c, &opts))).sum::<f64>() / cams.len() as f64
 }
 

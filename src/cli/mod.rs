@@ -5,7 +5,10 @@ use clap::{Parser, Subcommand};
 pub mod decode;
 pub mod encode;
 pub mod info;
+pub mod convert;
+pub mod eval;
 pub mod progress;
+pub mod render;
 pub mod sample;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
@@ -22,6 +25,9 @@ pub enum Command {
     Encode(encode::Args),
     Decode(decode::Args),
     Info(info::Args),
+    Render(render::Args),
+    Convert(convert::Args),
+    Eval(eval::Args),
 }
 
 /// Runs a parsed command line.
@@ -31,5 +37,8 @@ pub fn run(cli: Cli) -> crate::Result<()> {
         Command::Encode(a) => encode::run(a),
         Command::Decode(a) => decode::run(a),
         Command::Info(a) => info::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Eval(a) => eval::run(a),
     }
 }

@@ -1,48 +1,48 @@
-//! A scene file of either kind (`.gsc` bitstream or INRIA `.ply`), and the standard orbit
-//! cameras around a scene used when no dataset cameras exist (encode of a `.ply`, eval, bench).
+//! Scene files by extension: the one place that maps a path to a reader or writer.
+//!
+//! `.ply` (INRIA layout) and `.gsc` (gscodec bitstream); other formats (`.spz`, `.splat`) plug in here.
 
+use super::ply;
+use crate::{Error, Result};
+use gscodec_decoder::{decode, DecodeOptions, Splats};
 use std::path::Path;
 
-use glam::Vec3;
-use gscodec_decoder::{decode, Camera, DecodeOptions, Splats};
-
-use crate::{Error, Result};
-
-/// Loads `.gsc` (decoded with all SH bands) or `.ply` by extension.
-pub fn load_scene(path: &Path) -> Result<Splats> {
-    load_scene_with(path, &DecodeOptions::default())
+/// The lower-case extension of `path`, or "".
+fn extension(path: &Path) -> String {
+    path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default()
 }
 
-/// As [`load_scene`], with decode options for `.gsc` files.
-pub fn load_scene_with(path: &Path, opts: &DecodeOptions) -> Result<Splats> {
-    let is_gsc = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("gsc"));
-    if is_gsc {
-        let bytes = std::fs::read(path).map_err(|e| Error::input(path, e))?;
-        decode(&bytes, opts).map_err(|e| Error::input(path, e))
-    } else {
-        let s = crate::io::read_ply(path)?;
-        Ok(if s.sh_degree > opts.max_sh_degree { s.with_sh_degree(opts.max_sh_degree) } else { s })
-    }
+/// Reads a scene, choosing the format by extension.
+///
+/// # Errors
+/// [`Error::input`] for an unknown extension or a bad file.
+pub fn read_scene(path: &Path) -> Result<Splats> {
+    read_scene_with(path, &DecodeOptions::default())
 }
 
-/// `n` cameras on a circle around the scene: centred on the per-axis median position, radius
-/// 2× the median distance of Gaussians from that centre, 0.35 rad elevation, world up +y,
-/// 60° horizontal field of view. Deterministic; an empty scene gets a unit orbit at the origin.
-pub fn scene_orbit(splats: &Splats, n: usize, width: u32, height: u32) -> Vec<Camera> {
-    let (center, radius) = if splats.is_empty() {
-        (Vec3::ZERO, 1.0)
-    } else {
-        let median = |mut v: Vec<f32>| {
-            v.sort_by(f32::total_cmp);
-            v[v.len() / 2]
-        };
-        let c = Vec3::new(
-            median(splats.positions.iter().map(|p| p[0]).collect()),
-            median(splats.positions.iter().map(|p| p[1]).collect()),
-            median(splats.positions.iter().map(|p| p[2]).collect()),
-        );
-        let r = median(splats.positions.iter().map(|p| (Vec3::from(*p) - c).length()).collect());
-        (c, 2.0 * r.max(1e-6))
+/// As [`read_scene`], with decode options for `.gsc` (e.g. a maximum SH degree; `.ply` scenes
+/// are truncated to it too).
+pub fn read_scene_with(path: &Path, opts: &DecodeOptions) -> Result<Splats> {
+    let s = match extension(path).as_str() {
+        "ply" => ply::read_ply(path)?,
+        "gsc" => {
+            let bytes = std::fs::read(path).map_err(|e| Error::input(path, e))?;
+            decode(&bytes, opts).map_err(|e| Error::input(path, e))?
+        }
+        e => return Err(Error::input(path, format!("unsupported scene format `.{e}` (supported: .ply, .gsc)"))),
     };
-    Camera::orbit(n, center, radius, 0.35, Vec3::Y, width, height, 60f32.to_radians())
+    Ok(if s.sh_degree > opts.max_sh_degree { s.with_sh_degree(opts.max_sh_degree) } else { s })
+}
+
+/// Writes a scene, choosing the format by extension (atomically).
+pub fn write_scene(path: &Path, splats: &Splats) -> Result<()> {
+    match extension(path).as_str() {
+        "ply" => ply::write_ply(path, splats),
+        "gsc" => {
+            // Fine default quantisation, no rendering-based RD search (that is `gscodec encode`).
+            let (bytes, _, _) = crate::rate::encode(splats, &crate::rate::EncodeConfig::default()).map_err(|e| Error::input(path, e))?;
+            super::atomic::write_bytes_atomic(path, &bytes)
+        }
+        e => Err(Error::input(path, format!("unsupported output format `.{e}` (supported: .ply, .gsc)"))),
+    }
 }

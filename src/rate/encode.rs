@@ -75,11 +75,12 @@ struct GroupPlan {
     learned_bits: f64,
 }
 
-fn plan(q: &Quantised) -> Vec<GroupPlan> {
+fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
+    let compare = |v: &[i32]| if learned { tables::compare(v) } else { tables::histogram_only(v) };
     let mut plans = Vec::new();
     let deltas = morton_deltas(&q.morton);
     let lens: Vec<i32> = deltas.iter().map(|&d| bit_len(d) as i32).collect();
-    let cmp = tables::compare(&lens);
+    let cmp = compare(&lens);
     let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
     let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
     let t = cmp.best;
@@ -91,7 +92,7 @@ fn plan(q: &Quantised) -> Vec<GroupPlan> {
     w.bytes(&t.bytes);
     plans.push(GroupPlan { group: Group::Position, params: w.buf, tables: vec![t], histogram_bits: hb, learned_bits: lb });
     for (g, steps, chans) in &q.groups {
-        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| tables::compare(c)).collect();
+        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| compare(c)).collect();
         let histogram_bits = cmps.iter().map(|c| c.histogram_bits).sum();
         let learned_bits = cmps.iter().map(|c| c.learned_bits).sum();
         let ts: Vec<ChosenTable> = cmps.into_iter().map(|c| c.best).collect();
@@ -135,7 +136,7 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<
 }
 
 /// Encodes a quantised scene. `input` = (Gaussians, SH degree) of the encoder's input, for `info`.
-pub fn write(q: &Quantised, input: (usize, u8)) -> (Vec<u8>, EncodeReport) {
+pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8>, EncodeReport) {
     let n = q.len();
     let header = Header { version_major: VERSION_MAJOR, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
     let mut info = ByteWriter::new();
@@ -145,7 +146,7 @@ pub fn write(q: &Quantised, input: (usize, u8)) -> (Vec<u8>, EncodeReport) {
     let mut payloads: Vec<(u16, u16, u32, Vec<u8>)> = Vec::new();
     if n > 0 {
         let deltas = morton_deltas(&q.morton);
-        let plans = plan(q);
+        let plans = plan(q, learned_tables);
         let jobs: Vec<(usize, usize)> = (0..plans.len()).flat_map(|p| (0..chunk_count(n)).map(move |c| (p, c))).collect();
         let streams: Vec<Vec<u8>> = jobs.par_iter().map(|&(p, c)| encode_chunk(q, &plans[p], &deltas, c)).collect();
         for p in &plans {

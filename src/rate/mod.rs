@@ -25,11 +25,14 @@ pub struct EncodeConfig {
     pub min_opacity: f32,
     /// SH bands above this degree are left out.
     pub max_sh_degree: u8,
+    /// Also fit the learned density per channel and store it where it is cheaper than the
+    /// static histogram (slower; the RD search turns it off for its trial encodes).
+    pub learned_tables: bool,
 }
 
 impl Default for EncodeConfig {
     fn default() -> Self {
-        EncodeConfig { steps: Steps::default(), min_opacity: 1.0 / 255.0, max_sh_degree: 3 }
+        EncodeConfig { steps: Steps::default(), min_opacity: 1.0 / 255.0, max_sh_degree: 3, learned_tables: true }
     }
 }
 
@@ -39,7 +42,7 @@ impl EncodeConfig {
     /// λ = 0 is the finest setting; a huge λ prunes everything (an empty, valid file).
     pub fn for_lambda(lambda: f64) -> EncodeConfig {
         let m = (1.0 + lambda.max(0.0)).sqrt() as f32;
-        EncodeConfig { steps: Steps::default().scaled(m), min_opacity: ((1.0 + lambda.max(0.0)) / 255.0).min(2.0) as f32, max_sh_degree: 3 }
+        EncodeConfig { steps: Steps::default().scaled(m), min_opacity: ((1.0 + lambda.max(0.0)) / 255.0).min(2.0) as f32, ..EncodeConfig::default() }
     }
 }
 
@@ -52,6 +55,6 @@ pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, Encode
         s = s.with_sh_degree(config.max_sh_degree);
     }
     let q = quantise::quantise(&s, &config.steps);
-    let (bytes, report) = encode::write(&q, input);
+    let (bytes, report) = encode::write(&q, input, config.learned_tables);
     Ok((bytes, report, q))
 }

@@ -2,7 +2,7 @@
 //! pruning threshold and the SH degree, greedily coarsened while `J = D + λ·R` falls.
 //!
 //! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
-//!   ([`crate::io::scene_orbit`], 8 views at 128×128) against the views of the input scene.
+//!   ([`crate::views::orbit_cameras`], up −y as `eval --orbit`, 8 views at 96×96) against the views of the input scene.
 //! * `R` = file size in megabits (bits / 10⁶): a fixed constant, so λ means the same everywhere.
 
 use gscodec_decoder::render::render;
@@ -11,11 +11,11 @@ use serde::Serialize;
 
 use super::quantise::{dequantise, Steps};
 use super::{encode, EncodeConfig};
-use crate::io::scene_orbit;
+use crate::views::{orbit_cameras, UpAxis};
 
 /// Views and resolution the search renders.
 pub const VIEWS: usize = 8;
-pub const SIZE: u32 = 128;
+pub const SIZE: u32 = 96;
 
 /// One accepted step of the search.
 #[derive(Debug, Clone, Serialize)]
@@ -38,7 +38,7 @@ pub struct Evaluator<'a> {
 
 impl<'a> Evaluator<'a> {
     pub fn new(scene: &'a Splats) -> Self {
-        let cams = scene_orbit(scene, VIEWS, SIZE, SIZE);
+        let cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector());
         let opts = RenderOptions::default();
         let refs = cams.iter().map(|c| render(scene, c, &opts)).collect();
         Evaluator { scene, cams, refs, opts }
@@ -94,7 +94,7 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
         on_step(&p);
         path.push(p);
     };
-    let fine = EncodeConfig { steps: Steps::default().scaled(0.7), ..EncodeConfig::default() };
+    let fine = EncodeConfig { steps: Steps::default().scaled(0.7), learned_tables: false, ..EncodeConfig::default() };
     // 1. Pruning threshold (at fine steps), including "everything" (an empty file).
     let mut best = (f64::INFINITY, fine);
     for t in [1.0f32, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 512.0] {
@@ -108,7 +108,7 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
     let base = best.1;
     let (b0, _) = ev.eval(&base)?;
     if b0 < 200 {
-        return Ok((base, path)); // nothing (or almost nothing) left to allocate
+        return Ok((EncodeConfig { learned_tables: true, ..base }, path)); // nothing (or almost nothing) left to allocate
     }
     // 2. SH degree (at fine steps): keep the degree with the lowest J.
     let mut best = (f64::INFINITY, base);
@@ -146,5 +146,5 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
         }
         chosen = with_knob(&chosen, k, best_k.1);
     }
-    Ok((chosen, path))
+    Ok((EncodeConfig { learned_tables: true, ..chosen }, path))
 }

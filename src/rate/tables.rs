@@ -79,6 +79,13 @@ pub struct Compared {
     pub learned_bits: f64,
 }
 
+/// The static histogram only (the learned cost is reported as NaN).
+pub fn histogram_only(values: &[i32]) -> Compared {
+    let best = choose(values);
+    let h = best.total_bits();
+    Compared { best, histogram_bits: h, learned_bits: f64::NAN }
+}
+
 /// Builds both tables for `values` and keeps the cheaper.
 pub fn compare(values: &[i32]) -> Compared {
     let hist = choose(values);
