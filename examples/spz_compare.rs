@@ -1,6 +1,6 @@
 //! Size and rendered quality of our `.gsc` against SPZ on the shared scenes (docs/codec.md).
 //!
-//! `cargo run --release --example spz_compare -- [DATA_DIR] [λ,λ,...]`
+//! `RD=1 cargo run --release --example spz_compare -- [DATA_DIR] [λ,λ,...] [SCENE]`
 //! Renders the original, the SPZ-decoded scene and our decoded scene from the same 8 orbit
 //! cameras (256×256, `views::orbit_cameras` of the original, up −y: the cameras of `gscodec eval --reference X --orbit 8`) and prints PSNR vs the original and bytes.
 
@@ -15,8 +15,12 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let data = args.get(1).cloned().unwrap_or_else(|| "../shared/data".into());
     let lambdas: Vec<f64> = args.get(2).map_or(vec![0.0, 1.0, 3.0, 10.0], |s| s.split(',').map(|x| x.parse().expect("λ")).collect());
+    let only = args.get(3).cloned();
     let opts = RenderOptions::default();
     for (name, spz) in [("k7000", "k7000"), ("fruit-drops", "fruit"), ("playbot-lod3", "playbot_lod3")] {
+        if only.as_deref().is_some_and(|o| o != name) {
+            continue;
+        }
         let orig = read_ply(format!("{data}/scenes/{name}.ply").as_ref()).expect("scene");
         let spz_scene = read_ply(format!("{data}/spz-baseline/{spz}_spz_decoded.ply").as_ref()).expect("spz");
         let spz_bytes = std::fs::metadata(format!("{data}/spz-baseline/{spz}.spz")).expect("spz").len();

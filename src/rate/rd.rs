@@ -65,6 +65,7 @@ fn psnr_of(d: f64) -> f64 {
 /// Knobs of the search: one step multiplier per group.
 const KNOBS: [&str; 8] = ["position", "scale", "rotation", "opacity", "sh_dc", "sh_band1", "sh_band2", "sh_band3"];
 const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
+const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
 
 fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
     let mut c = *c;
@@ -123,28 +124,33 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
     let base = best.1;
     let (b0, d0, r0) = ev.eval_report(&base)?;
     let group_bytes = |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
-    // 3. Per group step multipliers.
+    // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
+    //    (half-octave moves around the first choice).
     let mut chosen = base;
-    for k in 0..KNOBS.len() {
-        if group_bytes(&r0, k) == 0 {
-            continue;
-        }
-        let mut best_k = (f64::INFINITY, 1.0f32);
-        for &m in &MULTIPLIERS {
-            let c = with_knob(&base, k, m);
-            let (b, d, gb) = if m == 1.0 {
-                (b0, d0, group_bytes(&r0, k))
-            } else {
-                let (b, d, r) = ev.eval_report(&c)?;
-                (b, d, group_bytes(&r, k))
-            };
-            record(format!("{}x{m}", KNOBS[k]), b, d, &mut path);
-            let cost = (d - d0) + lambda * gb as f64 * 8.0 / 1e6;
-            if cost < best_k.0 {
-                best_k = (cost, m);
+    for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..])] {
+        let start = chosen;
+        let (b0, d0, r0) = if pass == 0 { (b0, d0, r0.clone()) } else { ev.eval_report(&start)? };
+        for k in 0..KNOBS.len() {
+            if group_bytes(&r0, k) == 0 {
+                continue;
             }
+            let mut best_k = (f64::INFINITY, 1.0f32);
+            for &m in mults {
+                let c = with_knob(&start, k, m);
+                let (b, d, gb) = if m == 1.0 {
+                    (b0, d0, group_bytes(&r0, k))
+                } else {
+                    let (b, d, r) = ev.eval_report(&c)?;
+                    (b, d, group_bytes(&r, k))
+                };
+                record(format!("pass{pass} {}x{m}", KNOBS[k]), b, d, &mut path);
+                let cost = (d - d0) + lambda * gb as f64 * 8.0 / 1e6;
+                if cost < best_k.0 {
+                    best_k = (cost, m);
+                }
+            }
+            chosen = with_knob(&chosen, k, best_k.1);
         }
-        chosen = with_knob(&chosen, k, best_k.1);
     }
     Ok((EncodeConfig { learned_tables: true, ..chosen }, path))
 }
