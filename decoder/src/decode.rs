@@ -12,7 +12,7 @@ use crate::Splats;
 pub struct DecodeOptions {
     /// SH bands above this degree are skipped (their streams are not even read).
     pub max_sh_degree: u8,
-    /// Worker threads; 0 = rayon's global pool. The result is identical for every value.
+    /// Worker threads (at most 256); 0 = rayon's global pool. The result is identical for every value.
     pub threads: usize,
 }
 
@@ -95,7 +95,7 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
 /// The result is bit-identical across runs and thread counts.
 pub fn decode(bytes: &[u8], options: &DecodeOptions) -> Result<Splats, DecodeError> {
     if options.threads > 0 {
-        if let Ok(pool) = rayon::ThreadPoolBuilder::new().num_threads(options.threads).build() {
+        if let Ok(pool) = rayon::ThreadPoolBuilder::new().num_threads(options.threads.min(256)).build() {
             return pool.install(|| decode_in_pool(bytes, options));
         }
     }
