@@ -9,6 +9,7 @@ pub mod loss;
 pub mod metrics;
 pub mod raster;
 pub mod train;
+pub mod rate;
 pub mod sample;
 pub mod views;
 

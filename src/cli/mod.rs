@@ -2,6 +2,9 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod decode;
+pub mod encode;
+pub mod info;
 pub mod convert;
 pub mod eval;
 pub mod progress;
@@ -21,6 +24,9 @@ pub struct Cli {
 pub enum Command {
     Sample(sample::Args),
     Train(train::Args),
+    Encode(encode::Args),
+    Decode(decode::Args),
+    Info(info::Args),
     Render(render::Args),
     Convert(convert::Args),
     Eval(eval::Args),
@@ -31,6 +37,9 @@ pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
         Command::Train(a) => train::run(a),
+        Command::Encode(a) => encode::run(a),
+        Command::Decode(a) => decode::run(a),
+        Command::Info(a) => info::run(a),
         Command::Render(a) => render::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Eval(a) => eval::run(a),
