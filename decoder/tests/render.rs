@@ -1,0 +1,176 @@
+//! CPU renderer: analytic cases and the f32 tile renderer against the f64 brute-force reference,
+//! including the extreme Gaussians of DESIGN §8.
+
+use glam::{Mat3, Vec3};
+use gscodec_decoder::math::{sh_rest_coeffs, SH_C0};
+use gscodec_decoder::render::{reference::render_f64, render};
+use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
+
+/// Small deterministic PRNG (xorshift64*), uniform in [0,1).
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f32 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        ((self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32) / (1u64 << 24) as f32
+    }
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.next()
+    }
+}
+
+fn random_scene(n: usize, degree: u8, seed: u64) -> Splats {
+    let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+    let mut s = Splats::new(degree);
+    let k = sh_rest_coeffs(degree) * 3;
+    for _ in 0..n {
+        let pos = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+        let ls = [rng.range(-4.0, -1.5), rng.range(-4.0, -1.5), rng.range(-4.0, -1.5)];
+        let rot = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+        let dc = [rng.range(-1.5, 1.5), rng.range(-1.5, 1.5), rng.range(-1.5, 1.5)];
+        let rest: Vec<f32> = (0..k).map(|_| rng.range(-0.3, 0.3)).collect();
+        s.push(pos, ls, rot, rng.range(-3.0, 4.0), dc, &rest);
+    }
+    s
+}
+
+fn front_camera(w: u32, h: u32) -> Camera {
+    Camera::look_at(Vec3::new(0.3, -0.4, -3.5), Vec3::ZERO, Vec3::new(0.0, -1.0, 0.0), w, h, 0.9)
+}
+
+fn max_abs_diff(a: &Image, b: &Image) -> f32 {
+    a.data.iter().zip(&b.data).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+fn mean_abs_diff(a: &Image, b: &Image) -> f32 {
+    a.data.iter().zip(&b.data).map(|(x, y)| (x - y).abs()).sum::<f32>() / a.data.len() as f32
+}
+
+#[test]
+fn unit_gaussian_head_on_has_analytic_peak_and_width() {
+    let mut s = Splats::new(0);
+    let dc = 0.5 / SH_C0; // colour 1.0
+    s.push([0.0; 3], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 100.0, [dc; 3], &[]);
+    let (f, z) = (32.0, 4.0);
+    let cam = Camera::new(64, 64, f, f, Mat3::IDENTITY, Vec3::new(0.0, 0.0, z));
+    let img = render(&s, &cam, &RenderOptions::default());
+    // σ in pixels = f/z = 8; the dilation adds 0.3 px² to the variance. The mean projects to
+    // (32, 32), the corner shared by pixels 31 and 32, so pixel (i, j) is at offset (i+0.5-32, j+0.5-32).
+    let var = (f / z) * (f / z) + 0.3;
+    for (i, j) in [(31u32, 31u32), (31, 35), (40, 31), (24, 44), (31, 20)] {
+        let (dx, dy) = (i as f32 + 0.5 - 32.0, j as f32 + 0.5 - 32.0);
+        let expect = 0.99f32.min((-0.5 * (dx * dx + dy * dy) / var).exp());
+        let got = img.pixel(i, j)[1];
+        assert!((got - expect).abs() < 2e-6, "pixel ({i},{j}): {got} vs analytic {expect}");
+    }
+}
+
+#[test]
+fn background_shows_through_by_transmittance() {
+    let mut s = Splats::new(0);
+    s.push([0.0; 3], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[]); // opacity 0.5, colour 0.5
+    let cam = Camera::new(32, 32, 16.0, 16.0, Mat3::IDENTITY, Vec3::new(0.0, 0.0, 4.0));
+    let opts = RenderOptions { background: [1.0, 0.0, 0.25], ..Default::default() };
+    let img = render(&s, &cam, &opts);
+    let a = 0.5 * (-0.5f32 * 0.5 / (16.0 + 0.3)).exp();
+    let p = img.pixel(15, 15);
+    let expect = [0.5 * a + (1.0 - a), 0.5 * a, 0.5 * a + (1.0 - a) * 0.25];
+    for c in 0..3 {
+        assert!((p[c] - expect[c]).abs() < 1e-6, "{p:?} vs {expect:?}");
+    }
+    // Far corner: nothing but background.
+    assert_eq!(img.pixel(0, 0), [1.0, 0.0, 0.25]);
+}
+
+#[test]
+fn f32_matches_f64_reference_on_random_sh3_scene() {
+    let s = random_scene(600, 3, 7);
+    let cam = front_camera(80, 60);
+    let opts = RenderOptions { background: [0.1, 0.2, 0.3], ..Default::default() };
+    let (a, b) = (render(&s, &cam, &opts), render_f64(&s, &cam, &opts));
+    // f32 rounding in projection and compositing is ~1e-6 relative; the discrete decisions
+    // (alpha < 1/255, T < 1e-4) may flip for a contribution at the threshold, which changes a pixel
+    // by at most ~alpha*T < 1/255. The mean error stays at rounding level.
+    assert!(max_abs_diff(&a, &b) < 4e-3, "max {}", max_abs_diff(&a, &b));
+    assert!(mean_abs_diff(&a, &b) < 2e-5, "mean {}", mean_abs_diff(&a, &b));
+    assert!(a.data.iter().all(|v| v.is_finite()));
+}
+
+#[test]
+fn max_sh_degree_option_ignores_higher_bands() {
+    let s = random_scene(200, 3, 11);
+    let cam = front_camera(48, 48);
+    let low = RenderOptions { max_sh_degree: 1, ..Default::default() };
+    let a = render(&s, &cam, &low);
+    let b = render(&s.with_sh_degree(1), &cam, &RenderOptions::default());
+    assert_eq!(a, b);
+}
+
+/// One Gaussian per extreme case of DESIGN §8, seen by `cam`.
+fn extreme_scene() -> Splats {
+    let mut s = Splats::new(1);
+    let rest = [0.1f32; 9];
+    let q = [1.0, 0.0, 0.0, 0.0];
+    let cases: [([f32; 3], [f32; 3], [f32; 4], f32); 11] = [
+        ([0.0, 0.0, 0.0], [-20.0; 3], q, 2.0),                   // sub-pixel
+        ([0.2, 0.1, 0.5], [10.0; 3], q, -1.0),                   // view-filling, contains the camera
+        ([0.3, -0.2, 0.0], [0.0, -20.0, -20.0], q, 3.0),         // degenerate: a line
+        ([-0.3, 0.2, 0.0], [-1.5, -1.5, -20.0], [0.3, 0.9, 0.1, 0.2], 3.0), // degenerate: a disc, tilted
+        ([0.0, 0.0, -4.0], [-2.0; 3], q, 2.0),                   // at the camera centre
+        ([0.0, 0.0, -3.995], [-2.0; 3], q, 2.0),                 // at the near plane
+        ([0.0, 0.0, -6.0], [-2.0; 3], q, 2.0),                   // behind the camera
+        ([0.1, 0.1, 0.2], [-2.0; 3], q, 100.0),                  // saturated opacity
+        ([-0.1, 0.1, 0.2], [-2.0; 3], q, -100.0),                // invisible
+        ([9.0, 0.0, 0.0], [-1.0; 3], q, 2.0),                    // far outside the frustum (clamp)
+        ([0.0, 0.0, 0.3], [-2.0; 3], [0.0, 0.0, 0.0, 0.0], 2.0), // zero quaternion -> identity
+    ];
+    for (p, ls, r, o) in cases {
+        s.push(p, ls, r, o, [0.4, -0.2, 0.1], &rest);
+    }
+    s
+}
+
+fn scaled(s: &Splats, k: f32) -> Splats {
+    let mut out = s.clone();
+    out.positions.iter_mut().for_each(|p| p.iter_mut().for_each(|v| *v *= k));
+    out.log_scales.iter_mut().for_each(|l| l.iter_mut().for_each(|v| *v += k.ln()));
+    out
+}
+
+#[test]
+fn extreme_gaussians_render_finite_and_match_f64() {
+    let s = extreme_scene();
+    let base = Camera::new(64, 48, 40.0, 40.0, Mat3::IDENTITY, Vec3::new(0.0, 0.0, 4.0));
+    let opts = RenderOptions { background: [0.0, 0.5, 1.0], ..Default::default() };
+    for k in [1.0f32, 1e-4, 1e5] {
+        let (scene, cam) = (scaled(&s, k), base.scaled(k));
+        let a = render(&scene, &cam, &opts);
+        let b = render_f64(&scene, &cam, &opts);
+        assert!(a.data.iter().all(|v| v.is_finite()), "non-finite pixel at scale {k}");
+        assert!(max_abs_diff(&a, &b) < 1e-4, "scale {k}: max diff {}", max_abs_diff(&a, &b));
+        if k != 1.0 {
+            // The same scene at another scale renders the same picture (up to f32 rounding).
+            let c = render(&s, &base, &opts);
+            assert!(max_abs_diff(&a, &c) < 4e-3, "scale {k} vs 1: {}", max_abs_diff(&a, &c));
+        }
+    }
+}
+
+#[test]
+fn empty_scene_renders_background() {
+    let cam = front_camera(20, 10);
+    let img = render(&Splats::new(3), &cam, &RenderOptions { background: [0.2, 0.4, 0.6], ..Default::default() });
+    assert_eq!(img, Image::filled(20, 10, [0.2, 0.4, 0.6]));
+}
+
+#[test]
+fn render_is_deterministic_across_thread_counts() {
+    let s = random_scene(2000, 2, 3);
+    let cam = front_camera(96, 96);
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let four = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
+    let a = one.install(|| render(&s, &cam, &RenderOptions::default()));
+    let b = four.install(|| render(&s, &cam, &RenderOptions::default()));
+    assert_eq!(a, b);
+}
