@@ -2,6 +2,8 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod sweep;
+
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
 #[derive(Debug, Parser)]
 #[command(name = "gscodec", version, about)]
@@ -11,9 +13,14 @@ pub struct Cli {
 }
 
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    /// Encode at several λ and losses, evaluate, and write RD tables, plots and BD-rates.
+    Sweep(sweep::Args),
+}
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> crate::Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Sweep(a) => sweep::run(a),
+    }
 }

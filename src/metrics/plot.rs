@@ -262,27 +262,43 @@ fn draw_panel(s: &mut String, panel: &Panel, ox: f64, oy: f64, pw: f64, ph: f64)
             let _ = writeln!(s, r#"<circle cx="{:.1}" cy="{:.1}" r="3" fill="{color}"/>"#, xa.px(p.0), ya.px(p.1));
         }
     }
-    // Legend, top-left inside the axes.
+    // Legend, in the inside corner that covers the fewest drawn points and line samples.
     let named: Vec<(usize, &Series)> = panel.series.iter().enumerate().filter(|(_, se)| !se.name.is_empty()).collect();
     if !named.is_empty() {
         let width = 34.0 + 7.0 * named.iter().map(|(_, se)| se.name.chars().count()).max().unwrap_or(0) as f64;
         let height = 8.0 + 16.0 * named.len() as f64;
+        let mut samples = Vec::new();
+        for se in &panel.series {
+            for run in se.points.split(|p| !usable(p)) {
+                for (i, p) in run.iter().enumerate() {
+                    let (px, py) = (xa.px(p.0), ya.px(p.1));
+                    samples.push((px, py));
+                    if let Some(q) = run.get(i + 1) {
+                        let (qx, qy) = (xa.px(q.0), ya.px(q.1));
+                        samples.extend((1..10).map(|k| k as f64 / 10.0).map(|t| (px + t * (qx - px), py + t * (qy - py))));
+                    }
+                }
+            }
+        }
+        let corners = [(x0 + 8.0, y1 + 8.0), (x1 - 8.0 - width, y1 + 8.0), (x1 - 8.0 - width, y0 - 8.0 - height), (x0 + 8.0, y0 - 8.0 - height)];
+        let covered = |&(bx, by): &(f64, f64)| {
+            samples.iter().filter(|(x, y)| *x >= bx - 4.0 && *x <= bx + width + 4.0 && *y >= by - 4.0 && *y <= by + height + 4.0).count()
+        };
+        let (lx, ly) = corners.iter().copied().min_by_key(|c| covered(c)).unwrap_or(corners[0]);
         let _ = writeln!(
             s,
-            r##"<rect x="{:.1}" y="{:.1}" width="{width:.1}" height="{height:.1}" fill="white" fill-opacity="0.85" stroke="#bbb"/>"##,
-            x0 + 8.0,
-            y1 + 8.0
+            r##"<rect x="{lx:.1}" y="{ly:.1}" width="{width:.1}" height="{height:.1}" fill="white" fill-opacity="0.85" stroke="#bbb"/>"##
         );
         for (row, (i, se)) in named.iter().enumerate() {
-            let y = y1 + 20.0 + 16.0 * row as f64;
+            let y = ly + 12.0 + 16.0 * row as f64;
             let color = PALETTE[i % PALETTE.len()];
             let _ = writeln!(
                 s,
                 r#"<line x1="{:.1}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="{color}" stroke-width="2"/>"#,
-                x0 + 14.0,
-                x0 + 32.0
+                lx + 6.0,
+                lx + 24.0
             );
-            let _ = writeln!(s, r#"<text x="{:.1}" y="{:.1}">{}</text>"#, x0 + 37.0, y + 4.0, escape(&se.name));
+            let _ = writeln!(s, r#"<text x="{:.1}" y="{:.1}">{}</text>"#, lx + 29.0, y + 4.0, escape(&se.name));
         }
     }
     let _ = writeln!(s, "</g>");
