@@ -6,6 +6,7 @@
 //! | [`flip`] | ꟻLIP (LDR) mean error through NVIDIA's implementation |
 //! | [`bdrate`] | Bjøntegaard delta rate / delta quality between two RD curves |
 //! | [`plot`] | dependency-free SVG line plots |
+//! | [`view`] | every metric of a rendered view, and means over views (what `eval` reports) |
 //!
 //! SSIM itself lives in [`crate::loss::ssim`] (one definition shared with training).
 
@@ -13,6 +14,7 @@ pub mod bdrate;
 pub mod flip;
 pub mod ms_ssim;
 pub mod plot;
+pub mod view;
 
 use gscodec_decoder::Image;
 
