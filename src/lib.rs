@@ -7,6 +7,7 @@ pub mod error;
 pub mod io;
 pub mod loss;
 pub mod metrics;
+pub mod sample;
 pub mod sweep;
 
 pub use error::{Error, Result};

@@ -2,6 +2,8 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod progress;
+pub mod sample;
 pub mod sweep;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
@@ -14,6 +16,7 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    Sample(sample::Args),
     /// Encode at several λ and losses, evaluate, and write RD tables, plots and BD-rates.
     Sweep(sweep::Args),
 }
@@ -21,6 +24,7 @@ pub enum Command {
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
+        Command::Sample(a) => sample::run(a),
         Command::Sweep(a) => sweep::run(a),
     }
 }

@@ -1,6 +1,5 @@
 //! `gscodec sweep`: rate–distortion curves in one command (see `docs/sweep.md`).
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
@@ -85,7 +84,7 @@ pub fn run(args: Args) -> Result<()> {
     if skipped > 0 && !args.quiet {
         eprintln!("sweep: {skipped} finished point(s) kept, {} to run", pending.len());
     }
-    let bar = progress_bar(pending.len() as u64, args.quiet);
+    let bar = super::progress::bar(pending.len() as u64, "sweep", args.quiet || pending.is_empty());
     let next = AtomicUsize::new(0);
     let failures = Mutex::new(Vec::new());
     std::thread::scope(|s| {
@@ -93,21 +92,14 @@ pub fn run(args: Args) -> Result<()> {
             s.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::SeqCst);
                 let Some(p) = pending.get(i) else { break };
-                if let Some(b) = &bar {
-                    b.set_message(p.dir_name());
-                }
                 if let Err(e) = run_point(&exe, &plan, p) {
                     failures.lock().unwrap_or_else(|e| e.into_inner()).push(format!("{}: {e}", p.dir_name()));
                 }
-                if let Some(b) = &bar {
-                    b.inc(1);
-                }
+                bar.inc(1);
             });
         }
     });
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
+    bar.finish_and_clear();
     let failures = failures.into_inner().unwrap_or_else(|e| e.into_inner());
 
     if !args.points_only {
@@ -153,16 +145,4 @@ fn emit_jobs(file: &Path, exe: &Path, plan: &Plan, args: &Args) -> Result<()> {
         );
     }
     Ok(())
-}
-
-/// A progress bar on stderr, or none with `--quiet` or when stderr is not a terminal.
-fn progress_bar(len: u64, quiet: bool) -> Option<indicatif::ProgressBar> {
-    if quiet || len == 0 || !std::io::stderr().is_terminal() {
-        return None;
-    }
-    let bar = indicatif::ProgressBar::new(len);
-    if let Ok(style) = indicatif::ProgressStyle::with_template("sweep [{elapsed_precise}] {bar:30} {pos}/{len} points {msg}") {
-        bar.set_style(style);
-    }
-    Some(bar)
 }
