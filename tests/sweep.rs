@@ -16,6 +16,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
     PointResult {
         lambda,
         loss: loss.into(),
+        iters: None,
         bytes: (bytes0 * scale).round() as u64,
         gaussians: (bytes0 / 10.0) as u64,
         psnr: Some(20.0 + 3.0 * q),
@@ -126,6 +127,23 @@ fn finished_points_are_skipped() {
     assert!(String::from_utf8_lossy(&res.stderr).contains("2 finished point(s) kept, 0 to run"));
     assert_eq!(std::fs::read_to_string(out.join("rd.csv")).unwrap().lines().count(), 3);
     assert!(!out.join("points/l1ssim_lambda0.1/log.txt").exists(), "no child was run");
+
+    // Other settings (--iters) redo the points; here the encode fails (the input is no scene):
+    // exit 1 naming the point's log, the old results stay.
+    let res = gscodec()
+        .arg("sweep")
+        .arg(&input)
+        .arg("-o")
+        .arg(&out)
+        .args(["--lambdas", "0.1", "--loss", "l1ssim", "--iters", "7"])
+        .output()
+        .unwrap();
+    assert_eq!(res.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&res.stderr);
+    assert!(err.contains("1 of 1 point(s) failed") && err.contains("l1ssim_lambda0.1/log.txt"), "{err}");
+    let log = std::fs::read_to_string(out.join("points/l1ssim_lambda0.1/log.txt")).unwrap();
+    assert!(log.starts_with("$ gscodec encode ") && log.contains("--iters 7"), "{log}");
+    assert!(out.join("points/l1ssim_lambda0.1/result.json").exists());
 }
 
 #[test]

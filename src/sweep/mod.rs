@@ -85,9 +85,10 @@ impl Plan {
         self.out.join("points").join(p.dir_name())
     }
 
-    /// Whether a point's result file exists.
+    /// Whether a point has a result file from the same settings (`--iters`); a result from other
+    /// settings, or an unreadable one, is redone.
     pub fn is_done(&self, p: &Point) -> bool {
-        self.point_dir(p).join(RESULT_FILE).is_file()
+        results::read_result(&self.point_dir(p).join(RESULT_FILE)).is_ok_and(|r| r.iters == self.iters)
     }
 
     /// Checks λs and losses.
@@ -209,7 +210,7 @@ pub fn run_point(exe: &Path, plan: &Plan, p: &Point) -> Result<PointResult> {
         .and_then(|t| serde_json::from_str::<Value>(&t).ok())
         .map(|v| timeline_from_report(&v))
         .unwrap_or_default();
-    let result = point_result(p, bytes, &eval, encode_s, decode_s, timeline);
+    let result = PointResult { iters: plan.iters, ..point_result(p, bytes, &eval, encode_s, decode_s, timeline) };
     let json = serde_json::to_string_pretty(&result).unwrap_or_default();
     write_bytes_atomic(&dir.join(RESULT_FILE), json.as_bytes())?;
     Ok(result)
@@ -225,6 +226,7 @@ pub fn point_result(p: &Point, bytes: u64, eval: &Value, encode_s: f64, decode_s
     PointResult {
         lambda: p.lambda,
         loss: p.loss.clone(),
+        iters: None,
         bytes,
         gaussians: eval.get("gaussians").and_then(Value::as_u64).unwrap_or(0),
         psnr: f("psnr"),

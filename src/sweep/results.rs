@@ -37,6 +37,9 @@ pub struct PointResult {
     pub lambda: f64,
     /// Distortion loss passed to `encode --loss`.
     pub loss: String,
+    /// `encode --iters` (None: the encoder's default).
+    #[serde(default)]
+    pub iters: Option<usize>,
     /// Size of the `.gsc` bitstream.
     pub bytes: u64,
     /// Gaussians in the decoded scene.
