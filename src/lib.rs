@@ -9,5 +9,6 @@ pub mod loss;
 pub mod metrics;
 pub mod sample;
 pub mod sweep;
+pub mod views;
 
 pub use error::{Error, Result};

@@ -7,6 +7,8 @@ use gscodec::io::{load_dataset, LoadOptions, Split};
 use glam::{Mat3, Quat, Vec3};
 use std::path::Path;
 
+mod common;
+
 fn gradient(w: u32, h: u32) -> Image {
     let data = (0..w * h).flat_map(|i| [(i % w) as f32 / w as f32, (i / w) as f32 / h as f32, 0.5]).collect();
     Image { width: w, height: h, data }
@@ -201,11 +203,7 @@ fn nerf_test_file_forms_the_test_split() {
 
 #[test]
 fn lego_200_loads() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lego-200");
-    if !dir.exists() {
-        eprintln!("skipped: {} is absent", dir.display());
-        return;
-    }
+    let Some(dir) = common::shared_data("lego-200") else { return };
     let ds = load_dataset(&dir, &LoadOptions::default()).unwrap();
     assert_eq!(ds.frames.len(), 100);
     assert_eq!(ds.split(Split::Test).len(), 13);

@@ -2,7 +2,10 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod convert;
+pub mod eval;
 pub mod progress;
+pub mod render;
 pub mod sample;
 pub mod sweep;
 
@@ -17,6 +20,9 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     Sample(sample::Args),
+    Render(render::Args),
+    Convert(convert::Args),
+    Eval(eval::Args),
     /// Encode at several λ and losses, evaluate, and write RD tables, plots and BD-rates.
     Sweep(sweep::Args),
 }
@@ -25,6 +31,9 @@ pub enum Command {
 pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Eval(a) => eval::run(a),
         Command::Sweep(a) => sweep::run(a),
     }
 }

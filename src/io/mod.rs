@@ -6,9 +6,11 @@ pub mod dataset;
 pub mod image;
 pub mod nerf;
 pub mod ply;
+pub mod scene;
 
 pub use dataset::{Dataset, Frame, Split};
 pub use ply::{read_ply, read_ply_bytes, write_ply};
+pub use scene::{read_scene, write_scene};
 
 use crate::{Error, Result};
 use gscodec_decoder::camera::DEFAULT_ZNEAR;
