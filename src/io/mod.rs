@@ -4,3 +4,5 @@ pub mod atomic;
 pub mod dataset;
 
 pub use dataset::{Dataset, Frame, Split};
+pub mod splat;
+pub mod spz;
