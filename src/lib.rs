@@ -7,5 +7,6 @@ pub mod error;
 pub mod io;
 pub mod loss;
 pub mod metrics;
+pub mod sample;
 
 pub use error::{Error, Result};

@@ -43,7 +43,7 @@ impl Camera {
     /// A camera at `eye` looking at `target`; `up` is the world direction that appears up in the image.
     pub fn look_at(eye: Vec3, target: Vec3, up: Vec3, width: u32, height: u32, fov_x: f32) -> Self {
         let z = (target - eye).normalize();
-        let x = z.cross(-up).normalize_or(Vec3::X.cross(z).normalize_or(Vec3::Y));
+        let x = z.cross(up).normalize_or(z.cross(Vec3::X).normalize_or(Vec3::Y)); // right = forward × up
         let y = z.cross(x);
         let rotation = Mat3::from_cols(x, y, z).transpose();
         let fx = width as f32 / (2.0 * (fov_x / 2.0).tan());

@@ -2,6 +2,9 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod progress;
+pub mod sample;
+
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
 #[derive(Debug, Parser)]
 #[command(name = "gscodec", version, about)]
@@ -11,9 +14,13 @@ pub struct Cli {
 }
 
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    Sample(sample::Args),
+}
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> crate::Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Sample(a) => sample::run(a),
+    }
 }

@@ -32,3 +32,36 @@ pub fn write_atomic(path: &Path, write: impl FnOnce(&mut BufWriter<File>) -> std
 pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic(path, |w| w.write_all(bytes))
 }
+
+/// Fills a fresh temporary directory beside `dir` through `fill`, then moves its files into `dir`
+/// (created if needed; same-named files are replaced). On error nothing reaches `dir` and the
+/// temporary directory is removed.
+pub fn write_dir_atomic(dir: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let tmp = temp_path(dir);
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).map_err(|e| Error::failure(&tmp, format!("cannot create directory: {e}")))?;
+    let result = fill(&tmp).and_then(|()| {
+        if !dir.exists() {
+            return std::fs::rename(&tmp, dir).map_err(|e| Error::failure(dir, format!("cannot create: {e}")));
+        }
+        if !dir.is_dir() {
+            return Err(Error::input(dir, "exists and is not a directory"));
+        }
+        move_tree(&tmp, dir).map_err(|e| Error::failure(dir, format!("cannot write: {e}")))
+    });
+    let _ = std::fs::remove_dir_all(&tmp);
+    result
+}
+
+fn move_tree(from: &Path, to: &Path) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(from)? {
+        let entry = entry?;
+        let dst = to.join(entry.file_name());
+        if entry.file_type()?.is_dir() && dst.is_dir() {
+            move_tree(&entry.path(), &dst)?;
+        } else {
+            std::fs::rename(entry.path(), &dst)?;
+        }
+    }
+    Ok(())
+}

@@ -1,8 +1,86 @@
 //! Reading and writing scenes, datasets and images.
 
 pub mod atomic;
+pub mod colmap;
 pub mod dataset;
-
-pub use dataset::{Dataset, Frame, Split};
+pub mod image;
+pub mod nerf;
+pub mod ply;
 pub mod splat;
 pub mod spz;
+
+pub use dataset::{Dataset, Frame, Split};
+pub use ply::{read_ply, read_ply_bytes, write_ply};
+
+use crate::{Error, Result};
+use gscodec_decoder::camera::DEFAULT_ZNEAR;
+use std::path::Path;
+
+/// How to load a dataset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LoadOptions {
+    /// Integer image downscale factor (box filter); 1 = full resolution.
+    pub downscale: u32,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        LoadOptions { downscale: 1 }
+    }
+}
+
+/// Loads a posed-image dataset directory, detecting its layout:
+///
+/// * NeRF / Blender: `transforms_train.json` (+ `transforms_test.json`, whose frames then form
+///   the test split, appended after the training frames), or `transforms.json`. A path to a
+///   `transforms*.json` file is accepted too.
+/// * COLMAP: `sparse/0/{cameras,images,points3D}.{bin,txt}` and `images/`.
+///
+/// Every camera's near plane is scaled with the scene: `znear = 0.01 × s`, where `s` is the
+/// median distance of the camera centres to their mean (1 when that is degenerate).
+///
+/// # Errors
+/// [`Error::input`] naming the offending file for anything missing or malformed.
+pub fn load_dataset(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
+    if opts.downscale == 0 {
+        return Err(Error::input(path, "downscale factor must be at least 1"));
+    }
+    let mut ds = if path.is_file() {
+        nerf::load_nerf(path, None, opts)?
+    } else if path.join("transforms_train.json").is_file() {
+        let test = path.join("transforms_test.json");
+        nerf::load_nerf(&path.join("transforms_train.json"), test.is_file().then_some(test.as_path()), opts)?
+    } else if path.join("transforms.json").is_file() {
+        nerf::load_nerf(&path.join("transforms.json"), None, opts)?
+    } else if colmap::find_sparse(path).is_some() {
+        colmap::load_colmap(path, opts)?
+    } else if !path.exists() {
+        return Err(Error::input(path, "no such file or directory"));
+    } else {
+        return Err(Error::input(path, "not a dataset: expected transforms_train.json, transforms.json or a COLMAP sparse/0 model"));
+    };
+    if let Some(f) = ds.frames.iter().find(|f| f.image.width == 0 || f.image.height == 0) {
+        return Err(Error::input(path, format!("frame `{}` is empty after downscaling by {}", f.name, opts.downscale)));
+    }
+    let znear = DEFAULT_ZNEAR * scene_scale(&ds);
+    ds.frames.iter_mut().for_each(|f| f.camera.znear = znear);
+    Ok(ds)
+}
+
+/// Median distance of the frames' camera centres to their mean; 1 when degenerate.
+pub fn scene_scale(ds: &Dataset) -> f32 {
+    camera_spread(ds.frames.iter().map(|f| f.camera.center()))
+}
+
+/// Median distance of camera centres to their mean; 1 when degenerate (none, one, all equal).
+pub fn camera_spread(centres: impl Iterator<Item = glam::Vec3>) -> f32 {
+    let centres: Vec<glam::Vec3> = centres.collect();
+    if centres.is_empty() {
+        return 1.0;
+    }
+    let mean = centres.iter().copied().sum::<glam::Vec3>() / centres.len() as f32;
+    let mut d: Vec<f32> = centres.iter().map(|c| c.distance(mean)).collect();
+    d.sort_by(f32::total_cmp);
+    let m = d[d.len() / 2];
+    if m.is_finite() && m > 0.0 { m } else { 1.0 }
+}

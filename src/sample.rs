@@ -1,0 +1,188 @@
+//! A deterministic procedural scene and its NeRF-style dataset (`gscodec sample`).
+//!
+//! The scene (world up = +z, like Blender) has a textured floor (a checkerboard of flat Gaussians
+//! at z = −0.5), clusters of coloured blobs, thin anisotropic needles and some Gaussians with
+//! view-dependent colour in SH bands 1–3 (the scene is SH degree 3). Views are rendered from
+//! cameras on a sphere of radius 4 around the origin at elevations between 15° and 65°, with a
+//! horizontal field of view of 0.6911 rad (the NeRF-synthetic one), on a white background, and
+//! saved as 8-bit RGB PNGs. Everything comes from a seeded SplitMix64 generator and plain
+//! arithmetic, so the same options give the same files on every machine.
+
+use crate::io::atomic::write_dir_atomic;
+use crate::io::image::write_png;
+use crate::io::{camera_spread, nerf, ply};
+use crate::{Error, Result};
+use gscodec_decoder::camera::DEFAULT_ZNEAR;
+use gscodec_decoder::math::{sh_rest_coeffs, SH_C0};
+use gscodec_decoder::render::render;
+use gscodec_decoder::{Camera, RenderOptions, Splats};
+use glam::Vec3;
+use std::path::Path;
+
+/// Horizontal field of view of the sample cameras (radians).
+pub const FOV_X: f64 = 0.691_111_207_008_361_8;
+/// Distance of the cameras from the origin.
+pub const RADIUS: f32 = 4.0;
+/// Background the views are rendered on.
+pub const BACKGROUND: [f32; 3] = [1.0; 3];
+
+/// What to generate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SampleOptions {
+    pub gaussians: usize,
+    pub views: usize,
+    pub width: u32,
+    pub height: u32,
+    pub seed: u64,
+}
+
+impl Default for SampleOptions {
+    fn default() -> Self {
+        SampleOptions { gaussians: 2000, views: 32, width: 128, height: 128, seed: 0 }
+    }
+}
+
+/// SplitMix64: tiny, seedable and identical everywhere.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed ^ 0x5851_f42d_4c95_7f2d)
+    }
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1) with 24 random bits (exact in f32).
+    pub fn uniform(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+    /// Uniform in [lo, hi).
+    pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.uniform()
+    }
+    /// A random unit quaternion (w, x, y, z), not normalised exactly (the renderer normalises).
+    fn quat(&mut self) -> [f32; 4] {
+        let q = [self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0)];
+        let n = q.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-3);
+        q.map(|v| v / n)
+    }
+}
+
+fn dc(rgb: [f32; 3]) -> [f32; 3] {
+    rgb.map(|c| (c - 0.5) / SH_C0)
+}
+
+/// The procedural scene: `n` Gaussians, SH degree 3.
+pub fn scene(n: usize, seed: u64) -> Splats {
+    let mut rng = Rng::new(seed);
+    let mut s = Splats::new(3);
+    let k3 = sh_rest_coeffs(3) * 3;
+    let zero = vec![0.0f32; k3];
+    // Floor: a g×g grid of flat Gaussians, checkerboard of two colours with a little noise.
+    let n_floor = n * 2 / 5;
+    let g = (n_floor as f32).sqrt().floor() as usize;
+    let cell = 3.0 / g.max(1) as f32;
+    for iy in 0..g {
+        for ix in 0..g {
+            let (x, y) = (-1.5 + (ix as f32 + 0.5) * cell, -1.5 + (iy as f32 + 0.5) * cell);
+            let check = ((x + 1.5) / 0.75).floor() as i32 + ((y + 1.5) / 0.75).floor() as i32;
+            let base = if check % 2 == 0 { [0.85, 0.8, 0.7] } else { [0.25, 0.3, 0.45] };
+            let noise = rng.range(-0.05, 0.05);
+            let ls = (cell * 0.6).ln();
+            s.push([x, y, -0.5], [ls, ls, (cell * 0.02).ln()], [1.0, 0.0, 0.0, rng.range(-0.05, 0.05)], 4.0, dc(base.map(|c| c + noise)), &zero);
+        }
+    }
+    let left = n.saturating_sub(s.len());
+    let n_needles = left / 8;
+    let n_blobs = left - n_needles;
+    // Blobs: clusters around a few coloured centres; every fifth one has view-dependent colour.
+    let palette = [[0.9, 0.2, 0.15], [0.2, 0.75, 0.3], [0.2, 0.35, 0.95], [0.95, 0.8, 0.1], [0.7, 0.25, 0.8]];
+    let centres: Vec<[f32; 3]> = (0..palette.len()).map(|_| [rng.range(-0.9, 0.9), rng.range(-0.9, 0.9), rng.range(-0.2, 0.6)]).collect();
+    for i in 0..n_blobs {
+        let c = i % palette.len();
+        let r = rng.range(0.0, 0.35);
+        let dir = Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)).normalize_or(Vec3::Z);
+        let p = Vec3::from(centres[c]) + dir * r;
+        let col = palette[c].map(|v: f32| (v + rng.range(-0.1, 0.1)).clamp(0.0, 1.0));
+        let ls = rng.range(0.03, 0.09).ln();
+        let scales = [ls + rng.range(-0.3, 0.3), ls + rng.range(-0.3, 0.3), ls + rng.range(-0.3, 0.3)];
+        let rest: Vec<f32> = if i % 5 == 0 {
+            // Degree 1 strong, degrees 2-3 weaker: colour shifts with the viewing direction.
+            (0..k3).map(|j| rng.range(-1.0, 1.0) * if j < 9 { 0.5 } else { 0.15 }).collect()
+        } else {
+            zero.clone()
+        };
+        s.push(p.into(), scales, rng.quat(), rng.range(0.5, 3.0), dc(col), &rest);
+    }
+    // Needles: long thin Gaussians standing up from the floor at random tilts.
+    for _ in 0..n_needles {
+        let base = [rng.range(-1.2, 1.2), rng.range(-1.2, 1.2), rng.range(-0.4, 0.4)];
+        let col = [rng.range(0.05, 0.35), rng.range(0.3, 0.6), rng.range(0.5, 0.9)];
+        let len = rng.range(0.08, 0.25);
+        s.push(base, [len.ln(), rng.range(0.003, 0.008).ln(), rng.range(0.003, 0.008).ln()], rng.quat(), 2.0, dc(col), &zero);
+    }
+    s
+}
+
+/// Camera-to-world matrices (OpenGL axes, like NeRF's `transform_matrix`) of `views` cameras on
+/// the sphere of [`RADIUS`], looking at the origin with +z up.
+pub fn nerf_poses(views: usize, seed: u64) -> Vec<[[f32; 4]; 4]> {
+    let mut rng = Rng::new(seed.wrapping_add(1));
+    (0..views)
+        .map(|i| {
+            let azim = std::f32::consts::TAU * (i as f32 + rng.range(-0.3, 0.3)) / views.max(1) as f32;
+            // Low-discrepancy spread of elevations between 15 and 65 degrees.
+            let elev = (15.0 + 50.0 * ((i as f32 * 0.618_034) % 1.0)).to_radians();
+            let eye = Vec3::new(azim.cos() * elev.cos(), azim.sin() * elev.cos(), elev.sin()) * RADIUS;
+            let cam = Camera::look_at(eye, Vec3::ZERO, Vec3::Z, 64, 64, FOV_X as f32);
+            // OpenCV world-to-camera -> OpenGL camera-to-world: columns x, -y, -z of R^T.
+            let rt = cam.rotation.transpose();
+            let (x, y, z) = (rt.x_axis, -rt.y_axis, -rt.z_axis);
+            [[x.x, y.x, z.x, eye.x], [x.y, y.y, z.y, eye.y], [x.z, y.z, z.z, eye.z], [0.0, 0.0, 0.0, 1.0]]
+        })
+        .collect()
+}
+
+/// Writes the dataset: `transforms_train.json`, `train/r_<i>.png`, `truth.ply`, all or nothing.
+pub fn write_sample(dir: &Path, opts: &SampleOptions, progress: &indicatif::ProgressBar) -> Result<()> {
+    if opts.gaussians == 0 || opts.views == 0 || opts.width == 0 || opts.height == 0 {
+        return Err(Error::input(dir, "--gaussians, --views and --size must be positive"));
+    }
+    let splats = scene(opts.gaussians, opts.seed);
+    let poses = nerf_poses(opts.views, opts.seed);
+    write_dir_atomic(dir, |tmp| {
+        // f32 values are written as their exact f64 so that reading them back gives the same bits.
+        let frames: Vec<serde_json::Value> = poses
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let rows: Vec<Vec<f64>> = m.iter().map(|r| r.iter().map(|&v| v as f64).collect()).collect();
+                serde_json::json!({ "file_path": format!("./train/r_{i}"), "transform_matrix": rows })
+            })
+            .collect();
+        let json = serde_json::json!({ "camera_angle_x": FOV_X, "frames": frames });
+        let json_path = tmp.join("transforms_train.json");
+        let text = serde_json::to_string_pretty(&json).expect("JSON of numbers and strings");
+        std::fs::write(&json_path, text).map_err(|e| Error::failure(&json_path, format!("cannot write: {e}")))?;
+        ply::write_ply(&tmp.join("truth.ply"), &splats)?;
+        // Cameras exactly as `load_dataset` rebuilds them from the JSON just written.
+        let specs = nerf::parse_transforms(&json_path)?;
+        let mut cams: Vec<Camera> = specs.iter().map(|s| s.camera(opts.width, opts.height, 1).map_err(|m| Error::failure(&json_path, m))).collect::<Result<_>>()?;
+        let znear = DEFAULT_ZNEAR * camera_spread(cams.iter().map(|c| c.center()));
+        cams.iter_mut().for_each(|c| c.znear = znear);
+        let train = tmp.join("train");
+        std::fs::create_dir_all(&train).map_err(|e| Error::failure(&train, format!("cannot create: {e}")))?;
+        progress.set_length(cams.len() as u64);
+        let ropts = RenderOptions { background: BACKGROUND, max_sh_degree: 3 };
+        for (i, cam) in cams.iter().enumerate() {
+            write_png(&train.join(format!("r_{i}.png")), &render(&splats, cam, &ropts))?;
+            progress.inc(1);
+        }
+        Ok(())
+    })
+}
