@@ -8,5 +8,6 @@ pub mod io;
 pub mod loss;
 pub mod metrics;
 pub mod sample;
+pub mod views;
 
 pub use error::{Error, Result};

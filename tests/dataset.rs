@@ -7,15 +7,22 @@ use gscodec::io::{load_dataset, LoadOptions, Split};
 use glam::{Mat3, Quat, Vec3};
 use std::path::Path;
 
+mod common;
+
 fn gradient(w: u32, h: u32) -> Image {
     let data = (0..w * h).flat_map(|i| [(i % w) as f32 / w as f32, (i / w) as f32 / h as f32, 0.5]).collect();
     Image { width: w, height: h, data }
 }
 
+/// (id, model id, model name, width, height, params)
+type Cam = (u32, i32, &'static str, u64, u64, Vec<f64>);
+/// (id, qvec, tvec, camera id, name)
+type Img = (u32, [f64; 4], [f64; 3], u32, &'static str);
+
 /// A small COLMAP model: two cameras, three images, four points.
 struct Model {
-    cams: Vec<(u32, i32, &'static str, u64, u64, Vec<f64>)>,
-    imgs: Vec<(u32, [f64; 4], [f64; 3], u32, &'static str)>,
+    cams: Vec<Cam>,
+    imgs: Vec<Img>,
     pts: Vec<(u64, [f64; 3], [u8; 3])>,
 }
 
@@ -201,11 +208,7 @@ fn nerf_test_file_forms_the_test_split() {
 
 #[test]
 fn lego_200_loads() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/lego-200");
-    if !dir.exists() {
-        eprintln!("skipped: {} is absent", dir.display());
-        return;
-    }
+    let Some(dir) = common::shared_data("lego-200") else { return };
     let ds = load_dataset(&dir, &LoadOptions::default()).unwrap();
     assert_eq!(ds.frames.len(), 100);
     assert_eq!(ds.split(Split::Test).len(), 13);

@@ -4,6 +4,8 @@ use gscodec::io::ply::{ply_bytes, read_ply, read_ply_bytes, write_ply};
 use gscodec::decoder::Splats;
 use std::path::Path;
 
+mod common;
+
 /// A small seeded scene of the given SH degree with values of every magnitude.
 fn scene(degree: u8, n: usize) -> Splats {
     let mut s = Splats::new(degree);
@@ -202,11 +204,7 @@ fn bad_files_are_input_errors() {
 
 #[test]
 fn shared_scenes_load() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/scenes");
-    if !dir.exists() {
-        eprintln!("skipped: {} is absent", dir.display());
-        return;
-    }
+    let Some(dir) = common::shared_data("scenes") else { return };
     for (name, n) in [("k7000.ply", 9080), ("fruit-drops.ply", 4721), ("playbot-lod3.ply", 31000)] {
         let s = read_ply(&dir.join(name)).unwrap();
         assert_eq!((s.len(), s.sh_degree), (n, 3), "{name}");

@@ -141,3 +141,29 @@ fn splat_round_trip_within_quantisation() {
     assert!(imp.windows(2).all(|w| w[0] >= w[1]));
     assert!(decode_splat(&bytes[..31]).is_err());
 }
+
+/// `gscodec convert` picks SPZ / .splat by extension; bad SPZ input is one `error:` line, exit 2,
+/// and no output file.
+#[test]
+fn convert_cli_round_trips_through_spz_and_splat() {
+    let exe = env!("CARGO_BIN_EXE_gscodec");
+    let truth = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let dir = tempfile::tempdir().unwrap();
+    let (spz, back, splat) = (dir.path().join("t.spz"), dir.path().join("t.ply"), dir.path().join("t.splat"));
+    let run = |a: &Path, b: &Path| std::process::Command::new(exe).arg("convert").arg(a).arg(b).output().unwrap();
+    assert!(run(&truth, &spz).status.success());
+    assert!(run(&spz, &back).status.success());
+    assert!(run(&spz, &splat).status.success());
+    let (orig, again) = (read_ply(&truth).unwrap(), read_ply(&back).unwrap());
+    assert_eq!((again.len(), again.sh_degree), (orig.len(), orig.sh_degree));
+    assert!(max_abs_diff(again.positions.iter().flatten().copied(), orig.positions.iter().flatten().copied()) <= 0.5 / 4096.0 + 1e-5);
+    assert_eq!(std::fs::metadata(&splat).unwrap().len(), orig.len() as u64 * 32);
+    let bad = dir.path().join("bad.spz");
+    std::fs::write(&bad, b"NGSP\x04\0\0\0garbage").unwrap();
+    let out = dir.path().join("never.ply");
+    let r = run(&bad, &out);
+    assert_eq!(r.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.starts_with("error: ") && err.contains("bad.spz") && err.lines().count() == 1, "{err}");
+    assert!(!out.exists());
+}

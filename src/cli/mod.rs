@@ -2,7 +2,10 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod convert;
+pub mod eval;
 pub mod progress;
+pub mod render;
 pub mod sample;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
@@ -16,11 +19,17 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     Sample(sample::Args),
+    Render(render::Args),
+    Convert(convert::Args),
+    Eval(eval::Args),
 }
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Eval(a) => eval::run(a),
     }
 }

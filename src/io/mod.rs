@@ -6,11 +6,13 @@ pub mod dataset;
 pub mod image;
 pub mod nerf;
 pub mod ply;
+pub mod scene;
 pub mod splat;
 pub mod spz;
 
 pub use dataset::{Dataset, Frame, Split};
 pub use ply::{read_ply, read_ply_bytes, write_ply};
+pub use scene::{read_scene, write_scene};
 
 use crate::{Error, Result};
 use gscodec_decoder::camera::DEFAULT_ZNEAR;

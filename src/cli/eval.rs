@@ -1,0 +1,96 @@
+//! `gscodec eval`: quality of a scene against a dataset split or a reference scene.
+
+use super::progress;
+use super::render::{dataset_views, orbit_views, View};
+use super::sample::parse_size;
+use crate::io::{read_scene, Split};
+use crate::views::UpAxis;
+use crate::{metrics, Error, Result};
+use gscodec_decoder::render::render;
+use gscodec_decoder::RenderOptions;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Measure a scene's rendering quality: against a dataset's photos, or against a reference scene
+/// rendered from the same orbit.
+#[derive(Debug, clap::Args)]
+#[command(group = clap::ArgGroup::new("against").required(true).args(["data", "reference"]))]
+pub struct Args {
+    /// Scene file (.ply).
+    pub scene: PathBuf,
+    /// Dataset directory (transforms*.json or COLMAP).
+    pub data: Option<PathBuf>,
+    /// Which frames of the dataset.
+    #[arg(long, value_enum, default_value = "test", requires = "data")]
+    pub split: Split,
+    /// Reference scene to compare with.
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
+    /// Number of orbit views around the reference scene.
+    #[arg(long, value_name = "N", default_value_t = 8, requires = "reference")]
+    pub orbit: usize,
+    /// World up axis of the orbit.
+    #[arg(long, value_enum, default_value = "-y", allow_hyphen_values = true, requires = "reference")]
+    pub up: UpAxis,
+    /// Orbit image size WxH.
+    #[arg(long, value_parser = parse_size, requires = "reference")]
+    pub size: Option<(u32, u32)>,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// No progress output.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let scene = read_scene(&args.scene)?;
+    let bytes = std::fs::metadata(&args.scene).map_err(|e| Error::input(&args.scene, e))?.len();
+    let (views, background): (Vec<View>, [f32; 3]) = if let Some(data) = &args.data {
+        dataset_views(data, args.split, None)?
+    } else {
+        let path = args.reference.as_ref().expect("clap group");
+        if args.orbit == 0 {
+            return Err(Error::input(path, "--orbit needs at least one view"));
+        }
+        let reference = read_scene(path)?;
+        let bg = [0.0; 3];
+        let opts = RenderOptions { background: bg, max_sh_degree: 3 };
+        let mut views = orbit_views(&reference, args.orbit, args.size, args.up);
+        views.iter_mut().for_each(|v| v.target = Some(render(&reference, &v.camera, &opts)));
+        (views, bg)
+    };
+    let opts = RenderOptions { background, max_sh_degree: 3 };
+    let pb = progress::bar(views.len() as u64, "eval", args.quiet);
+    let (mut psnr, mut ssim, mut ms) = (0.0, 0.0, 0.0);
+    for v in &views {
+        let t = Instant::now();
+        let img = render(&scene, &v.camera, &opts);
+        ms += t.elapsed().as_secs_f64() * 1e3;
+        let target = v.target.as_ref().expect("every eval view has a target");
+        psnr += metrics::psnr(&img, target);
+        ssim += metrics::ssim(&img, target);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let n = views.len() as f64;
+    let report = serde_json::json!({
+        "psnr": psnr / n,
+        "ssim": ssim / n,
+        "bytes": bytes,
+        "gaussians": scene.len(),
+        "render_ms": ms / n,
+        "views": views.len(),
+    });
+    if args.json {
+        println!("{report}");
+    } else {
+        println!("psnr       {:.3} dB", psnr / n);
+        println!("ssim       {:.4}", ssim / n);
+        println!("bytes      {bytes}");
+        println!("gaussians  {}", scene.len());
+        println!("render_ms  {:.2}", ms / n);
+        println!("views      {}", views.len());
+    }
+    Ok(())
+}

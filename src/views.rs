@@ -1,0 +1,67 @@
+//! Camera sets for looking at a scene without a dataset (orbits for `render`, `eval`, encoding from
+//! a `.ply`).
+
+use gscodec_decoder::{Camera, Splats};
+use glam::Vec3;
+
+/// Horizontal field of view of orbit cameras (radians, about 46°).
+pub const ORBIT_FOV_X: f32 = 0.8;
+/// Elevation of orbit cameras above the scene's horizontal plane (radians, 25°).
+pub const ORBIT_ELEVATION: f32 = 25.0 * std::f32::consts::PI / 180.0;
+/// Orbit radius in multiples of the 90th-percentile distance of the Gaussians to the centre.
+pub const ORBIT_RADIUS_FACTOR: f32 = 2.5;
+
+/// Robust centre (per-axis median of the positions) and extent (90th-percentile distance to it).
+/// An empty scene gives the origin and 1.
+pub fn robust_frame(splats: &Splats) -> (Vec3, f32) {
+    if splats.is_empty() {
+        return (Vec3::ZERO, 1.0);
+    }
+    let median = |a: usize| {
+        let mut v: Vec<f32> = splats.positions.iter().map(|p| p[a]).collect();
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    let c = Vec3::new(median(0), median(1), median(2));
+    let mut d: Vec<f32> = splats.positions.iter().map(|p| Vec3::from(*p).distance(c)).collect();
+    let k = (d.len() * 9 / 10).min(d.len() - 1);
+    let ext = *d.select_nth_unstable_by(k, f32::total_cmp).1;
+    (c, if ext.is_finite() && ext > 0.0 { ext } else { 1.0 })
+}
+
+/// `n` cameras on a circle around the scene's robust centre, at [`ORBIT_ELEVATION`], radius
+/// [`ORBIT_RADIUS_FACTOR`] × the robust extent, with `up` as the world up axis.
+pub fn orbit_cameras(splats: &Splats, n: usize, width: u32, height: u32, up: Vec3) -> Vec<Camera> {
+    let (centre, extent) = robust_frame(splats);
+    Camera::orbit(n, centre, ORBIT_RADIUS_FACTOR * extent, ORBIT_ELEVATION, up, width, height, ORBIT_FOV_X)
+}
+
+/// World up axes by name, for `--up`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum UpAxis {
+    #[value(name = "x")]
+    PosX,
+    #[value(name = "-x")]
+    NegX,
+    #[value(name = "y")]
+    PosY,
+    #[value(name = "-y")]
+    NegY,
+    #[value(name = "z")]
+    PosZ,
+    #[value(name = "-z")]
+    NegZ,
+}
+
+impl UpAxis {
+    pub fn vector(self) -> Vec3 {
+        match self {
+            UpAxis::PosX => Vec3::X,
+            UpAxis::NegX => -Vec3::X,
+            UpAxis::PosY => Vec3::Y,
+            UpAxis::NegY => -Vec3::Y,
+            UpAxis::PosZ => Vec3::Z,
+            UpAxis::NegZ => -Vec3::Z,
+        }
+    }
+}
