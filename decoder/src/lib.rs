@@ -5,6 +5,8 @@
 //! * [`math`] — the one definition of covariance, EWA projection and spherical-harmonic colour.
 //! * [`render`] — the tile-based CPU rasterizer (f32) and its f64 reference.
 
+#[cfg(feature = "capi")]
+pub mod capi;
 pub mod camera;
 pub mod math;
 pub mod render;
