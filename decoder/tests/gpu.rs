@@ -139,3 +139,33 @@ fn gpu_radix_sort_is_stable() {
         assert!(got == want, "sort of {n} keys differs");
     }
 }
+
+/// Frame times at 1080p for 100k and 1M Gaussians (GPU vs CPU), printed; `--ignored` only.
+/// `cargo test --release -p gscodec-decoder --features gpu --test gpu -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn gpu_frame_time_1080p() {
+    let Some(r) = renderer() else { return };
+    let cam = camera(1920, 1080);
+    let opts = RenderOptions::default();
+    for n in [100_000usize, 1_000_000] {
+        let mut s = random_scene(n, 3, 11);
+        // Trained scenes have many small Gaussians: shrink them (more for the denser scene) so the
+        // number of (tile, Gaussian) pairs stays realistic (a few per Gaussian).
+        let shrink = 1.5 + (n as f32 / 100_000.0).log10() * 0.5;
+        s.log_scales.iter_mut().flatten().for_each(|v| *v -= shrink);
+        r.render(&s, &cam, &opts).unwrap(); // warm-up
+        let t = std::time::Instant::now();
+        let frames = 3;
+        for _ in 0..frames {
+            r.render(&s, &cam, &opts).unwrap();
+        }
+        let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
+        let t = std::time::Instant::now();
+        let cpu = render(&s, &cam, &opts);
+        let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
+        let p = psnr(&cpu, &r.render(&s, &cam, &opts).unwrap());
+        let pairs = gscodec_decoder::render::bin_tiles(&gscodec_decoder::render::preprocess(&s, &cam, 3), 1920, 1080).ids.len();
+        eprintln!("{n} Gaussians SH3 ({pairs} tile pairs) 1920x1080 on {}: GPU {gpu_ms:.0} ms/frame, CPU {cpu_ms:.0} ms/frame, PSNR {p:.1} dB", r.adapter_name());
+    }
+}
