@@ -9,6 +9,8 @@
 //! * [`render`] — the tile-based CPU rasterizer (f32) and its f64 reference.
 
 pub mod bitstream;
+#[cfg(feature = "capi")]
+pub mod capi;
 pub mod camera;
 mod decode;
 pub mod entropy;

@@ -7,6 +7,8 @@ pub mod image;
 pub mod nerf;
 pub mod ply;
 pub mod scene;
+pub mod splat;
+pub mod spz;
 
 pub use dataset::{Dataset, Frame, Split};
 pub use ply::{read_ply, read_ply_bytes, write_ply};
