@@ -14,10 +14,15 @@ fn gradient(w: u32, h: u32) -> Image {
     Image { width: w, height: h, data }
 }
 
+/// (id, model id, model name, width, height, params)
+type Cam = (u32, i32, &'static str, u64, u64, Vec<f64>);
+/// (id, qvec, tvec, camera id, name)
+type Img = (u32, [f64; 4], [f64; 3], u32, &'static str);
+
 /// A small COLMAP model: two cameras, three images, four points.
 struct Model {
-    cams: Vec<(u32, i32, &'static str, u64, u64, Vec<f64>)>,
-    imgs: Vec<(u32, [f64; 4], [f64; 3], u32, &'static str)>,
+    cams: Vec<Cam>,
+    imgs: Vec<Img>,
     pts: Vec<(u64, [f64; 3], [u8; 3])>,
 }
 

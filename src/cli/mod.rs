@@ -7,6 +7,7 @@ pub mod eval;
 pub mod progress;
 pub mod render;
 pub mod sample;
+pub mod train;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
 #[derive(Debug, Parser)]
@@ -19,6 +20,7 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     Sample(sample::Args),
+    Train(train::Args),
     Render(render::Args),
     Convert(convert::Args),
     Eval(eval::Args),
@@ -28,6 +30,7 @@ pub enum Command {
 pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
+        Command::Train(a) => train::run(a),
         Command::Render(a) => render::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Eval(a) => eval::run(a),
