@@ -62,7 +62,7 @@ pub fn run(args: Args) -> Result<()> {
     };
     let opts = RenderOptions { background, max_sh_degree: 3 };
     let pb = progress::bar(views.len() as u64, "eval", args.quiet);
-    let (mut psnr, mut ssim, mut ms) = (0.0, 0.0, 0.0);
+    let (mut psnr, mut ssim, mut wd, mut ms) = (0.0, 0.0, 0.0, 0.0);
     for v in &views {
         let t = Instant::now();
         let img = render(&scene, &v.camera, &opts);
@@ -70,6 +70,7 @@ pub fn run(args: Args) -> Result<()> {
         let target = v.target.as_ref().expect("every eval view has a target");
         psnr += metrics::psnr(&img, target);
         ssim += metrics::ssim(&img, target);
+        wd += crate::loss::wdr::wd_metric(&img, target);
         pb.inc(1);
     }
     pb.finish_and_clear();
@@ -77,6 +78,7 @@ pub fn run(args: Args) -> Result<()> {
     let report = serde_json::json!({
         "psnr": psnr / n,
         "ssim": ssim / n,
+        "wd": wd / n,
         "bytes": bytes,
         "gaussians": scene.len(),
         "render_ms": ms / n,
@@ -87,6 +89,7 @@ pub fn run(args: Args) -> Result<()> {
     } else {
         println!("psnr       {:.3} dB", psnr / n);
         println!("ssim       {:.4}", ssim / n);
+        println!("wd         {:.4}", wd / n);
         println!("bytes      {bytes}");
         println!("gaussians  {}", scene.len());
         println!("render_ms  {:.2}", ms / n);
