@@ -1,6 +1,7 @@
-//! Cost of one loss + gradient evaluation at 200×200: the original 3DGS loss (`l1ssim`) against
-//! WD-R in both feature spaces (VGG-16 with random weights of the real shapes). The reference
-//! statistics are cached as in training (one warm-up call per view).
+//! Cost at 200×200 of (1) one loss + gradient evaluation: the original 3DGS loss (`l1ssim`)
+//! against WD-R in both feature spaces (VGG-16 with random weights of the real shapes), and
+//! (2) one whole training iteration (forward, loss, backward, Adam; 10k Gaussians) with `l1ssim`
+//! and with `wdr` (pyramid). Reference statistics are cached as in training.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use gscodec::decoder::Image;
@@ -41,5 +42,37 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+fn bench_iteration(c: &mut Criterion) {
+    use gscodec::raster;
+    use gscodec::train::adam::{Adam, Group};
+    use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+    use gscodec_decoder::RenderOptions;
+    let n = 10_000;
+    let shrink = (n as f32 / 120.0).cbrt().ln();
+    let mut truth = toy_scene(n, 1).with_sh_degree(3);
+    truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+    let ds = render_targets(&truth, &orbit_cameras(2, 4.0, 200, 200), [1.0; 3]);
+    let opts = RenderOptions { background: [1.0; 3], max_sh_degree: 3 };
+    let frame = &ds.frames[0];
+    let mut group = c.benchmark_group("train_iteration_200x200_10k");
+    group.sample_size(10);
+    let losses: Vec<(&str, Box<dyn ImageLoss>)> =
+        vec![("l1ssim", Box::new(gscodec::loss::L1Ssim::default())), ("wdr_pyramid", Box::new(WdrLoss::new(Box::new(Pyramid), 0)))];
+    for (name, mut loss) in losses {
+        let mut params = toy_scene(n, 2).with_sh_degree(3);
+        params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+        let mut adam = Adam::new(&params);
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let (img, st) = raster::forward(&params, &frame.camera, &opts);
+                let (_, dl) = loss.loss_and_grad(&img, &frame.image, 0, 1);
+                let g = raster::backward(&params, &st, &dl);
+                adam.step(&mut params, &g.params, |grp| if grp == Group::Position { 1e-5 } else { 1e-4 });
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench, bench_iteration);
 criterion_main!(benches);

@@ -543,3 +543,28 @@ fn sigma_maps_resize_like_the_reference() {
     let up = wd::resize_linear_antialias(&[0.0, 4.0], 1, 2, 1, 4);
     assert_eq!(up, vec![0.0, 1.0, 3.0, 4.0]);
 }
+
+#[test]
+fn train_cli_runs_wdr_on_the_tiny_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("tiny-wdr.ply");
+    let root = env!("CARGO_MANIFEST_DIR");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_gscodec"))
+        .args(["train", &format!("{root}/samples/tiny"), "-o", out.to_str().unwrap()])
+        .args(["--loss", "wdr", "--iters", "40", "--eval-every", "0", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::metadata(&out).unwrap().len() > 0);
+    // a bad --features file: exit 2, one error line naming it, no output
+    let bad = dir.path().join("bad.ply");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_gscodec"))
+        .args(["train", &format!("{root}/samples/tiny"), "-o", bad.to_str().unwrap()])
+        .args(["--loss", "wdr", "--features", "vgg16=/nonexistent/vgg.safetensors", "--quiet"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.starts_with("error: /nonexistent/vgg.safetensors"), "{err}");
+    assert!(!bad.exists());
+}

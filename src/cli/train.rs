@@ -1,26 +1,10 @@
 //! `gscodec train DATA -o OUT.ply`: train Gaussians on a posed-image dataset.
 
 use crate::io::{self, LoadOptions};
-use crate::loss::{ImageLoss, L1Ssim};
+use crate::loss::{build_loss, LossArgs};
 use crate::train::{train, TrainConfig};
 use crate::{Error, Result};
 use std::path::{Path, PathBuf};
-
-/// Training losses selectable on the command line.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum LossKind {
-    /// 0.8·L1 + 0.2·(1 − SSIM), the reference 3DGS loss.
-    L1ssim,
-}
-
-impl LossKind {
-    /// The loss object for this choice.
-    pub fn build(self) -> Result<Box<dyn ImageLoss>> {
-        Ok(match self {
-            LossKind::L1ssim => Box::new(L1Ssim::default()),
-        })
-    }
-}
 
 /// Train 3D Gaussians on posed images (NeRF transforms*.json or COLMAP).
 #[derive(Debug, clap::Args)]
@@ -36,9 +20,9 @@ pub struct Args {
     /// Random seed (initialisation, view order, densification).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Training loss.
-    #[arg(long, value_enum, default_value_t = LossKind::L1ssim)]
-    pub loss: LossKind,
+    /// Training loss (`--loss`, `--features`, `--wd-gamma`).
+    #[command(flatten)]
+    pub loss: LossArgs,
     /// Start from this scene (.ply) instead of the dataset's points / random points.
     #[arg(long)]
     pub init: Option<PathBuf>,
@@ -70,6 +54,8 @@ pub fn run(args: Args) -> Result<()> {
         return Err(Error::Input("--iters must be at least 1".into()));
     }
     check_output(&args.output, "ply")?;
+    // Before the dataset, so a bad --features file fails fast.
+    let loss = build_loss(&args.loss, args.iters)?;
     let ds = io::load_dataset(&args.data, &LoadOptions::default())?;
     let init = args.init.as_deref().map(io::read_ply).transpose()?;
     let cfg = TrainConfig {
@@ -86,7 +72,7 @@ pub fn run(args: Args) -> Result<()> {
     // Without a terminal (logs), a line per evaluation instead of the bar.
     let log_lines = !args.quiet && pb.is_hidden();
     let mut last_psnr = None;
-    let (splats, report) = train(&ds, init, &cfg, args.loss.build()?, None, &mut |p| {
+    let (splats, report) = train(&ds, init, &cfg, loss, None, &mut |p| {
         if p.test_psnr.is_some() {
             last_psnr = p.test_psnr;
             if log_lines {

@@ -64,7 +64,7 @@ pub fn build_loss(args: &LossArgs, total_iters: usize) -> crate::Result<Box<dyn 
         }
     }
     Ok(match args.loss {
-        LossKind::L1ssim => Box::new(wdr::TemporaryL1Ssim),
+        LossKind::L1ssim => Box::new(L1Ssim::default()),
         LossKind::Wd => {
             let mut l = wdr::WdLoss::new(args.features.build()?, total_iters);
             l.gamma = args.wd_gamma.unwrap_or(l.gamma);

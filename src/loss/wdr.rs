@@ -12,7 +12,7 @@ use gscodec_decoder::Image;
 use super::features::FeatureSpace;
 use super::tensor::Tensor;
 use super::wd::{self, Reference, Sigma};
-use super::ImageLoss;
+use super::{ImageLoss, L1Ssim};
 
 /// WD-R's weight of the original loss, β = 1/0.09 (paper).
 pub const BETA: f64 = 1.0 / 0.09;
@@ -216,59 +216,9 @@ impl ImageLoss for WdrLoss {
     }
 }
 
-/// TEMPORARY(wd): private `L_orig = 0.8·L1 + 0.2·(1 − SSIM)` with gradient, until the trainer's
-/// `L1Ssim` (`src/loss/{l1,ssim}.rs`) lands in main; then this is replaced by a call to it.
+/// `L_orig = 0.8·L1 + 0.2·(1 − SSIM)` and its gradient (the trainer's [`L1Ssim`]).
 pub fn l_orig(rendered: &Image, target: &Image) -> (f64, Vec<f32>) {
-    use super::ssim::{blur, channel, C1, C2};
-    check_sizes(rendered, target);
-    let (w, h) = (rendered.width as usize, rendered.height as usize);
-    let n = w * h;
-    let count = (3 * n) as f64;
-    let mut grad = vec![0.0f32; 3 * n];
-    let mut l1 = 0.0;
-    for (i, (r, t)) in rendered.data.iter().zip(&target.data).enumerate() {
-        let d = (*r - *t) as f64;
-        l1 += d.abs();
-        grad[i] = (0.8 * d.signum() / count) as f32 * (d != 0.0) as i32 as f32;
-    }
-    let mut ssim_sum = 0.0;
-    for c in 0..3 {
-        let (x, y) = (channel(rendered, c), channel(target, c));
-        let prod = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
-        let (mx, my) = (blur(&x, w, h), blur(&y, w, h));
-        let (exx, eyy, exy) = (blur(&prod(&x, &x), w, h), blur(&prod(&y, &y), w, h), blur(&prod(&x, &y), w, h));
-        let (mut g_mu, mut g_xx, mut g_xy) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-        let dl_ds = -0.2 / count;
-        for i in 0..n {
-            let a = 2.0 * mx[i] * my[i] + C1;
-            let b = 2.0 * (exy[i] - mx[i] * my[i]) + C2;
-            let cc = mx[i] * mx[i] + my[i] * my[i] + C1;
-            let d = (exx[i] - mx[i] * mx[i]) + (eyy[i] - my[i] * my[i]) + C2;
-            let s = a * b / (cc * d);
-            ssim_sum += s;
-            g_mu[i] = dl_ds * s * (2.0 * my[i] / a - 2.0 * my[i] / b - 2.0 * mx[i] / cc + 2.0 * mx[i] / d);
-            g_xy[i] = dl_ds * 2.0 * s / b;
-            g_xx[i] = -dl_ds * s / d;
-        }
-        let (b_mu, b_xx, b_xy) = (blur(&g_mu, w, h), blur(&g_xx, w, h), blur(&g_xy, w, h));
-        for i in 0..n {
-            grad[3 * i + c] += (b_mu[i] + 2.0 * x[i] * b_xx[i] + y[i] * b_xy[i]) as f32;
-        }
-    }
-    (0.8 * l1 / count + 0.2 * (1.0 - ssim_sum / count), grad)
-}
-
-/// TEMPORARY(wd): `l1ssim` as an [`ImageLoss`] until the trainer's `L1Ssim` lands in main.
-pub struct TemporaryL1Ssim;
-
-impl ImageLoss for TemporaryL1Ssim {
-    fn loss_and_grad(&mut self, rendered: &Image, target: &Image, _view: usize, _iter: usize) -> (f64, Vec<f32>) {
-        l_orig(rendered, target)
-    }
-
-    fn name(&self) -> &'static str {
-        "l1ssim"
-    }
+    L1Ssim::default().eval(rendered, target)
 }
 
 /// d_WD in the default feature space (`pyramid`, σ = 4) between two images, for metrics.

@@ -32,7 +32,7 @@ pub fn evaluate(reference: &Image, test: &Image) -> ViewMetrics {
         ssim: ssim(reference, test),
         ms_ssim: ms_ssim(reference, test).ok(),
         flip: flip(reference, test),
-        wd: None,
+        wd: Some(crate::loss::wdr::wd_metric(test, reference)),
     }
 }
 
