@@ -7,6 +7,8 @@ pub mod error;
 pub mod io;
 pub mod loss;
 pub mod metrics;
+pub mod raster;
+pub mod train;
 pub mod rate;
 pub mod sample;
 pub mod views;

@@ -10,6 +10,7 @@ pub mod eval;
 pub mod progress;
 pub mod render;
 pub mod sample;
+pub mod train;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
 #[derive(Debug, Parser)]
@@ -22,6 +23,7 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     Sample(sample::Args),
+    Train(train::Args),
     Encode(encode::Args),
     Decode(decode::Args),
     Info(info::Args),
@@ -34,6 +36,7 @@ pub enum Command {
 pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
+        Command::Train(a) => train::run(a),
         Command::Encode(a) => encode::run(a),
         Command::Decode(a) => decode::run(a),
         Command::Info(a) => info::run(a),
