@@ -11,6 +11,7 @@ pub mod raster;
 pub mod train;
 pub mod rate;
 pub mod sample;
+pub mod sweep;
 pub mod views;
 
 pub use error::{Error, Result};

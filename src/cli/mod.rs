@@ -11,6 +11,7 @@ pub mod progress;
 pub mod render;
 pub mod sample;
 pub mod train;
+pub mod sweep;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
 #[derive(Debug, Parser)]
@@ -30,6 +31,8 @@ pub enum Command {
     Render(render::Args),
     Convert(convert::Args),
     Eval(eval::Args),
+    /// Encode at several λ and losses, evaluate, and write RD tables, plots and BD-rates.
+    Sweep(sweep::Args),
 }
 
 /// Runs a parsed command line.
@@ -43,5 +46,6 @@ pub fn run(cli: Cli) -> crate::Result<()> {
         Command::Render(a) => render::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Sweep(a) => sweep::run(a),
     }
 }
