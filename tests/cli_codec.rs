@@ -62,3 +62,21 @@ fn huge_lambda_encodes_an_empty_scene_that_decodes() {
     let o = gscodec(&["encode", input.to_str().unwrap(), "-o", gsc.to_str().unwrap(), "--lambda", "-1"]);
     assert_eq!(o.status.code(), Some(2));
 }
+
+#[test]
+fn fine_tuning_encode_writes_a_decodable_file_and_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let gsc = dir.path().join("t.gsc");
+    let report = dir.path().join("r.json");
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let o = gscodec(&["encode", input.to_str().unwrap(), "-o", gsc.to_str().unwrap(), "--iters", "3", "--lambda", "20", "--report", report.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let bytes = std::fs::read(&gsc).unwrap();
+    assert_eq!(r["file_bytes"].as_u64().unwrap() as usize, bytes.len());
+    let est = r["estimated_bytes"].as_f64().unwrap();
+    assert!((est - bytes.len() as f64).abs() / (bytes.len() as f64) < 0.05, "{est} vs {}", bytes.len());
+    assert!(r["orbit_psnr"].as_f64().unwrap() > 25.0);
+    assert!(r["series"].as_array().unwrap().iter().any(|p| p["trial"] == "train"));
+    gscodec_decoder::decode(&bytes, &Default::default()).unwrap();
+}

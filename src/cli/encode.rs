@@ -1,6 +1,6 @@
 //! `gscodec encode`: a trained `.ply` (or a dataset, once training is available) to a `.gsc` file.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use serde_json::json;
@@ -23,10 +23,12 @@ pub struct Args {
     /// Larger gives smaller files; 0 = finest.
     #[arg(long, default_value_t = 20.0)]
     pub lambda: f64,
-    /// Distortion for training (l1ssim, wd, wdr).
-    #[arg(long, default_value = "l1ssim")]
-    pub loss: String,
-    /// Training iterations (0 = quantise and code the input as is).
+    /// Training distortion and its options.
+    #[command(flatten)]
+    pub loss: crate::loss::LossArgs,
+    /// Fine-tuning (a .ply: against 24 orbit renders of itself, densification off) or training
+    /// (a dataset) iterations under D + λ·R with straight-through quantisation; 0 = code as is
+    /// (a dataset needs at least 1).
     #[arg(long, default_value_t = 0)]
     pub iters: usize,
     /// Write a JSON report (sizes per attribute group, estimated vs actual, time series).
@@ -49,18 +51,29 @@ pub fn run(args: Args) -> crate::Result<()> {
     if !(args.lambda >= 0.0 && args.lambda.is_finite()) {
         return Err(Error::Input(format!("--lambda {}: must be a finite number >= 0", args.lambda)));
     }
-    if !["l1ssim", "wd", "wdr"].contains(&args.loss.as_str()) {
-        return Err(Error::Input(format!("--loss {}: expected l1ssim, wd or wdr", args.loss)));
+    let input_is_dir = args.input.is_dir();
+    if input_is_dir && args.iters == 0 {
+        return Err(Error::input(&args.input, "encoding a dataset needs training: pass --iters N"));
     }
-    let scene = load_input(&args.input)?;
-    if args.iters > 0 && !args.quiet {
-        eprintln!("note: fine-tuning is not available in this build; coding the input as is");
-    }
+    let mut scene = if input_is_dir { Splats::new(3) } else { crate::io::read_ply(&args.input)? };
+    scene.validate().map_err(|e| Error::input(&args.input, e))?;
     let mut series = Vec::new();
     let (config, _) = rate::rd::search(&scene, args.lambda, |p| {
         series.push(json!({"iteration": p.step, "trial": p.change, "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": 8.0 * p.bytes as f64, "d": p.d, "heldout_psnr": p.psnr}));
     })
     .map_err(|e| Error::input(&args.input, e))?;
+    let mut config = config;
+    let original = scene.clone();
+    if args.iters > 0 {
+        let (trained, steps) = fine_tune(&args, &scene, &config, &start, &mut series)?;
+        scene = trained;
+        if input_is_dir {
+            // The RD search above ran on an empty scene: run it now on the trained one.
+            config = rate::rd::search(&scene, args.lambda, |_| {}).map_err(|e| Error::input(&args.input, e))?.0;
+        } else {
+            config.steps = steps;
+        }
+    }
     let (bytes, report, q) = rate::encode(&scene, &config).map_err(|e| Error::input(&args.input, e))?;
     crate::io::atomic::write_bytes_atomic(&args.output, &bytes)?;
     if !args.quiet {
@@ -76,12 +89,14 @@ pub fn run(args: Args) -> crate::Result<()> {
     }
     if let Some(path) = &args.report {
         let decoded = rate::quantise::dequantise(&q);
-        let psnr = orbit_psnr(&scene, &decoded);
+        // Against the input scene (for a dataset: against the trained scene before coding).
+        let psnr = orbit_psnr(if input_is_dir { &scene } else { &original }, &decoded);
         let estimated = report.estimated_bits();
         let v = json!({
             "input": args.input.display().to_string(),
             "lambda": args.lambda,
-            "loss": args.loss,
+            "loss": format!("{:?}", args.loss.loss).to_lowercase(),
+            "iters": args.iters,
             "file_bytes": bytes.len(),
             "estimated_bytes": estimated / 8.0,
             "gaussians": report.gaussians,
@@ -99,9 +114,32 @@ pub fn run(args: Args) -> crate::Result<()> {
     Ok(())
 }
 
-fn load_input(path: &Path) -> crate::Result<Splats> {
-    if path.is_dir() {
-        return Err(Error::input(path, "encoding from a dataset needs training, which this build does not include yet; pass a trained .ply"));
-    }
-    crate::io::read_ply(path)
+/// Scale from the RD search's λ (D = 255²·MSE) to the trainer's loss units (L1+SSIM ≈ MSE·10³/255²·…):
+/// the rate term during training is `λ·TRAIN_LAMBDA_SCALE·R_Mbit`.
+pub const TRAIN_LAMBDA_SCALE: f64 = 1e-3;
+
+/// Fine-tunes `scene` (or trains from the dataset at `args.input`) with the rate term.
+fn fine_tune(args: &Args, scene: &Splats, config: &rate::EncodeConfig, start: &Instant, series: &mut Vec<serde_json::Value>) -> crate::Result<(Splats, rate::Steps)> {
+    use crate::train::{train, TrainConfig};
+    let (dataset, init) = if args.input.is_dir() {
+        (crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?, None)
+    } else {
+        let cams = orbit_cameras(scene, 24, 256, 256, UpAxis::NegY.vector());
+        (crate::train::targets::render_targets(scene, &cams, [0.0; 3]), Some(scene.clone()))
+    };
+    let cfg = TrainConfig { iters: args.iters, densify: init.is_none(), sh_degree_max: if init.is_some() { scene.sh_degree } else { 3 }, eval_interval: (args.iters / 10).max(1), ..Default::default() };
+    let term = rate::term::RateTerm::new(args.lambda * TRAIN_LAMBDA_SCALE, config.steps, config.min_opacity);
+    let pb = super::progress::bar(args.iters as u64, "train", args.quiet);
+    let (trained, _) = train(&dataset, init, &cfg, crate::loss::build_loss(&args.loss, args.iters)?, Some(Box::new(term)), &mut |p| {
+        pb.set_position(p.iteration as u64);
+        if let Some(psnr) = p.test_psnr {
+            series.push(json!({"iteration": p.iteration, "trial": "train", "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": null, "d": p.loss, "heldout_psnr": psnr}));
+        }
+    })
+    .map_err(|e| match e {
+        Error::Input(m) => Error::input(&args.input, m),
+        other => other,
+    })?;
+    pb.finish_and_clear();
+    Ok((trained, config.steps))
 }

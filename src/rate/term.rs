@@ -1,4 +1,4 @@
-//! The rate term for training (`gscodec::train::RdTerm` once the trainer lands): renders with
+//! The rate term for training (implements `gscodec::train::RdTerm`): renders with
 //! straight-through quantised parameters and adds `λ·R/R_NORM` with its gradient, where `R`
 //! is the learned entropy model's bit estimate of everything the file will hold.
 
@@ -118,6 +118,16 @@ impl RateTerm {
         }
         self.last_bits = total;
         self.lambda * total / R_NORM
+    }
+}
+
+impl crate::train::RdTerm for RateTerm {
+    fn render_params(&mut self, params: &Splats, iter: usize) -> Option<Splats> {
+        RateTerm::render_params(self, params, iter)
+    }
+
+    fn rate_and_grad(&mut self, params: &Splats, grad: &mut Splats, iter: usize) -> f64 {
+        RateTerm::rate_and_grad(self, params, grad, iter)
     }
 }
 
