@@ -141,3 +141,19 @@ pub fn ssim_and_grad(a: &Image, b: &Image) -> (f64, Vec<f32>) {
     }
     (per.iter().map(|p| p.0).sum::<f64>() / n, grad)
 }
+
+/// Per-pixel luminance term `l = (2μxμy + C1)/(μx² + μy² + C1)` and contrast-structure term
+/// `cs = (2σxy + C2)/(σx² + σy² + C2)` of one channel pair, from the same window statistics as
+/// [`ssim_map`] (whose value is `l·cs`). MS-SSIM uses `cs` alone at its finer scales.
+pub fn luminance_cs_maps(x: &[f64], y: &[f64], w: usize, h: usize) -> (Vec<f64>, Vec<f64>) {
+    let sq = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
+    let (mx, my) = (blur(x, w, h), blur(y, w, h));
+    let (sxx, syy, sxy) = (blur(&sq(x, x), w, h), blur(&sq(y, y), w, h), blur(&sq(x, y), w, h));
+    (0..w * h)
+        .map(|i| {
+            let (vx, vy, cxy) = (sxx[i] - mx[i] * mx[i], syy[i] - my[i] * my[i], sxy[i] - mx[i] * my[i]);
+            let l = (2.0 * mx[i] * my[i] + C1) / (mx[i] * mx[i] + my[i] * my[i] + C1);
+            (l, (2.0 * cxy + C2) / (vx + vy + C2))
+        })
+        .unzip()
+}
