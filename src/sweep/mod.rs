@@ -25,11 +25,12 @@ use results::{PointResult, TimelinePoint, RESULT_FILE};
 
 /// Default λ grid of `sweep`, largest first (smallest files first).
 ///
-/// `encode --lambda` weighs the rate term of `D + λ·R`, where R is normalised by a fixed constant
-/// (DESIGN §5) so that λ is comparable across scenes. The paper sweeps λ ∈ [3⁻⁵, 3⁻²]
-/// (≈ 0.004 … 0.11); this grid covers that range in roughly ×3 steps and one step beyond the
-/// high-quality end.
-pub const DEFAULT_LAMBDAS: [f64; 5] = [0.1, 0.03, 0.01, 0.003, 0.001];
+/// `encode --lambda` is the rate–distortion trade-off (larger: smaller files, 0: finest; the
+/// encoder's default is 1). Measured with the encoder of the codec branch (no retraining) on
+/// `k7000.ply` (9,080 Gaussians): λ = 100 → 396 kB / 32.0 dB, 30 → 1.44 MB / 37.0 dB,
+/// 10 → 1.66 MB / 40.9 dB, 3 → 2.25 MB / 48.2 dB, 1 → 2.25 MB / 50.9 dB (orbit PSNR against
+/// the input). Revisit when the encoder trains with `D + λ·R`.
+pub const DEFAULT_LAMBDAS: [f64; 5] = [100.0, 30.0, 10.0, 3.0, 1.0];
 
 /// Default losses compared by `sweep`.
 pub const DEFAULT_LOSSES: [&str; 2] = ["l1ssim", "wdr"];
