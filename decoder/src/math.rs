@@ -60,14 +60,19 @@ pub fn covariance_3d(log_scale: [f32; 3], rot: [f32; 4]) -> Mat3 {
     m * m.transpose()
 }
 
+/// The bounds ±1.3·tan(half-FOV) to which `x/z` and `y/z` are clamped before the EWA Jacobian is
+/// formed (see [`project_cov2d`]).
+pub fn jacobian_limits(cam: &Camera) -> [f32; 2] {
+    [1.3 * (cam.width as f32 / (2.0 * cam.fx)), 1.3 * (cam.height as f32 / (2.0 * cam.fy))]
+}
+
 /// Jacobian-clamped EWA projection of a 3D covariance to the dilated 2D covariance `[a, b, c]`
 /// (`[[a, b], [b, c]]`), for a Gaussian whose centre is `t` in camera space.
 ///
 /// As in the reference rasterizer, `x/z` and `y/z` are clamped to ±1.3·tan(half-FOV) before the
 /// Jacobian is formed, so Gaussians far outside the view do not blow up.
 pub fn project_cov2d(cam: &Camera, t: Vec3, cov3d: &Mat3) -> [f32; 3] {
-    let lim_x = 1.3 * (cam.width as f32 / (2.0 * cam.fx));
-    let lim_y = 1.3 * (cam.height as f32 / (2.0 * cam.fy));
+    let [lim_x, lim_y] = jacobian_limits(cam);
     let tx = (t.x / t.z).clamp(-lim_x, lim_x) * t.z;
     let ty = (t.y / t.z).clamp(-lim_y, lim_y) * t.z;
     let (iz, iz2) = (1.0 / t.z, 1.0 / (t.z * t.z));
@@ -165,4 +170,29 @@ pub fn tile_rect(mean: [f32; 2], radius: f32, width: u32, height: u32) -> [u32; 
     let lo = |p: f32, g: f32| ((p - radius) / t).clamp(0.0, g) as u32;
     let hi = |p: f32, g: f32| ((p + radius + t - 1.0) / t).clamp(0.0, g) as u32;
     [lo(px, gx), lo(py, gy), hi(px, gx), hi(py, gy)]
+}
+
+/// Whether a Gaussian can reach alpha ≥ [`MIN_ALPHA`] at any pixel centre of the pixel-index box
+/// `[x0, x1] x [y0, y1]` (inclusive). `mean` is in continuous image coordinates.
+///
+/// This is a conservative bound: a `false` means every pixel of the box would skip this Gaussian
+/// anyway, so dropping it from the tile's list leaves the image bit-identical. It finds the
+/// minimum of the quadratic form `dᵀ Q d` (`Q` = conic) over the box of offsets, which lies at
+/// the centre when the box contains it, otherwise on one of the four edges.
+pub fn reaches_box(mean: [f32; 2], conic: [f32; 3], opacity: f32, box_px: [f32; 4]) -> bool {
+    let [a, b, c] = conic;
+    // Offsets d = mean_ref - pixel for pixels in the box (pixel centre = index + 0.5).
+    let (mx, my) = (mean[0] - 0.5, mean[1] - 0.5);
+    let (dx0, dx1) = (mx - box_px[2], mx - box_px[0]);
+    let (dy0, dy1) = (my - box_px[3], my - box_px[1]);
+    let q = |dx: f32, dy: f32| a * dx * dx + 2.0 * b * dx * dy + c * dy * dy;
+    let qmin = if dx0 <= 0.0 && 0.0 <= dx1 && dy0 <= 0.0 && 0.0 <= dy1 {
+        0.0
+    } else {
+        let along_y = |dx: f32| q(dx, (-b * dx / c).clamp(dy0, dy1));
+        let along_x = |dy: f32| q((-b * dy / a).clamp(dx0, dx1), dy);
+        along_y(dx0).min(along_y(dx1)).min(along_x(dy0)).min(along_x(dy1))
+    };
+    // A small margin keeps the test conservative under f32 rounding.
+    !(opacity * (-0.5 * qmin * (1.0 - 1e-3)).exp() < MIN_ALPHA * (1.0 - 1e-3))
 }

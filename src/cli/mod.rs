@@ -2,11 +2,15 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod decode;
+pub mod encode;
+pub mod info;
 pub mod convert;
 pub mod eval;
 pub mod progress;
 pub mod render;
 pub mod sample;
+pub mod train;
 pub mod sweep;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
@@ -20,6 +24,10 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     Sample(sample::Args),
+    Train(train::Args),
+    Encode(encode::Args),
+    Decode(decode::Args),
+    Info(info::Args),
     Render(render::Args),
     Convert(convert::Args),
     Eval(eval::Args),
@@ -31,6 +39,10 @@ pub enum Command {
 pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
+        Command::Train(a) => train::run(a),
+        Command::Encode(a) => encode::run(a),
+        Command::Decode(a) => decode::run(a),
+        Command::Info(a) => info::run(a),
         Command::Render(a) => render::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Eval(a) => eval::run(a),

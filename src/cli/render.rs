@@ -11,11 +11,11 @@ use gscodec_decoder::render::render;
 use gscodec_decoder::{Camera, RenderOptions, Splats};
 use std::path::{Path, PathBuf};
 
-/// Render a scene (.ply) into DIR, one image per camera, named by frame index.
+/// Render a scene (.ply, .spz, .splat) into DIR, one image per camera, named by frame index.
 #[derive(Debug, clap::Args)]
 #[command(group = clap::ArgGroup::new("views").required(true).args(["cameras", "orbit"]))]
 pub struct Args {
-    /// Scene file (.ply).
+    /// Scene file (.ply, .spz, .splat).
     pub scene: PathBuf,
     /// Output directory.
     #[arg(short, long)]
@@ -58,6 +58,9 @@ pub enum Format {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Backend {
     Cpu,
+    /// wgpu compute renderer (builds with the `gpu` cargo feature; any Vulkan/Metal/DX12 adapter,
+    /// including Mesa's software lavapipe).
+    Gpu,
 }
 
 /// Parses `r,g,b` with finite components in [0,1].
@@ -110,13 +113,13 @@ pub fn run(args: Args) -> Result<()> {
         (None, Some(n)) => (orbit_views(&scene, n, args.size, args.up), [0.0; 3]),
         (None, None) => unreachable!("clap requires --cameras or --orbit"),
     };
-    let Backend::Cpu = args.backend;
+    let renderer = Renderer::new(args.backend, &args.scene)?;
     let opts = RenderOptions { background: args.background.unwrap_or(default_bg), max_sh_degree: 3 };
     let max_index = views.iter().map(|v| v.index).max().unwrap_or(0);
     let pb = progress::bar(views.len() as u64, "render", args.quiet);
     write_dir_atomic(&args.out, |tmp| {
         for v in &views {
-            let img = render(&scene, &v.camera, &opts);
+            let img = renderer.render(&scene, &v.camera, &opts).map_err(|e| Error::failure(&args.out, e))?;
             match args.format {
                 Format::Png => write_png(&tmp.join(frame_name(v.index, max_index, "png")), &img)?,
                 Format::Exr => write_exr(&tmp.join(frame_name(v.index, max_index, "exr")), &img)?,
@@ -127,4 +130,33 @@ pub fn run(args: Args) -> Result<()> {
     })?;
     pb.finish_and_clear();
     Ok(())
+}
+
+/// The selected backend, ready to draw frames.
+enum Renderer {
+    Cpu,
+    #[cfg(feature = "gpu")]
+    Gpu(Box<gscodec_decoder::render::gpu::GpuRenderer>),
+}
+
+impl Renderer {
+    fn new(backend: Backend, scene: &Path) -> Result<Renderer> {
+        match backend {
+            Backend::Cpu => Ok(Renderer::Cpu),
+            #[cfg(feature = "gpu")]
+            Backend::Gpu => gscodec_decoder::render::gpu::GpuRenderer::new()
+                .map(|r| Renderer::Gpu(Box::new(r)))
+                .map_err(|e| Error::failure(scene, format!("--backend gpu: {e}"))),
+            #[cfg(not(feature = "gpu"))]
+            Backend::Gpu => Err(Error::input(scene, "--backend gpu: this build has no GPU renderer (build with `--features gpu`)")),
+        }
+    }
+
+    fn render(&self, scene: &Splats, cam: &Camera, opts: &RenderOptions) -> std::result::Result<gscodec_decoder::Image, String> {
+        match self {
+            Renderer::Cpu => Ok(render(scene, cam, opts)),
+            #[cfg(feature = "gpu")]
+            Renderer::Gpu(r) => r.render(scene, cam, opts).map_err(|e| e.to_string()),
+        }
+    }
 }

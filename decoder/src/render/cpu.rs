@@ -82,11 +82,19 @@ pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
         .par_iter()
         .map(|p| if p.radius > 0.0 { math::tile_rect(p.mean, p.radius, width, height) } else { [0; 4] })
         .collect();
+    // A Gaussian is listed in a tile only if it can reach alpha >= 1/255 at one of its pixels.
+    let reaches = |p: &Projected, tx: u32, ty: u32| {
+        let (x0, y0) = (tx * TILE, ty * TILE);
+        let bx = [x0 as f32, y0 as f32, ((x0 + TILE).min(width) - 1) as f32, ((y0 + TILE).min(height) - 1) as f32];
+        math::reaches_box(p.mean, p.conic, p.opacity, bx)
+    };
     let mut counts = vec![0u32; n_tiles + 1];
-    for r in &rects {
+    for (p, r) in proj.iter().zip(&rects) {
         for ty in r[1]..r[3] {
             for tx in r[0]..r[2] {
-                counts[(ty * tiles_x + tx) as usize + 1] += 1;
+                if reaches(p, tx, ty) {
+                    counts[(ty * tiles_x + tx) as usize + 1] += 1;
+                }
             }
         }
     }
@@ -96,9 +104,12 @@ pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
     let ranges = counts.clone();
     let mut ids = vec![0u32; ranges[n_tiles] as usize];
     let mut cursor = counts;
-    for (g, r) in rects.iter().enumerate() {
+    for (g, (p, r)) in proj.iter().zip(&rects).enumerate() {
         for ty in r[1]..r[3] {
             for tx in r[0]..r[2] {
+                if !reaches(p, tx, ty) {
+                    continue;
+                }
                 let t = (ty * tiles_x + tx) as usize;
                 ids[cursor[t] as usize] = g as u32;
                 cursor[t] += 1;

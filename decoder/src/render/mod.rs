@@ -40,3 +40,6 @@ impl Default for RenderOptions {
         RenderOptions { background: [0.0; 3], max_sh_degree: 3 }
     }
 }
+
+#[cfg(feature = "gpu")]
+pub mod gpu;

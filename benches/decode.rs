@@ -1,0 +1,44 @@
+//! Decode throughput (Gaussians/s): `.gsc` with 1 thread and all threads, SH0 and SH3, against
+//! SPZ decode of the same scene. Uses `../shared/data/scenes/k7000.ply` (or `$GSCODEC_DATA`)
+//! when present, else `samples/tiny/truth.ply`.
+//!
+//! `cargo bench --bench decode`
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use gscodec::decoder::{decode, DecodeOptions, Splats};
+use gscodec::io::ply::read_ply;
+use gscodec::io::spz::{decode_spz, encode_spz, SpzVersion};
+use gscodec::rate::{self, EncodeConfig};
+use std::path::{Path, PathBuf};
+
+fn scene() -> (String, Splats) {
+    let data = std::env::var_os("GSCODEC_DATA").map(PathBuf::from).unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let k7000 = data.join("scenes/k7000.ply");
+    if k7000.exists() {
+        ("k7000".into(), read_ply(&k7000).unwrap())
+    } else {
+        ("tiny".into(), read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap())
+    }
+}
+
+fn bench_decode(c: &mut Criterion) {
+    let (name, sh3) = scene();
+    let mut g = c.benchmark_group("decode");
+    for (label, s) in [("sh3", sh3.clone()), ("sh0", sh3.with_sh_degree(0))] {
+        let (gsc, _, _) = rate::encode(&s, &EncodeConfig::for_lambda(1.0)).expect("encode");
+        let spz = encode_spz(&s, SpzVersion::V4).unwrap();
+        let n = s.len() as u64;
+        eprintln!("{name} {label}: {n} Gaussians, .gsc {} bytes, .spz {} bytes", gsc.len(), spz.len());
+        g.throughput(Throughput::Elements(n));
+        for threads in [1usize, 0] {
+            let opts = DecodeOptions { threads, ..DecodeOptions::default() };
+            let id = if threads == 1 { "gsc_1_thread" } else { "gsc_all_threads" };
+            g.bench_with_input(BenchmarkId::new(id, format!("{name}_{label}")), &gsc, |b, bytes| b.iter(|| decode(bytes, &opts).unwrap()));
+        }
+        g.bench_with_input(BenchmarkId::new("spz_v4", format!("{name}_{label}")), &spz, |b, bytes| b.iter(|| decode_spz(bytes).unwrap()));
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_decode);
+criterion_main!(benches);

@@ -1,0 +1,437 @@
+//! wgpu compute renderer with the semantics of the CPU renderer ([`super::render`]).
+//!
+//! Pipeline (WGSL kernels in the repository's top-level `shaders/`):
+//! 1. `project` — per Gaussian: camera transform, 3D → 2D covariance (EWA), conic and 3σ radius,
+//!    SH colour, opacity, and the number of 16×16 tiles its rectangle touches. The scene is
+//!    uploaded in chunks so that no storage binding exceeds 128 MiB.
+//! 2. `scan` — exclusive prefix sum of the tile counts (workgroup-shared Hillis–Steele scans,
+//!    recursive over blocks); the total number of (tile, Gaussian) pairs is read back once.
+//! 3. `emit` — one `(tile, depth, id)` key per overlap, in Gaussian order.
+//! 4. `radix_sort` — stable LSD radix sort, 4 bits per pass: 8 passes over the depth bits, then as
+//!    many as the tile index needs. Stability keeps equal depths in index order (like the CPU).
+//! 5. `tile_ranges` + `rasterize` — each tile's slice of the sorted list; one 16×16 workgroup per
+//!    tile composites front to back, staging Gaussians through workgroup memory.
+//!
+//! No subgroup operations or optional features are used, so any WebGPU-capable adapter works
+//! (including Mesa's lavapipe software Vulkan). The image is read back to the host as RGB f32.
+
+use super::{Image, RenderOptions};
+use crate::camera::Camera;
+use crate::math::{sh_rest_coeffs, TILE};
+use crate::splats::Splats;
+use std::future::Future;
+use std::sync::{Arc, Mutex};
+use wgpu::util::DeviceExt;
+
+/// Why the GPU renderer could not run.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GpuError {
+    /// No GPU adapter (not even a software one) is available.
+    #[error("no GPU adapter available: {0}")]
+    NoAdapter(String),
+    /// The adapter refused to create a device.
+    #[error("cannot create a GPU device: {0}")]
+    Device(String),
+    /// The frame needs a buffer larger than the device allows.
+    #[error("scene too large for the GPU renderer: {0}")]
+    TooLarge(String),
+    /// A wgpu validation or out-of-memory error, or a failed readback.
+    #[error("GPU error: {0}")]
+    Backend(String),
+}
+
+/// Kernels and device of the wgpu renderer. Create once, render many frames.
+pub struct GpuRenderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    info: wgpu::AdapterInfo,
+    max_binding: u64,
+    errors: Arc<Mutex<Option<String>>>,
+    project: wgpu::ComputePipeline,
+    emit: wgpu::ComputePipeline,
+    scan_blocks: wgpu::ComputePipeline,
+    scan_add: wgpu::ComputePipeline,
+    radix_count: wgpu::ComputePipeline,
+    radix_scatter: wgpu::ComputePipeline,
+    tile_ranges: wgpu::ComputePipeline,
+    rasterize: wgpu::ComputePipeline,
+}
+
+const COMMON: &str = include_str!("../../../shaders/common.wgsl");
+/// Floats per input record before the SH rest coefficients.
+const RECORD_BASE: usize = 14;
+const PROJECTED_BYTES: u64 = 48;
+const SCAN_BLOCK: u32 = 1024;
+const SORT_BLOCK: u32 = 1024;
+const MAX_GROUPS: u32 = 65535;
+
+/// Minimal executor for wgpu's futures (they complete after `Device::poll` on native backends).
+fn block_on<F: Future>(fut: F) -> F::Output {
+    use std::task::{Context, Poll, Wake, Waker};
+    struct Unpark(std::thread::Thread);
+    impl Wake for Unpark {
+        fn wake(self: Arc<Self>) {
+            self.0.unpark();
+        }
+    }
+    let waker = Waker::from(Arc::new(Unpark(std::thread::current())));
+    let mut cx = Context::from_waker(&waker);
+    let mut fut = std::pin::pin!(fut);
+    loop {
+        match fut.as_mut().poll(&mut cx) {
+            Poll::Ready(v) => return v,
+            Poll::Pending => std::thread::park(),
+        }
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct FrameUniform {
+    rot: [[f32; 4]; 3],
+    trans: [f32; 4],
+    center: [f32; 4],
+    focal: [f32; 4],
+    background: [f32; 4],
+    znear: f32,
+    width: u32,
+    height: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    degree: u32,
+    stride: u32,
+    n: u32,
+}
+
+/// Workgroup counts `(x, y)` covering `groups` with `x ≤ 65535`.
+fn dims(groups: u32) -> (u32, u32) {
+    if groups <= MAX_GROUPS {
+        (groups.max(1), 1)
+    } else {
+        (MAX_GROUPS, groups.div_ceil(MAX_GROUPS))
+    }
+}
+
+impl GpuRenderer {
+    /// Picks the default adapter (any backend wgpu was built with) and compiles the kernels.
+    pub fn new() -> Result<Self, GpuError> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        Self::with_adapter(&adapter)
+    }
+
+    /// Uses a given adapter.
+    pub fn with_adapter(adapter: &wgpu::Adapter) -> Result<Self, GpuError> {
+        let limits = adapter.limits();
+        let mut required = wgpu::Limits::downlevel_defaults();
+        // Ask for as much as the adapter offers, but never bind more than 128 MiB at once.
+        required.max_storage_buffer_binding_size = limits.max_storage_buffer_binding_size.min(128 << 20);
+        required.max_buffer_size = limits.max_buffer_size.min(1 << 30);
+        required.max_storage_buffers_per_shader_stage = 8.min(limits.max_storage_buffers_per_shader_stage);
+        required.max_compute_workgroup_storage_size = limits.max_compute_workgroup_storage_size.min(16384);
+        let (device, queue) = block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("gscodec"),
+            required_limits: required.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::Device(e.to_string()))?;
+        let errors: Arc<Mutex<Option<String>>> = Arc::new(Mutex::new(None));
+        let sink = errors.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            let mut slot = sink.lock().unwrap_or_else(|p| p.into_inner());
+            slot.get_or_insert_with(|| e.to_string());
+        }));
+        let module = |name: &str, src: &str| {
+            device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(name),
+                source: wgpu::ShaderSource::Wgsl(format!("{COMMON}\n{src}").into()),
+            })
+        };
+        let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: None,
+                module: m,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let project_m = module("project", include_str!("../../../shaders/project.wgsl"));
+        let emit_m = module("emit", include_str!("../../../shaders/emit.wgsl"));
+        let scan_m = module("scan", include_str!("../../../shaders/scan.wgsl"));
+        let sort_m = module("radix_sort", include_str!("../../../shaders/radix_sort.wgsl"));
+        let raster_m = module("rasterize", include_str!("../../../shaders/rasterize.wgsl"));
+        let r = GpuRenderer {
+            project: pipeline(&project_m, "project"),
+            emit: pipeline(&emit_m, "emit"),
+            scan_blocks: pipeline(&scan_m, "scan_blocks"),
+            scan_add: pipeline(&scan_m, "scan_add"),
+            radix_count: pipeline(&sort_m, "radix_count"),
+            radix_scatter: pipeline(&sort_m, "radix_scatter"),
+            tile_ranges: pipeline(&raster_m, "tile_ranges"),
+            rasterize: pipeline(&raster_m, "rasterize"),
+            info: adapter.get_info(),
+            max_binding: required.max_storage_buffer_binding_size,
+            device,
+            queue,
+            errors,
+        };
+        r.check()?;
+        Ok(r)
+    }
+
+    /// Name and backend of the adapter in use, e.g. `"llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan)"`.
+    pub fn adapter_name(&self) -> String {
+        format!("{} ({:?})", self.info.name, self.info.backend)
+    }
+
+    /// Whether the adapter is a CPU (software) implementation such as lavapipe.
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    fn check(&self) -> Result<(), GpuError> {
+        match self.errors.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            Some(e) => Err(GpuError::Backend(e)),
+            None => Ok(()),
+        }
+    }
+
+    fn storage(&self, label: &str, bytes: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: bytes.max(16),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    fn uniform<T: bytemuck::Pod>(&self, value: &T) -> wgpu::Buffer {
+        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: None,
+            contents: bytemuck::bytes_of(value),
+            usage: wgpu::BufferUsages::UNIFORM,
+        })
+    }
+
+    fn bind(&self, pipeline: &wgpu::ComputePipeline, buffers: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> =
+            buffers.iter().map(|&(binding, b)| wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }).collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor { label: None, layout: &pipeline.get_bind_group_layout(0), entries: &entries })
+    }
+
+    fn dispatch(enc: &mut wgpu::CommandEncoder, pipeline: &wgpu::ComputePipeline, bg: &wgpu::BindGroup, groups: (u32, u32)) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: None });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, bg, &[]);
+        pass.dispatch_workgroups(groups.0, groups.1, 1);
+    }
+
+    /// Records an in-place exclusive scan of the first `n` u32 of `data`.
+    fn record_scan(&self, enc: &mut wgpu::CommandEncoder, data: &wgpu::Buffer, n: u32) {
+        let blocks = n.div_ceil(SCAN_BLOCK);
+        let sums = self.storage("scan sums", blocks as u64 * 4);
+        let params = self.uniform(&[n, 0u32, 0, 0]);
+        let bg_blocks = self.bind(&self.scan_blocks, &[(0, &params), (1, data), (2, &sums)]);
+        Self::dispatch(enc, &self.scan_blocks, &bg_blocks, dims(blocks));
+        if blocks > 1 {
+            self.record_scan(enc, &sums, blocks);
+            let bg_add = self.bind(&self.scan_add, &[(0, &params), (1, data), (2, &sums)]);
+            Self::dispatch(enc, &self.scan_add, &bg_add, dims(blocks));
+        }
+    }
+
+    /// Records a stable sort of `pairs` (tile, depth, id) triples in `a` by (tile, depth), using
+    /// `b` as scratch; the result ends up in `a`.
+    fn record_radix_sort(&self, enc: &mut wgpu::CommandEncoder, a: &mut [wgpu::Buffer; 3], b: &mut [wgpu::Buffer; 3], pairs: u32, tile_bits: u32) {
+        let blocks = pairs.div_ceil(SORT_BLOCK);
+        let hist = self.storage("radix counts", blocks as u64 * 16 * 4);
+        let passes = (0..8).map(|p| (0u32, 4 * p)).chain((0..tile_bits.div_ceil(4)).map(|p| (1u32, 4 * p)));
+        for (word, shift) in passes {
+            let params = self.uniform(&[pairs, shift, word, blocks]);
+            let count_bg = self.bind(&self.radix_count, &[(0, &params), (1, &a[0]), (2, &a[1]), (4, &hist)]);
+            Self::dispatch(enc, &self.radix_count, &count_bg, dims(blocks));
+            self.record_scan(enc, &hist, blocks * 16);
+            let scatter_bg = self.bind(
+                &self.radix_scatter,
+                &[(0, &params), (1, &a[0]), (2, &a[1]), (3, &a[2]), (4, &hist), (5, &b[0]), (6, &b[1]), (7, &b[2])],
+            );
+            Self::dispatch(enc, &self.radix_scatter, &scatter_bg, dims(blocks));
+            std::mem::swap(a, b);
+        }
+    }
+
+    fn upload_u32(&self, data: &[u32]) -> wgpu::Buffer {
+        let buf = self.storage("upload", data.len() as u64 * 4);
+        self.queue.write_buffer(&buf, 0, bytemuck::cast_slice(data));
+        buf
+    }
+
+    fn download_u32(&self, buf: &wgpu::Buffer, n: usize) -> Result<Vec<u32>, GpuError> {
+        Ok(bytemuck::pod_collect_to_vec(&self.read_back(buf, 0, n as u64 * 4)?))
+    }
+
+    /// Exclusive prefix sum on the GPU (exposed for tests of the scan kernel).
+    #[doc(hidden)]
+    pub fn debug_scan(&self, data: &[u32]) -> Result<Vec<u32>, GpuError> {
+        let buf = self.upload_u32(data);
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        self.record_scan(&mut enc, &buf, data.len() as u32);
+        self.queue.submit([enc.finish()]);
+        self.download_u32(&buf, data.len())
+    }
+
+    /// Stable sort of `(tile, depth)` keys on the GPU; returns the permutation (exposed for tests).
+    #[doc(hidden)]
+    pub fn debug_sort(&self, tiles: &[u32], depths: &[u32], tile_bits: u32) -> Result<Vec<u32>, GpuError> {
+        let n = tiles.len();
+        let ids: Vec<u32> = (0..n as u32).collect();
+        let mut a = [self.upload_u32(tiles), self.upload_u32(depths), self.upload_u32(&ids)];
+        let mut b = [self.storage("b0", n as u64 * 4), self.storage("b1", n as u64 * 4), self.storage("b2", n as u64 * 4)];
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        self.record_radix_sort(&mut enc, &mut a, &mut b, n as u32, tile_bits);
+        self.queue.submit([enc.finish()]);
+        self.download_u32(&a[2], n)
+    }
+
+    fn read_back(&self, src: &wgpu::Buffer, offset: u64, bytes: u64) -> Result<Vec<u8>, GpuError> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(src, offset, &staging, 0, bytes);
+        self.queue.submit([enc.finish()]);
+        let result: Arc<Mutex<Option<Result<(), wgpu::BufferAsyncError>>>> = Arc::new(Mutex::new(None));
+        let slot = result.clone();
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| *slot.lock().unwrap() = Some(r));
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Backend(e.to_string()))?;
+        self.check()?;
+        match result.lock().unwrap().take() {
+            Some(Ok(())) => {}
+            Some(Err(e)) => return Err(GpuError::Backend(format!("readback failed: {e}"))),
+            None => return Err(GpuError::Backend("readback did not complete".into())),
+        }
+        let bytes = staging.slice(..).get_mapped_range().map_err(|e| GpuError::Backend(e.to_string()))?.to_vec();
+        staging.unmap();
+        Ok(bytes)
+    }
+
+    fn fits(&self, what: &str, bytes: u64) -> Result<(), GpuError> {
+        if bytes > self.max_binding {
+            return Err(GpuError::TooLarge(format!("{what} needs {bytes} bytes, the per-binding limit is {}", self.max_binding)));
+        }
+        Ok(())
+    }
+
+    /// Renders `splats` from `cam`: the same image as [`super::render`] up to float rounding.
+    pub fn render(&self, splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Result<Image, GpuError> {
+        let (w, h) = (cam.width, cam.height);
+        let n = splats.len();
+        if n == 0 || w == 0 || h == 0 {
+            return Ok(Image::filled(w, h, opts.background));
+        }
+        let n32 = u32::try_from(n).map_err(|_| GpuError::TooLarge(format!("{n} Gaussians")))?;
+        let degree = opts.max_sh_degree.min(splats.sh_degree);
+        let k_used = sh_rest_coeffs(degree);
+        let k_all = splats.rest_coeffs();
+        let stride = RECORD_BASE + 3 * k_used;
+        let (tiles_x, tiles_y) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        self.fits("the projected Gaussians", n as u64 * PROJECTED_BYTES)?;
+        self.fits("the image", w as u64 * h as u64 * 12)?;
+        self.fits("the tile table", tiles_x as u64 * tiles_y as u64 * 8)?;
+
+        let r = cam.rotation;
+        let c = cam.center();
+        let frame = FrameUniform {
+            rot: [r.x_axis.extend(0.0).to_array(), r.y_axis.extend(0.0).to_array(), r.z_axis.extend(0.0).to_array()],
+            trans: cam.translation.extend(0.0).to_array(),
+            center: c.extend(0.0).to_array(),
+            focal: [cam.fx, cam.fy, cam.cx, cam.cy],
+            background: [opts.background[0], opts.background[1], opts.background[2], 0.0],
+            znear: cam.znear,
+            width: w,
+            height: h,
+            tiles_x,
+            tiles_y,
+            degree: degree as u32,
+            stride: stride as u32,
+            n: n32,
+        };
+        let frame_buf = self.uniform(&frame);
+        let projected = self.storage("projected", n as u64 * PROJECTED_BYTES);
+        let counts = self.storage("tile counts", (n as u64 + 1) * 4);
+
+        // 1. project, chunk by chunk (each chunk's records stay under the binding limit)
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&counts, 0, None);
+        let per_chunk = ((self.max_binding / (stride as u64 * 4)) as usize).clamp(1, 1 << 22);
+        let mut record = Vec::with_capacity(per_chunk.min(n) * stride);
+        for base in (0..n).step_by(per_chunk) {
+            let end = (base + per_chunk).min(n);
+            record.clear();
+            for i in base..end {
+                record.extend_from_slice(&splats.positions[i]);
+                record.extend_from_slice(&splats.log_scales[i]);
+                record.extend_from_slice(&splats.rotations[i]);
+                record.push(splats.opacity_logits[i]);
+                record.extend_from_slice(&splats.sh_dc[i]);
+                record.extend_from_slice(&splats.sh_rest[i * k_all * 3..(i * k_all + k_used) * 3]);
+            }
+            let records = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("records"),
+                contents: bytemuck::cast_slice(&record),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+            let chunk = self.uniform(&[base as u32, (end - base) as u32, 0, 0]);
+            let bg = self.bind(&self.project, &[(0, &frame_buf), (1, &chunk), (2, &records), (3, &projected), (4, &counts)]);
+            Self::dispatch(&mut enc, &self.project, &bg, dims(((end - base) as u32).div_ceil(256)));
+        }
+        // 2. offsets = exclusive scan of the counts; counts[n] (zero) becomes the total
+        self.record_scan(&mut enc, &counts, n32 + 1);
+        self.queue.submit([enc.finish()]);
+        let total = self.read_back(&counts, n as u64 * 4, 4)?;
+        let pairs = u32::from_le_bytes(total[..4].try_into().unwrap());
+        if pairs == 0 {
+            return Ok(Image::filled(w, h, opts.background));
+        }
+        self.fits("the sort keys", pairs as u64 * 4)?;
+
+        // 3. keys
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        let key = |name| self.storage(name, pairs as u64 * 4);
+        let mut a = [key("tile A"), key("depth A"), key("id A")];
+        let mut b = [key("tile B"), key("depth B"), key("id B")];
+        let bg = self.bind(&self.emit, &[(0, &frame_buf), (1, &projected), (2, &counts), (3, &a[0]), (4, &a[1]), (5, &a[2])]);
+        Self::dispatch(&mut enc, &self.emit, &bg, dims(n32.div_ceil(256)));
+
+        // 4. stable radix sort: depth word first, then the tile word
+        let tile_bits = 32 - (tiles_x * tiles_y - 1).leading_zeros();
+        self.record_radix_sort(&mut enc, &mut a, &mut b, pairs, tile_bits);
+
+        // 5. tile ranges and rasterization
+        let ranges = self.storage("tile ranges", tiles_x as u64 * tiles_y as u64 * 8);
+        let image = self.storage("image", w as u64 * h as u64 * 12);
+        enc.clear_buffer(&ranges, 0, None);
+        let rp = self.uniform(&[pairs, 0u32, 0, 0]);
+        let bg = self.bind(&self.tile_ranges, &[(1, &rp), (2, &a[0]), (4, &ranges)]);
+        Self::dispatch(&mut enc, &self.tile_ranges, &bg, dims(pairs.div_ceil(256)));
+        let bg = self.bind(&self.rasterize, &[(0, &frame_buf), (3, &a[2]), (4, &ranges), (5, &projected), (6, &image)]);
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: None });
+            pass.set_pipeline(&self.rasterize);
+            pass.set_bind_group(0, &bg, &[]);
+            pass.dispatch_workgroups(tiles_x, tiles_y, 1);
+        }
+        self.queue.submit([enc.finish()]);
+        let bytes = self.read_back(&image, 0, w as u64 * h as u64 * 12)?;
+        Ok(Image { width: w, height: h, data: bytemuck::pod_collect_to_vec(&bytes) })
+    }
+}
