@@ -4,7 +4,6 @@ use std::path::PathBuf;
 use std::process::Command;
 
 #[test]
-#[ignore = "needs `encode`/`decode` (codec branch); un-ignore once they are in main"]
 fn sweep_two_lambdas_on_the_tiny_sample() {
     let truth = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
     let tmp = tempfile::tempdir().unwrap();
@@ -15,7 +14,7 @@ fn sweep_two_lambdas_on_the_tiny_sample() {
             .arg(&truth)
             .arg("-o")
             .arg(&out)
-            .args(["--lambdas", "1,100", "--loss", "l1ssim", "--iters", "2", "--quiet"])
+            .args(["--lambdas", "2,200", "--loss", "l1ssim", "--iters", "2", "--quiet"])
             .output()
             .unwrap()
     };
@@ -27,8 +26,8 @@ fn sweep_two_lambdas_on_the_tiny_sample() {
     let csv = std::fs::read_to_string(out.join("rd.csv")).unwrap();
     let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len(), 2, "{csv}");
-    // Sorted by λ descending: the λ = 100 row first, with the smaller file and lower quality.
-    assert_eq!((rows[0][0], rows[1][0]), ("100", "1"));
+    // Sorted by λ descending: the λ = 200 row first, with the smaller file and lower quality.
+    assert_eq!((rows[0][0], rows[1][0]), ("200", "2"));
     let num = |r: &Vec<&str>, i: usize| r[i].parse::<f64>().unwrap_or_else(|_| panic!("column {i} of {r:?}"));
     assert!(num(&rows[0], 2) < num(&rows[1], 2), "bytes must grow as λ falls: {csv}");
     assert!(num(&rows[0], 4) < num(&rows[1], 4), "PSNR must grow as λ falls: {csv}");
@@ -39,13 +38,13 @@ fn sweep_two_lambdas_on_the_tiny_sample() {
         assert!(num(r, 9) > 0.0 && num(r, 10) > 0.0, "times {r:?}");
     }
     // Bytes are the real .gsc sizes.
-    let gsc = std::fs::metadata(out.join("points/l1ssim_lambda1/scene.gsc")).unwrap().len();
+    let gsc = std::fs::metadata(out.join("points/l1ssim_lambda2/scene.gsc")).unwrap().len();
     assert_eq!(gsc, num(&rows[1], 2) as u64);
 
     // Resuming: nothing left to do, same table.
-    let before = std::fs::metadata(out.join("points/l1ssim_lambda1/scene.gsc")).unwrap().modified().unwrap();
+    let before = std::fs::metadata(out.join("points/l1ssim_lambda2/scene.gsc")).unwrap().modified().unwrap();
     let res = run();
     assert!(res.status.success());
     assert_eq!(std::fs::read_to_string(out.join("rd.csv")).unwrap(), csv);
-    assert_eq!(std::fs::metadata(out.join("points/l1ssim_lambda1/scene.gsc")).unwrap().modified().unwrap(), before);
+    assert_eq!(std::fs::metadata(out.join("points/l1ssim_lambda2/scene.gsc")).unwrap().modified().unwrap(), before);
 }

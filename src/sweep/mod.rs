@@ -25,12 +25,11 @@ use results::{PointResult, TimelinePoint, RESULT_FILE};
 
 /// Default λ grid of `sweep`, largest first (smallest files first).
 ///
-/// `encode --lambda` is the rate–distortion trade-off (larger: smaller files, 0: finest; the
-/// encoder's default is 1). Measured with the encoder of the codec branch (no retraining) on
-/// `k7000.ply` (9,080 Gaussians): λ = 100 → 396 kB / 32.0 dB, 30 → 1.44 MB / 37.0 dB,
-/// 10 → 1.66 MB / 40.9 dB, 3 → 2.25 MB / 48.2 dB, 1 → 2.25 MB / 50.9 dB (orbit PSNR against
-/// the input). Revisit when the encoder trains with `D + λ·R`.
-pub const DEFAULT_LAMBDAS: [f64; 5] = [100.0, 30.0, 10.0, 3.0, 1.0];
+/// `encode --lambda` is λ in `J = D + λ·R` with D = 255²·MSE of orbit renders and R in megabits
+/// (larger: smaller files; 0: finest; the encoder's default is 20). The grid steps ×≈3 around
+/// that default over two decades. Not yet re-measured with the RD-search encoder; see
+/// `docs/sweep.md`.
+pub const DEFAULT_LAMBDAS: [f64; 5] = [200.0, 60.0, 20.0, 6.0, 2.0];
 
 /// Default losses compared by `sweep`.
 pub const DEFAULT_LOSSES: [&str; 2] = ["l1ssim", "wdr"];
