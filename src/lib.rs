@@ -7,7 +7,11 @@ pub mod error;
 pub mod io;
 pub mod loss;
 pub mod metrics;
+pub mod raster;
+pub mod train;
+pub mod rate;
 pub mod sample;
+pub mod sweep;
 pub mod views;
 
 pub use error::{Error, Result};

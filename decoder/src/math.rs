@@ -60,14 +60,19 @@ pub fn covariance_3d(log_scale: [f32; 3], rot: [f32; 4]) -> Mat3 {
     m * m.transpose()
 }
 
+/// The bounds ±1.3·tan(half-FOV) to which `x/z` and `y/z` are clamped before the EWA Jacobian is
+/// formed (see [`project_cov2d`]).
+pub fn jacobian_limits(cam: &Camera) -> [f32; 2] {
+    [1.3 * (cam.width as f32 / (2.0 * cam.fx)), 1.3 * (cam.height as f32 / (2.0 * cam.fy))]
+}
+
 /// Jacobian-clamped EWA projection of a 3D covariance to the dilated 2D covariance `[a, b, c]`
 /// (`[[a, b], [b, c]]`), for a Gaussian whose centre is `t` in camera space.
 ///
 /// As in the reference rasterizer, `x/z` and `y/z` are clamped to ±1.3·tan(half-FOV) before the
 /// Jacobian is formed, so Gaussians far outside the view do not blow up.
 pub fn project_cov2d(cam: &Camera, t: Vec3, cov3d: &Mat3) -> [f32; 3] {
-    let lim_x = 1.3 * (cam.width as f32 / (2.0 * cam.fx));
-    let lim_y = 1.3 * (cam.height as f32 / (2.0 * cam.fy));
+    let [lim_x, lim_y] = jacobian_limits(cam);
     let tx = (t.x / t.z).clamp(-lim_x, lim_x) * t.z;
     let ty = (t.y / t.z).clamp(-lim_y, lim_y) * t.z;
     let (iz, iz2) = (1.0 / t.z, 1.0 / (t.z * t.z));

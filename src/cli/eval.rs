@@ -38,6 +38,9 @@ pub struct Args {
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Also report every view's metrics (JSON: a `per_view` array).
+    #[arg(long)]
+    pub per_view: bool,
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
@@ -62,31 +65,67 @@ pub fn run(args: Args) -> Result<()> {
     };
     let opts = RenderOptions { background, max_sh_degree: 3 };
     let pb = progress::bar(views.len() as u64, "eval", args.quiet);
-    let (mut psnr, mut ssim, mut ms) = (0.0, 0.0, 0.0);
+    let mut ms = 0.0;
+    let mut per_view = Vec::with_capacity(views.len());
     for v in &views {
         let t = Instant::now();
         let img = render(&scene, &v.camera, &opts);
         ms += t.elapsed().as_secs_f64() * 1e3;
         let target = v.target.as_ref().expect("every eval view has a target");
-        psnr += metrics::psnr(&img, target);
-        ssim += metrics::ssim(&img, target);
+        per_view.push(metrics::view::evaluate(target, &img));
         pb.inc(1);
     }
     pb.finish_and_clear();
     let n = views.len() as f64;
-    let report = serde_json::json!({
-        "psnr": psnr / n,
-        "ssim": ssim / n,
+    let Some(mean) = metrics::view::mean(&per_view) else {
+        let what = args.data.as_ref().or(args.reference.as_ref()).unwrap_or(&args.scene);
+        return Err(Error::input(what, "no views to evaluate"));
+    };
+    let mut report = serde_json::json!({
+        "psnr": mean.psnr,
+        "ssim": mean.ssim,
+        "ms_ssim": mean.ms_ssim,
+        "flip": mean.flip,
+        "wd": mean.wd,
         "bytes": bytes,
         "gaussians": scene.len(),
         "render_ms": ms / n,
         "views": views.len(),
     });
+    if args.per_view {
+        report["per_view"] = views
+            .iter()
+            .zip(&per_view)
+            .map(|(v, m)| {
+                let mut o = serde_json::to_value(m).unwrap_or_default();
+                o["index"] = v.index.into();
+                o
+            })
+            .collect();
+    }
+    let opt = |v: Option<f64>, digits: usize| v.map_or("n/a".to_string(), |v| format!("{v:.digits$}"));
     if args.json {
         println!("{report}");
     } else {
-        println!("psnr       {:.3} dB", psnr / n);
-        println!("ssim       {:.4}", ssim / n);
+        if args.per_view {
+            println!("{:>6} {:>8} {:>7} {:>7} {:>7} {:>7}", "view", "psnr", "ssim", "ms_ssim", "flip", "wd");
+            for (v, m) in views.iter().zip(&per_view) {
+                println!(
+                    "{:>6} {:>8.3} {:>7.4} {:>7} {:>7.4} {:>7}",
+                    v.index,
+                    m.psnr,
+                    m.ssim,
+                    opt(m.ms_ssim, 4),
+                    m.flip,
+                    opt(m.wd, 4)
+                );
+            }
+        }
+        println!("psnr       {:.3} dB", mean.psnr);
+        println!("ssim       {:.4}", mean.ssim);
+        println!("ms_ssim    {}", opt(mean.ms_ssim, 4));
+        println!("flip       {:.4}", mean.flip);
+        println!("wd         {}", opt(mean.wd, 4));
         println!("bytes      {bytes}");
         println!("gaussians  {}", scene.len());
         println!("render_ms  {:.2}", ms / n);

@@ -2,11 +2,16 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod decode;
+pub mod encode;
+pub mod info;
 pub mod convert;
 pub mod eval;
 pub mod progress;
 pub mod render;
 pub mod sample;
+pub mod train;
+pub mod sweep;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
 #[derive(Debug, Parser)]
@@ -19,17 +24,28 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     Sample(sample::Args),
+    Train(train::Args),
+    Encode(encode::Args),
+    Decode(decode::Args),
+    Info(info::Args),
     Render(render::Args),
     Convert(convert::Args),
     Eval(eval::Args),
+    /// Encode at several λ and losses, evaluate, and write RD tables, plots and BD-rates.
+    Sweep(sweep::Args),
 }
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> crate::Result<()> {
     match cli.command {
         Command::Sample(a) => sample::run(a),
+        Command::Train(a) => train::run(a),
+        Command::Encode(a) => encode::run(a),
+        Command::Decode(a) => decode::run(a),
+        Command::Info(a) => info::run(a),
         Command::Render(a) => render::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Sweep(a) => sweep::run(a),
     }
 }

@@ -12,7 +12,7 @@ pub mod spz;
 
 pub use dataset::{Dataset, Frame, Split};
 pub use ply::{read_ply, read_ply_bytes, write_ply};
-pub use scene::{read_scene, write_scene};
+pub use scene::{read_scene, read_scene_with, write_scene};
 
 use crate::{Error, Result};
 use gscodec_decoder::camera::DEFAULT_ZNEAR;

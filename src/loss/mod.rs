@@ -1,6 +1,13 @@
 //! Image losses with analytic gradients: L1, SSIM, WD, WD-R.
 
+pub mod features;
+pub mod l1;
 pub mod ssim;
+pub mod tensor;
+pub mod wd;
+pub mod wdr;
+
+pub use l1::{l1_and_grad, L1Ssim};
 
 use gscodec_decoder::Image;
 
@@ -15,4 +22,58 @@ pub trait ImageLoss: Send {
 
     /// Short name for reports (`l1ssim`, `wd`, `wdr`).
     fn name(&self) -> &'static str;
+}
+
+pub use features::FeatureSpec;
+
+/// Which training distortion to use.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LossKind {
+    /// The original 3DGS loss 0.8·L1 + 0.2·(1 − SSIM).
+    #[default]
+    L1ssim,
+    /// Wasserstein Distortion γ·d_WD (after an L1+SSIM warm-up).
+    Wd,
+    /// WD regularised with the original loss: γ·(d_WD + β·L_orig) (after the warm-up).
+    Wdr,
+}
+
+/// The loss options shared by `train` and `encode`.
+#[derive(clap::Args, Clone, Debug, PartialEq, Default)]
+pub struct LossArgs {
+    /// Training distortion.
+    #[arg(long, value_enum, default_value_t = LossKind::L1ssim)]
+    pub loss: LossKind,
+    /// Feature space of WD: `pyramid` (built in) or `vgg16=PATH` (VGG-16 weights as safetensors,
+    /// see scripts/export_vgg16.py).
+    #[arg(long, default_value = "pyramid", value_name = "pyramid|vgg16=PATH")]
+    pub features: FeatureSpec,
+    /// Global scale γ of `wd` / `wdr` (default 0.03 / 0.025).
+    #[arg(long = "wd-gamma", value_name = "G")]
+    pub wd_gamma: Option<f64>,
+}
+
+/// Builds the loss for a run of `total_iters` iterations (the WD warm-up is 10 % of it).
+///
+/// # Errors
+/// Bad input (exit 2) for an unreadable VGG weights file or a γ that is not a positive number.
+pub fn build_loss(args: &LossArgs, total_iters: usize) -> crate::Result<Box<dyn ImageLoss>> {
+    if let Some(g) = args.wd_gamma {
+        if !(g.is_finite() && g > 0.0) {
+            return Err(crate::Error::Input(format!("--wd-gamma must be a positive number, got {g}")));
+        }
+    }
+    Ok(match args.loss {
+        LossKind::L1ssim => Box::new(wdr::TemporaryL1Ssim),
+        LossKind::Wd => {
+            let mut l = wdr::WdLoss::new(args.features.build()?, total_iters);
+            l.gamma = args.wd_gamma.unwrap_or(l.gamma);
+            Box::new(l)
+        }
+        LossKind::Wdr => {
+            let mut l = wdr::WdrLoss::new(args.features.build()?, total_iters);
+            l.gamma = args.wd_gamma.unwrap_or(l.gamma);
+            Box::new(l)
+        }
+    })
 }

@@ -1,7 +1,12 @@
 //! SSIM with the 11x11 Gaussian window (σ = 1.5) of the reference 3DGS code: zero-padded "same"
-//! filtering per channel, constants C1 = 0.01², C2 = 0.03², mean over channels and pixels.
+//! filtering per channel, constants C1 = 0.01², C2 = 0.03², mean over channels and pixels; and its
+//! analytic gradient with respect to the first image.
+//!
+//! Computed in f64 with a separable filter (5 blurs forward, 3 more for the gradient per channel);
+//! the zero-padded filter with a symmetric kernel is self-adjoint, so the backward pass reuses it.
 
 use gscodec_decoder::Image;
+use rayon::prelude::*;
 
 pub const WINDOW: usize = 11;
 pub const SIGMA: f64 = 1.5;
@@ -17,36 +22,42 @@ pub fn gaussian_taps() -> [f64; WINDOW] {
     t
 }
 
+/// Separable "same" blur with zero padding into `out`, using `tmp` (both `w*h`).
+fn blur_into(plane: &[f64], w: usize, h: usize, taps: &[f64; WINDOW], tmp: &mut [f64], out: &mut [f64]) {
+    let r = WINDOW / 2;
+    // Horizontal pass.
+    for (src, dst) in plane.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
+        for (x, d) in dst.iter_mut().enumerate() {
+            let k0 = r.saturating_sub(x);
+            let k1 = (w + r - x).min(WINDOW);
+            let base = x + k0 - r;
+            let mut s = 0.0;
+            for (k, t) in taps[k0..k1].iter().enumerate() {
+                s += t * src[base + k];
+            }
+            *d = s;
+        }
+    }
+    // Vertical pass: whole rows at a time (vectorises).
+    for y in 0..h {
+        let dst = &mut out[y * w..(y + 1) * w];
+        dst.fill(0.0);
+        let k0 = r.saturating_sub(y);
+        let k1 = (h + r - y).min(WINDOW);
+        for k in k0..k1 {
+            let yy = y + k - r;
+            let t = taps[k];
+            for (d, s) in dst.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
+                *d += t * s;
+            }
+        }
+    }
+}
+
 /// Separable "same" convolution of a single-channel `w x h` plane with zero padding.
 pub fn blur(plane: &[f64], w: usize, h: usize) -> Vec<f64> {
-    let taps = gaussian_taps();
-    let r = (WINDOW / 2) as isize;
-    let mut tmp = vec![0.0; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut s = 0.0;
-            for (k, t) in taps.iter().enumerate() {
-                let xx = x as isize + k as isize - r;
-                if xx >= 0 && (xx as usize) < w {
-                    s += t * plane[y * w + xx as usize];
-                }
-            }
-            tmp[y * w + x] = s;
-        }
-    }
-    let mut out = vec![0.0; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut s = 0.0;
-            for (k, t) in taps.iter().enumerate() {
-                let yy = y as isize + k as isize - r;
-                if yy >= 0 && (yy as usize) < h {
-                    s += t * tmp[yy as usize * w + x];
-                }
-            }
-            out[y * w + x] = s;
-        }
-    }
+    let (mut tmp, mut out) = (vec![0.0; w * h], vec![0.0; w * h]);
+    blur_into(plane, w, h, &gaussian_taps(), &mut tmp, &mut out);
     out
 }
 
@@ -55,23 +66,94 @@ pub fn channel(img: &Image, c: usize) -> Vec<f64> {
     img.data.chunks_exact(3).map(|p| p[c] as f64).collect()
 }
 
+/// SSIM of one channel pair: the per-pixel map's sum and, when `grad` is given, the gradient of
+/// that sum w.r.t. `x` written into it.
+fn channel_ssim(x: &[f64], y: &[f64], w: usize, h: usize, grad: Option<&mut [f64]>) -> (f64, Vec<f64>) {
+    let n = w * h;
+    let taps = gaussian_taps();
+    let mut tmp = vec![0.0; n];
+    let mut bl = |src: &[f64]| {
+        let mut out = vec![0.0; n];
+        blur_into(src, w, h, &taps, &mut tmp, &mut out);
+        out
+    };
+    let prod = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
+    let (mx, my) = (bl(x), bl(y));
+    let (sxx, syy, sxy) = (bl(&prod(x, x)), bl(&prod(y, y)), bl(&prod(x, y)));
+    let mut map = vec![0.0; n];
+    let mut g_m = vec![0.0; n];
+    let mut g_sxx = vec![0.0; n];
+    let mut g_sxy = vec![0.0; n];
+    for i in 0..n {
+        let (vx, vy, cxy) = (sxx[i] - mx[i] * mx[i], syy[i] - my[i] * my[i], sxy[i] - mx[i] * my[i]);
+        let (a1, a2) = (2.0 * mx[i] * my[i] + C1, 2.0 * cxy + C2);
+        let (b1, b2) = (mx[i] * mx[i] + my[i] * my[i] + C1, vx + vy + C2);
+        let s = (a1 * a2) / (b1 * b2);
+        map[i] = s;
+        let ds_dm = 2.0 * my[i] * a2 / (b1 * b2) - s * 2.0 * mx[i] / b1;
+        let ds_dv = -s / b2;
+        let ds_dc = 2.0 * a1 / (b1 * b2);
+        g_m[i] = ds_dm - 2.0 * mx[i] * ds_dv - my[i] * ds_dc;
+        g_sxx[i] = ds_dv;
+        g_sxy[i] = ds_dc;
+    }
+    let total = map.iter().sum();
+    if let Some(grad) = grad {
+        let (bm, bxx, bxy) = (bl(&g_m), bl(&g_sxx), bl(&g_sxy));
+        for i in 0..n {
+            grad[i] = bm[i] + 2.0 * x[i] * bxx[i] + y[i] * bxy[i];
+        }
+    }
+    (total, map)
+}
+
 /// Per-pixel SSIM map of one channel pair.
 pub fn ssim_map(x: &[f64], y: &[f64], w: usize, h: usize) -> Vec<f64> {
-    let sq = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
-    let (mx, my) = (blur(x, w, h), blur(y, w, h));
-    let (sxx, syy, sxy) = (blur(&sq(x, x), w, h), blur(&sq(y, y), w, h), blur(&sq(x, y), w, h));
-    (0..w * h)
-        .map(|i| {
-            let (vx, vy, cxy) = (sxx[i] - mx[i] * mx[i], syy[i] - my[i] * my[i], sxy[i] - mx[i] * my[i]);
-            ((2.0 * mx[i] * my[i] + C1) * (2.0 * cxy + C2)) / ((mx[i] * mx[i] + my[i] * my[i] + C1) * (vx + vy + C2))
-        })
-        .collect()
+    channel_ssim(x, y, w, h, None).1
 }
 
 /// Mean SSIM over channels and pixels. Panics if the sizes differ.
 pub fn ssim(a: &Image, b: &Image) -> f64 {
     assert_eq!((a.width, a.height), (b.width, b.height), "SSIM of images of different sizes");
     let (w, h) = (a.width as usize, a.height as usize);
-    let total: f64 = (0..3).map(|c| ssim_map(&channel(a, c), &channel(b, c), w, h).iter().sum::<f64>()).sum();
+    let total: f64 = (0..3usize).into_par_iter().map(|c| channel_ssim(&channel(a, c), &channel(b, c), w, h, None).0).sum();
     total / (3 * w * h) as f64
+}
+
+/// Mean SSIM and its gradient with respect to `a` (interleaved RGB like the image).
+pub fn ssim_and_grad(a: &Image, b: &Image) -> (f64, Vec<f32>) {
+    assert_eq!((a.width, a.height), (b.width, b.height), "SSIM of images of different sizes");
+    let (w, h) = (a.width as usize, a.height as usize);
+    let n = (3 * w * h) as f64;
+    let per: Vec<(f64, Vec<f64>)> = (0..3usize)
+        .into_par_iter()
+        .map(|c| {
+            let mut g = vec![0.0; w * h];
+            let (s, _) = channel_ssim(&channel(a, c), &channel(b, c), w, h, Some(&mut g));
+            (s, g)
+        })
+        .collect();
+    let mut grad = vec![0.0f32; 3 * w * h];
+    for (c, (_, g)) in per.iter().enumerate() {
+        for (i, v) in g.iter().enumerate() {
+            grad[i * 3 + c] = (v / n) as f32;
+        }
+    }
+    (per.iter().map(|p| p.0).sum::<f64>() / n, grad)
+}
+
+/// Per-pixel luminance term `l = (2μxμy + C1)/(μx² + μy² + C1)` and contrast-structure term
+/// `cs = (2σxy + C2)/(σx² + σy² + C2)` of one channel pair, from the same window statistics as
+/// [`ssim_map`] (whose value is `l·cs`). MS-SSIM uses `cs` alone at its finer scales.
+pub fn luminance_cs_maps(x: &[f64], y: &[f64], w: usize, h: usize) -> (Vec<f64>, Vec<f64>) {
+    let sq = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
+    let (mx, my) = (blur(x, w, h), blur(y, w, h));
+    let (sxx, syy, sxy) = (blur(&sq(x, x), w, h), blur(&sq(y, y), w, h), blur(&sq(x, y), w, h));
+    (0..w * h)
+        .map(|i| {
+            let (vx, vy, cxy) = (sxx[i] - mx[i] * mx[i], syy[i] - my[i] * my[i], sxy[i] - mx[i] * my[i]);
+            let l = (2.0 * mx[i] * my[i] + C1) / (mx[i] * mx[i] + my[i] * my[i] + C1);
+            (l, (2.0 * cxy + C2) / (vx + vy + C2))
+        })
+        .unzip()
 }

@@ -1,8 +1,26 @@
-//! Image quality metrics.
+//! Image quality metrics, Bjøntegaard deltas and plots.
+//!
+//! | module | one job |
+//! |---|---|
+//! | [`ms_ssim`] | multi-scale SSIM (5 scales, Wang et al. 2003 weights) |
+//! | [`flip`] | ꟻLIP (LDR) mean error through NVIDIA's implementation |
+//! | [`bdrate`] | Bjøntegaard delta rate / delta quality between two RD curves |
+//! | [`plot`] | dependency-free SVG line plots |
+//! | [`view`] | every metric of a rendered view, and means over views (what `eval` reports) |
+//!
+//! SSIM itself lives in [`crate::loss::ssim`] (one definition shared with training).
+
+pub mod bdrate;
+pub mod flip;
+pub mod ms_ssim;
+pub mod plot;
+pub mod view;
 
 use gscodec_decoder::Image;
 
 pub use crate::loss::ssim::ssim;
+pub use flip::flip;
+pub use ms_ssim::ms_ssim;
 
 /// Mean squared error over all channels and pixels.
 pub fn mse(a: &Image, b: &Image) -> f64 {

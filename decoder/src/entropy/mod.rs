@@ -1,0 +1,168 @@
+//! Integer probability tables and symbol coding with constriction's range coder.
+//!
+//! Every probability the decoder uses comes from a [`FreqTable`]: 16-bit fixed-point
+//! frequencies rebuilt from integer weights read from the bitstream by integer arithmetic
+//! only (SPEC §5). Values outside a channel's table range are sent through an escape symbol
+//! followed by 32 raw bits.
+
+mod coder;
+
+pub use coder::{SymbolDecoder, SymbolEncoder};
+
+use crate::bitstream::{ByteReader, ByteWriter, DecodeError};
+
+/// Probabilities are fixed point with this many bits: they sum to `1 << PRECISION`.
+pub const PRECISION: usize = 16;
+pub const TOTAL: u32 = 1 << PRECISION;
+/// Largest number of in-range symbols a table may have (the escape symbol comes on top).
+pub const MAX_SYMBOLS: usize = 4096;
+
+/// A cumulative frequency table over symbols `0..len()`; every symbol has a non-zero frequency.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FreqTable {
+    /// `cdf[0] = 0`, `cdf[len] = TOTAL`, strictly increasing.
+    cdf: Vec<u32>,
+}
+
+impl FreqTable {
+    /// Rebuilds frequencies from integer weights (SPEC §5.2): with `n` symbols, `R = 2^16 - n`
+    /// and `T = Σw` (all weights 1 when `T = 0`), `f_s = 1 + ⌊w_s·R/T⌋`; what is left of `2^16`
+    /// goes to the first symbol of largest weight.
+    pub fn from_weights(weights: &[u32]) -> FreqTable {
+        let n = weights.len();
+        assert!((2..=MAX_SYMBOLS + 1).contains(&n), "table needs 2..=4097 symbols");
+        let ones;
+        let w: &[u32] = if weights.iter().all(|&x| x == 0) {
+            ones = vec![1u32; n];
+            &ones
+        } else {
+            weights
+        };
+        let total: u64 = w.iter().map(|&x| u64::from(x)).sum();
+        let r = u64::from(TOTAL) - n as u64;
+        let mut freq: Vec<u32> = w.iter().map(|&x| 1 + (u64::from(x) * r / total) as u32).collect();
+        let sum: u32 = freq.iter().sum();
+        let mut best = 0;
+        for s in 1..n {
+            if w[s] > w[best] {
+                best = s;
+            }
+        }
+        freq[best] += TOTAL - sum;
+        let mut cdf = Vec::with_capacity(n + 1);
+        cdf.push(0);
+        let mut acc = 0;
+        for f in freq {
+            acc += f;
+            cdf.push(acc);
+        }
+        FreqTable { cdf }
+    }
+
+    /// Number of symbols (including the escape symbol where there is one).
+    pub fn len(&self) -> usize {
+        self.cdf.len() - 1
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Frequency of symbol `s` (out of `2^16`).
+    pub fn freq(&self, s: usize) -> u32 {
+        self.cdf[s + 1] - self.cdf[s]
+    }
+
+    /// Cost of symbol `s` in bits.
+    pub fn bits(&self, s: usize) -> f64 {
+        PRECISION as f64 - f64::from(self.freq(s)).log2()
+    }
+
+    fn left(&self, s: usize) -> u32 {
+        self.cdf[s]
+    }
+
+    /// The symbol whose interval holds `q < 2^16`.
+    fn lookup(&self, q: u32) -> usize {
+        self.cdf.partition_point(|&c| c <= q) - 1
+    }
+}
+
+/// How one channel (one integer attribute component) is stored.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ChannelTable {
+    /// Every Gaussian has this value; no symbols are coded.
+    Constant(i32),
+    /// Values `lo .. lo + n` map to symbols `0 .. n`; symbol `n` is the escape.
+    Coded { lo: i32, table: FreqTable },
+}
+
+impl ChannelTable {
+    /// Serialises: `u8 0, svarint value` or `u8 1, svarint lo, varint n, (n+1) × varint weight`.
+    /// `weights` are the weights the table was built from (including the escape weight last).
+    pub fn write_coded(w: &mut ByteWriter, lo: i32, weights: &[u32]) {
+        w.u8(1);
+        w.svarint(lo);
+        w.varint((weights.len() - 1) as u32);
+        for &x in weights {
+            w.varint(x);
+        }
+    }
+
+    pub fn write_constant(w: &mut ByteWriter, value: i32) {
+        w.u8(0);
+        w.svarint(value);
+    }
+
+    pub fn read(r: &mut ByteReader<'_>) -> Result<ChannelTable, DecodeError> {
+        match r.u8("channel table")? {
+            0 => Ok(ChannelTable::Constant(r.svarint("constant value")?)),
+            1 => {
+                let lo = r.svarint("table range")?;
+                let n = r.varint("table size")? as usize;
+                if n == 0 || n > MAX_SYMBOLS {
+                    return Err(DecodeError::Limit("table size outside 1..=4096"));
+                }
+                if lo.checked_add(n as i32).is_none() {
+                    return Err(DecodeError::Corrupt("table range overflows"));
+                }
+                // Each weight takes at least one byte: check before allocating.
+                if r.remaining() < n + 1 {
+                    return Err(DecodeError::Truncated("table weights"));
+                }
+                let mut weights = Vec::with_capacity(n + 1);
+                for _ in 0..=n {
+                    weights.push(r.varint("table weight")?);
+                }
+                Ok(ChannelTable::Coded { lo, table: FreqTable::from_weights(&weights) })
+            }
+            _ => Err(DecodeError::Corrupt("unknown channel table mode")),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weights_normalise_to_total_with_nonzero_frequencies() {
+        for weights in [vec![0, 0], vec![1, 0, 0, 5], vec![u32::MAX, 1, 0], vec![7; 4097]] {
+            let t = FreqTable::from_weights(&weights);
+            assert_eq!(t.cdf[t.len()], TOTAL);
+            assert!((0..t.len()).all(|s| t.freq(s) >= 1));
+        }
+        let t = FreqTable::from_weights(&[3, 1]);
+        // R = 65534, f = 1 + 49150, 1 + 16383 = 49151, 16384; remainder 1 to symbol 0.
+        assert_eq!((t.freq(0), t.freq(1)), (49152, 16384));
+    }
+
+    #[test]
+    fn lookup_inverts_the_cdf() {
+        let t = FreqTable::from_weights(&[5, 0, 9, 1]);
+        for q in 0..TOTAL {
+            let s = t.lookup(q);
+            assert!(t.left(s) <= q && q < t.left(s) + t.freq(s));
+        }
+    }
+}

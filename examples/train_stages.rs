@@ -1,0 +1,49 @@
+//! Per-stage wall time of one training iteration (project, sort, rasterize, loss, backward,
+//! optimiser) at 200x200 for 10k and 50k Gaussians.
+//!
+//! `cargo run --release --example train_stages [N_ITERS]`
+
+use gscodec::loss::L1Ssim;
+use gscodec::raster;
+use gscodec::train::adam::{Adam, Group};
+use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+use gscodec_decoder::RenderOptions;
+use std::time::Instant;
+
+fn main() {
+    let iters: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(20);
+    for n in [10_000usize, 50_000] {
+        // A lego-like density: many small Gaussians in the unit ball, seen from 4 units away.
+        let mut truth = toy_scene(n, 1);
+        let shrink = (n as f32 / 120.0).cbrt().ln();
+        truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+        let cams = orbit_cameras(4, 4.0, 200, 200);
+        let ds = render_targets(&truth, &cams, [1.0; 3]);
+        let mut params = toy_scene(n, 2);
+        params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+        let mut adam = Adam::new(&params);
+        let opts = RenderOptions { background: [1.0; 3], max_sh_degree: 1 };
+        let loss = L1Ssim::default();
+        let mut t = [0.0f64; 6];
+        for it in 0..iters {
+            let f = &ds.frames[it % ds.frames.len()];
+            let (img, st, ft) = raster::forward_timed(&params, &f.camera, &opts);
+            let t0 = Instant::now();
+            let (_, dl) = loss.eval(&img, &f.image);
+            let t1 = Instant::now();
+            let g = raster::backward(&params, &st, &dl);
+            let t2 = Instant::now();
+            adam.step(&mut params, &g.params, |grp| if grp == Group::Position { 1e-4 } else { 1e-3 });
+            let t3 = Instant::now();
+            for (acc, v) in t.iter_mut().zip([ft.project, ft.sort, ft.rasterize, (t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), (t3 - t2).as_secs_f64()]) {
+                *acc += v;
+            }
+        }
+        let ms = t.map(|v| 1e3 * v / iters as f64);
+        println!(
+            "{n:>6} Gaussians, 200x200, {} threads: project {:.1} ms, sort {:.1} ms, rasterize {:.1} ms, loss {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, total {:.1} ms/iter",
+            rayon::current_num_threads(),
+            ms[0], ms[1], ms[2], ms[3], ms[4], ms[5], ms.iter().sum::<f64>()
+        );
+    }
+}

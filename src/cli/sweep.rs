@@ -1,0 +1,148 @@
+//! `gscodec sweep`: rate–distortion curves in one command (see `docs/sweep.md`).
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+use crate::sweep::results::{bd_report, read_results, write_outputs};
+use crate::sweep::{jobs, run_point, Plan, DEFAULT_LAMBDAS, DEFAULT_LOSSES};
+use crate::{Error, Result};
+
+/// Encode a scene at several λ and losses, decode, evaluate, and write RD tables and plots.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Dataset directory (transforms*.json or COLMAP) or a trained .ply.
+    pub input: PathBuf,
+    /// Output directory: rd.csv, rd.svg, time.svg, summary.json and points/<loss>_lambda<λ>/.
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// λ values, comma-separated [default: 0.1,0.03,0.01,0.003,0.001].
+    #[arg(long, value_delimiter = ',')]
+    pub lambdas: Vec<f64>,
+    /// Losses, comma-separated (l1ssim, wd, wdr); BD-rates are against l1ssim [default: l1ssim,wdr].
+    #[arg(long = "loss", value_delimiter = ',')]
+    pub losses: Vec<String>,
+    /// Training iterations per encode (encoder default when absent).
+    #[arg(long)]
+    pub iters: Option<usize>,
+    /// Points encoded at the same time (each encode is itself multi-threaded).
+    #[arg(long, default_value_t = 1)]
+    pub jobs: usize,
+    /// Write the sweep as jobs instead of running it: FILE (Slurm array script) and
+    /// FILE with extension .commands.txt (one command per line, for GNU parallel).
+    #[arg(long, value_name = "FILE", conflicts_with = "collect")]
+    pub emit_jobs: Option<PathBuf>,
+    /// Merge the finished points under DIR/points into the outputs in -o (after emitted jobs ran).
+    #[arg(long, value_name = "DIR")]
+    pub collect: Option<PathBuf>,
+    /// Run the points and record their results, but write no tables or plots (what emitted jobs run).
+    #[arg(long)]
+    pub points_only: bool,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Runs `gscodec sweep`.
+///
+/// # Errors
+/// Bad flags or input (exit 2); a failing point or unwritable output (exit 1).
+pub fn run(args: Args) -> Result<()> {
+    let lambdas = if args.lambdas.is_empty() { DEFAULT_LAMBDAS.to_vec() } else { args.lambdas.clone() };
+    let losses = if args.losses.is_empty() { DEFAULT_LOSSES.iter().map(|s| s.to_string()).collect() } else { args.losses.clone() };
+    let mut plan = Plan { input: args.input.clone(), out: args.out.clone(), lambdas, losses, iters: args.iters };
+    plan.validate()?;
+
+    if let Some(dir) = &args.collect {
+        let rows = read_results(dir)?;
+        if rows.is_empty() {
+            return Err(Error::input(dir, "no finished sweep points (points/*/result.json) to collect"));
+        }
+        let bd = write_outputs(&plan.out, &rows, plan.settings())?;
+        print!("{}", bd_report(&bd));
+        return Ok(());
+    }
+
+    if !plan.input.exists() {
+        return Err(Error::input(&plan.input, "no such file or directory"));
+    }
+    if args.jobs == 0 {
+        return Err(Error::input(Path::new("--jobs"), "must be at least 1"));
+    }
+    std::fs::create_dir_all(&plan.out).map_err(|e| Error::failure(&plan.out, e))?;
+    // Absolute paths: children and emitted jobs may run from elsewhere.
+    plan.input = std::fs::canonicalize(&plan.input).map_err(|e| Error::input(&plan.input, e))?;
+    plan.out = std::fs::canonicalize(&plan.out).map_err(|e| Error::failure(&plan.out, e))?;
+    let exe = std::env::current_exe().map_err(|e| Error::failure(Path::new("gscodec"), format!("cannot find own executable: {e}")))?;
+
+    if let Some(file) = &args.emit_jobs {
+        return emit_jobs(file, &exe, &plan, &args);
+    }
+
+    let pending: Vec<_> = plan.points().into_iter().filter(|p| !plan.is_done(p)).collect();
+    let skipped = plan.points().len() - pending.len();
+    if skipped > 0 && !args.quiet {
+        eprintln!("sweep: {skipped} finished point(s) kept, {} to run", pending.len());
+    }
+    let bar = super::progress::bar(pending.len() as u64, "sweep", args.quiet || pending.is_empty());
+    let next = AtomicUsize::new(0);
+    let failures = Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..args.jobs.min(pending.len()) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::SeqCst);
+                let Some(p) = pending.get(i) else { break };
+                if let Err(e) = run_point(&exe, &plan, p) {
+                    failures.lock().unwrap_or_else(|e| e.into_inner()).push(format!("{}: {e}", p.dir_name()));
+                }
+                bar.inc(1);
+            });
+        }
+    });
+    bar.finish_and_clear();
+    let failures = failures.into_inner().unwrap_or_else(|e| e.into_inner());
+
+    if !args.points_only {
+        let rows = read_results(&plan.out)?;
+        if !rows.is_empty() {
+            let bd = write_outputs(&plan.out, &rows, plan.settings())?;
+            print!("{}", bd_report(&bd));
+        }
+    }
+    match failures.first() {
+        None => Ok(()),
+        Some(first) => Err(Error::Failure(format!(
+            "{} of {} point(s) failed (rerun to retry only those); first: {first}",
+            failures.len(),
+            pending.len()
+        ))),
+    }
+}
+
+fn emit_jobs(file: &Path, exe: &Path, plan: &Plan, args: &Args) -> Result<()> {
+    use crate::io::atomic::write_bytes_atomic;
+    let lines = jobs::command_lines(exe, plan, &plan.points());
+    let collect = [exe.display().to_string(), "sweep".into(), plan.input.display().to_string(), "-o".into(), plan.out.display().to_string()]
+        .into_iter()
+        .chain(["--collect".into(), plan.out.display().to_string()])
+        .map(|w| jobs::shell_quote(&w))
+        .collect::<Vec<_>>()
+        .join(" ");
+    write_bytes_atomic(file, jobs::slurm_script(&lines, &plan.out, &collect).as_bytes())?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = std::fs::set_permissions(file, std::fs::Permissions::from_mode(0o755));
+    }
+    let list = jobs::list_path(file);
+    write_bytes_atomic(&list, jobs::command_list(&lines).as_bytes())?;
+    if !args.quiet {
+        eprintln!(
+            "sweep: {} jobs written to {} (sbatch) and {} (parallel < it); then run: {collect}",
+            lines.len(),
+            file.display(),
+            list.display()
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,127 @@
+//! `gscodec train DATA -o OUT.ply`: train Gaussians on a posed-image dataset.
+
+use crate::io::{self, LoadOptions};
+use crate::loss::{ImageLoss, L1Ssim};
+use crate::train::{train, TrainConfig};
+use crate::{Error, Result};
+use std::path::{Path, PathBuf};
+
+/// Training losses selectable on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LossKind {
+    /// 0.8·L1 + 0.2·(1 − SSIM), the reference 3DGS loss.
+    L1ssim,
+}
+
+impl LossKind {
+    /// The loss object for this choice.
+    pub fn build(self) -> Result<Box<dyn ImageLoss>> {
+        Ok(match self {
+            LossKind::L1ssim => Box::new(L1Ssim::default()),
+        })
+    }
+}
+
+/// Train 3D Gaussians on posed images (NeRF transforms*.json or COLMAP).
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Dataset directory (transforms*.json with images, or COLMAP sparse/0 + images).
+    pub data: PathBuf,
+    /// Output scene (.ply, INRIA layout).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Training iterations; the reference 30k schedule is scaled to this.
+    #[arg(long, default_value_t = 5000)]
+    pub iters: usize,
+    /// Random seed (initialisation, view order, densification).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Training loss.
+    #[arg(long, value_enum, default_value_t = LossKind::L1ssim)]
+    pub loss: LossKind,
+    /// Start from this scene (.ply) instead of the dataset's points / random points.
+    #[arg(long)]
+    pub init: Option<PathBuf>,
+    /// Highest SH degree.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u8).range(0..=3))]
+    pub sh_degree: u8,
+    /// Random initial Gaussians when the dataset has no point cloud.
+    #[arg(long, default_value_t = 10_000)]
+    pub init_points: usize,
+    /// Upper bound on the number of Gaussians densification may reach.
+    #[arg(long, default_value_t = 100_000)]
+    pub max_gaussians: usize,
+    /// Turn off densification and pruning (fine-tuning).
+    #[arg(long)]
+    pub no_densify: bool,
+    /// Evaluate held-out PSNR every N iterations (0 = only at the end).
+    #[arg(long, default_value_t = 500)]
+    pub eval_every: usize,
+    /// Write the training record (JSON: time series of loss, Gaussians, held-out PSNR).
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// No progress bar or summary.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    if args.iters == 0 {
+        return Err(Error::Input("--iters must be at least 1".into()));
+    }
+    check_output(&args.output, "ply")?;
+    let ds = io::load_dataset(&args.data, &LoadOptions::default())?;
+    let init = args.init.as_deref().map(io::read_ply).transpose()?;
+    let cfg = TrainConfig {
+        iters: args.iters,
+        seed: args.seed,
+        sh_degree_max: args.sh_degree,
+        densify: !args.no_densify,
+        eval_interval: args.eval_every,
+        init_points: args.init_points,
+        max_gaussians: args.max_gaussians,
+        ..Default::default()
+    };
+    let pb = super::progress::bar(args.iters as u64, "train", args.quiet);
+    // Without a terminal (logs), a line per evaluation instead of the bar.
+    let log_lines = !args.quiet && pb.is_hidden();
+    let mut last_psnr = None;
+    let (splats, report) = train(&ds, init, &cfg, args.loss.build()?, None, &mut |p| {
+        if p.test_psnr.is_some() {
+            last_psnr = p.test_psnr;
+            if log_lines {
+                eprintln!("iteration {}/{}: loss {:.4}, {} Gaussians, held-out PSNR {:.2} dB", p.iteration, p.iters, p.loss, p.gaussians, p.test_psnr.unwrap_or(0.0));
+            }
+        }
+        pb.set_position(p.iteration as u64);
+        if p.iteration % 10 == 0 || p.test_psnr.is_some() {
+            let psnr = last_psnr.map(|v| format!(" test {v:.2} dB")).unwrap_or_default();
+            pb.set_message(format!("loss {:.4} n {}{psnr}", p.loss, p.gaussians));
+        }
+    })
+    .map_err(|e| match e {
+        Error::Input(m) => Error::input(&args.data, m),
+        other => other,
+    })?;
+    pb.finish_and_clear();
+    io::write_ply(&args.output, &splats)?;
+    if let Some(r) = &args.report {
+        let json = serde_json::to_string_pretty(&report).map_err(|e| Error::failure(r, e))?;
+        io::atomic::write_bytes_atomic(r, json.as_bytes())?;
+    }
+    if !args.quiet {
+        match (report.test_psnr, report.test_ssim) {
+            (Some(p), Some(s)) => println!("held-out ({} views): PSNR {p:.2} dB, SSIM {s:.4}", report.test_views),
+            _ => println!("no held-out views"),
+        }
+        println!("{} Gaussians, {:.1} s training", report.gaussians, report.train_seconds);
+    }
+    Ok(())
+}
+
+fn check_output(path: &Path, ext: &str) -> Result<()> {
+    match path.extension().and_then(|e| e.to_str()) {
+        Some(e) if e.eq_ignore_ascii_case(ext) => Ok(()),
+        _ => Err(Error::input(path, format!("output must be a .{ext} file"))),
+    }
+}

@@ -1,0 +1,226 @@
+//! `pyramid`: a fixed, weight-free texture feature space (see `docs/wd.md`).
+//!
+//! Arrays: the ImageNet-normalised image (3 channels, full resolution), then for each of
+//! [`STAGES`] stages (full, ½, ¼, ⅛ resolution; the luminance is low-passed and subsampled by 2
+//! between stages like VGG's pooling) 16 rectified, oriented responses of the stage's luminance:
+//! first (odd phase) and second (even phase) derivatives of a Gaussian, steered to 0°, 45°, 90°
+//! and 135° (Freeman & Adelson's steerable G1/G2 basis), each split into its positive and
+//! negative half-wave (`relu(r)`, `relu(−r)`), scaled by [`GAIN`].
+
+use rayon::prelude::*;
+
+use super::{normalize, normalize_adjoint, Backward, Extracted, FeatureSpace};
+use crate::loss::tensor::{Real, Tensor};
+
+/// Number of filter-bank stages.
+pub const STAGES: usize = 4;
+/// Standard deviation of the derivative-of-Gaussian filters, in stage pixels.
+pub const FILTER_SIGMA: f64 = 1.0;
+/// Filter radius in stage pixels (7 taps).
+pub const RADIUS: usize = 3;
+/// Scale of the oriented responses (derivatives in normalised intensity per stage pixel).
+/// Calibrated on lego-200 (`examples/wd_calibrate.rs`) so that, as the paper reports for VGG,
+/// ‖∇d_WD‖ / ‖∇(β·L_orig)‖ ≈ 1.6 for a moderately blurred rendering (1.06 / 1.58 / 2.24 for
+/// light / moderate / strong blur), which keeps the paper's γ meaningful.
+pub const GAIN: f64 = 16.0;
+/// Orientations of the steered filters, in degrees.
+pub const ORIENTATIONS: [f64; 4] = [0.0, 45.0, 90.0, 135.0];
+/// Channels per stage array: 4 orientations × (odd, even) × (positive, negative).
+pub const STAGE_CHANNELS: usize = 16;
+
+/// The weight-free feature space.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Pyramid;
+
+/// 1-D taps of g, g′ and g″ (Gaussian, σ = [`FILTER_SIGMA`]), normalised so that the
+/// derivative filters measure slope and curvature: Σ t·g′(t) = 1 (correlation) gives
+/// response 1 to a unit ramp, Σ ½t²·g″(t) = 1 response 1 to ½t².
+fn taps() -> ([f64; 2 * RADIUS + 1], [f64; 2 * RADIUS + 1], [f64; 2 * RADIUS + 1]) {
+    let s2 = FILTER_SIGMA * FILTER_SIGMA;
+    let t = |i: usize| i as f64 - RADIUS as f64;
+    let mut g: [f64; 2 * RADIUS + 1] = std::array::from_fn(|i| (-t(i) * t(i) / (2.0 * s2)).exp());
+    let sum: f64 = g.iter().sum();
+    g.iter_mut().for_each(|v| *v /= sum);
+    let mut d1: [f64; 2 * RADIUS + 1] = std::array::from_fn(|i| t(i) * g[i]);
+    let n1: f64 = d1.iter().enumerate().map(|(i, v)| t(i) * v).sum();
+    d1.iter_mut().for_each(|v| *v /= n1);
+    let mut d2: [f64; 2 * RADIUS + 1] = std::array::from_fn(|i| (t(i) * t(i) - s2) * g[i]);
+    let mean: f64 = d2.iter().sum::<f64>() / d2.len() as f64;
+    d2.iter_mut().for_each(|v| *v -= mean); // zero DC exactly
+    let n2: f64 = d2.iter().enumerate().map(|(i, v)| 0.5 * t(i) * t(i) * v).sum();
+    d2.iter_mut().for_each(|v| *v /= n2);
+    (g, d1, d2)
+}
+
+/// Separable correlation with zero padding: `out[y][x] = Σ ky[j] kx[i] in[y+j−r][x+i−r]`.
+fn correlate<T: Real>(x: &[T], h: usize, w: usize, kx: &[T], ky: &[T]) -> Vec<T> {
+    let r = kx.len() / 2;
+    let mut tmp = vec![T::zero(); h * w];
+    // Horizontal pass on a zero-padded copy of each row (no bounds checks in the inner loop).
+    let mut padded = vec![T::zero(); w + 2 * r];
+    for y in 0..h {
+        padded[r..r + w].copy_from_slice(&x[y * w..(y + 1) * w]);
+        for (i, o) in tmp[y * w..(y + 1) * w].iter_mut().enumerate() {
+            *o = padded[i..i + kx.len()].iter().zip(kx).fold(T::zero(), |s, (&v, &t)| s + t * v);
+        }
+    }
+    let mut out = vec![T::zero(); h * w];
+    for y in 0..h {
+        for (k, &t) in ky.iter().enumerate() {
+            let yy = y as isize + k as isize - r as isize;
+            if yy < 0 || yy as usize >= h {
+                continue;
+            }
+            let src = &tmp[yy as usize * w..(yy as usize + 1) * w];
+            for (o, &v) in out[y * w..(y + 1) * w].iter_mut().zip(src) {
+                *o = *o + t * v;
+            }
+        }
+    }
+    out
+}
+
+/// The five basis filters (kx, ky): Gx, Gy, Gxx, Gxy, Gyy.
+fn basis<T: Real>() -> [(Vec<T>, Vec<T>); 5] {
+    let (g, d1, d2) = taps();
+    let v = |a: &[f64]| a.iter().map(|&x| T::c(x)).collect::<Vec<T>>();
+    [(v(&d1), v(&g)), (v(&g), v(&d1)), (v(&d2), v(&g)), (v(&d1), v(&d1)), (v(&g), v(&d2))]
+}
+
+/// Steering coefficients: odd θ = (cos θ, sin θ) over (Gx, Gy); even θ = (cos²θ, 2 cosθ sinθ,
+/// sin²θ) over (Gxx, Gxy, Gyy).
+fn steering() -> Vec<([f64; 2], [f64; 3])> {
+    ORIENTATIONS
+        .iter()
+        .map(|deg| {
+            let (s, c) = deg.to_radians().sin_cos();
+            ([c, s], [c * c, 2.0 * c * s, s * s])
+        })
+        .collect()
+}
+
+/// Basis responses → 16 rectified channels.
+fn rectify<T: Real>(resp: &[Vec<T>; 5], h: usize, w: usize) -> Tensor<T> {
+    let n = h * w;
+    let st = steering();
+    let gain = T::c(GAIN);
+    let mut out = Tensor::zeros(STAGE_CHANNELS, h, w);
+    out.data.par_chunks_mut(n.max(1)).enumerate().for_each(|(ch, o)| {
+        let (orient, phase, sign) = (ch / 4, (ch / 2) % 2, ch % 2);
+        let (odd, even) = st[orient];
+        let sgn = if sign == 0 { gain } else { -gain };
+        for i in 0..o.len() {
+            let r = if phase == 0 {
+                T::c(odd[0]) * resp[0][i] + T::c(odd[1]) * resp[1][i]
+            } else {
+                T::c(even[0]) * resp[2][i] + T::c(even[1]) * resp[3][i] + T::c(even[2]) * resp[4][i]
+            };
+            o[i] = (sgn * r).max(T::zero());
+        }
+    });
+    out
+}
+
+/// Gradient of [`rectify`] w.r.t. the five basis responses (one basis filter per task).
+fn rectify_adjoint<T: Real>(out: &Tensor<T>, grad: &Tensor<T>) -> [Vec<T>; 5] {
+    let n = out.plane_len();
+    let st = steering();
+    let gain = T::c(GAIN);
+    let parts: Vec<Vec<T>> = (0..5)
+        .into_par_iter()
+        .map(|b| {
+            let mut g = vec![T::zero(); n];
+            // basis b ∈ {Gx, Gy} feeds the odd channels, {Gxx, Gxy, Gyy} the even ones
+            let phase = if b < 2 { 0 } else { 1 };
+            for ch in (0..STAGE_CHANNELS).filter(|ch| (ch / 2) % 2 == phase) {
+                let (orient, sign) = (ch / 4, ch % 2);
+                let (odd, even) = st[orient];
+                let coef = if phase == 0 { odd[b] } else { even[b - 2] };
+                let k = if sign == 0 { gain } else { -gain } * T::c(coef);
+                let (o, gr) = (&out.data[ch * n..(ch + 1) * n], &grad.data[ch * n..(ch + 1) * n]);
+                for i in 0..n {
+                    if o[i] > T::zero() {
+                        g[i] = g[i] + k * gr[i];
+                    }
+                }
+            }
+            g
+        })
+        .collect();
+    parts.try_into().unwrap_or_else(|_| unreachable!("five basis filters"))
+}
+
+struct Tape<T> {
+    /// Luminance shape per stage and the stage arrays (their signs give the relu masks).
+    shapes: Vec<(usize, usize)>,
+    stages: Vec<Tensor<T>>,
+}
+
+impl<T: Real> Backward<T> for Tape<T> {
+    fn backward(self: Box<Self>, grads: &[Tensor<T>]) -> Tensor<T> {
+        let bank = basis::<T>();
+        let mut g_luma: Option<Tensor<T>> = None;
+        for s in (0..STAGES).rev() {
+            let (h, w) = self.shapes[s];
+            let mut gy = match g_luma.take() {
+                Some(g) => g.lowpass2_adjoint(h, w),
+                None => Tensor::zeros(1, h, w),
+            };
+            let gb = rectify_adjoint(&self.stages[s], &grads[s + 1]);
+            // Adjoint of correlation = correlation with the reversed kernels.
+            let parts: Vec<Vec<T>> = bank
+                .par_iter()
+                .zip(gb.par_iter())
+                .map(|((kx, ky), g)| {
+                    let rx: Vec<T> = kx.iter().rev().cloned().collect();
+                    let ry: Vec<T> = ky.iter().rev().cloned().collect();
+                    correlate(g, h, w, &rx, &ry)
+                })
+                .collect();
+            for p in parts {
+                gy.data.iter_mut().zip(p).for_each(|(a, b)| *a = *a + b);
+            }
+            g_luma = Some(gy);
+        }
+        let gy = g_luma.expect("at least one stage");
+        let mut grad = grads[0].clone();
+        let n = grad.plane_len();
+        let third = T::c(1.0 / 3.0);
+        for c in 0..3 {
+            grad.data[c * n..(c + 1) * n].iter_mut().zip(&gy.data).for_each(|(a, &b)| *a = *a + third * b);
+        }
+        normalize_adjoint(&mut grad);
+        grad
+    }
+}
+
+impl<T: Real> FeatureSpace<T> for Pyramid {
+    fn name(&self) -> &'static str {
+        "pyramid"
+    }
+
+    fn extract(&self, image: &Tensor<T>) -> Extracted<T> {
+        let norm = normalize(image);
+        let n = norm.plane_len();
+        let third = T::c(1.0 / 3.0);
+        let luma: Vec<T> = (0..n).map(|i| third * (norm.data[i] + norm.data[n + i] + norm.data[2 * n + i])).collect();
+        let mut y = Tensor::from_vec(1, norm.h, norm.w, luma);
+        let bank = basis::<T>();
+        let mut shapes = Vec::with_capacity(STAGES);
+        let mut stages = Vec::with_capacity(STAGES);
+        for s in 0..STAGES {
+            if s > 0 {
+                y = y.lowpass2();
+            }
+            let (h, w) = (y.h, y.w);
+            let resp: Vec<Vec<T>> = bank.par_iter().map(|(kx, ky)| correlate(&y.data, h, w, kx, ky)).collect();
+            let resp: [Vec<T>; 5] = resp.try_into().expect("five basis filters");
+            shapes.push((h, w));
+            stages.push(rectify(&resp, h, w));
+        }
+        let mut arrays = Vec::with_capacity(STAGES + 1);
+        arrays.push(norm);
+        arrays.extend(stages.iter().cloned());
+        Extracted { arrays, tape: Box::new(Tape { shapes, stages }) }
+    }
+}

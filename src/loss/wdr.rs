@@ -1,0 +1,277 @@
+//! The WD-based training losses: `wd` (γ·d_WD) and `wdr` (γ·(d_WD + β·L_orig)), both warmed up
+//! with the original 3DGS loss `L_orig = 0.8·L1 + 0.2·(1 − SSIM)` for the first tenth of the run.
+//!
+//! Reference statistics are cached per training view (`view` of [`ImageLoss`]), keyed also by a
+//! fingerprint of the target so a changed target is never compared against stale statistics.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::Arc;
+
+use gscodec_decoder::Image;
+
+use super::features::FeatureSpace;
+use super::tensor::Tensor;
+use super::wd::{self, Reference, Sigma};
+use super::ImageLoss;
+
+/// WD-R's weight of the original loss, β = 1/0.09 (paper).
+pub const BETA: f64 = 1.0 / 0.09;
+/// Default global scale γ of `wdr` (paper: 0.025–0.032 depending on the dataset).
+pub const DEFAULT_GAMMA_WDR: f64 = 0.025;
+/// Default global scale γ of `wd` (paper: 0.028–0.038).
+pub const DEFAULT_GAMMA_WD: f64 = 0.03;
+/// Fraction of the run trained with `L_orig` alone (paper: 3k of 30k iterations).
+pub const WARMUP_FRACTION: f64 = 0.1;
+/// Default memory budget of the per-view reference cache.
+pub const DEFAULT_CACHE_BYTES: usize = 2 << 30;
+
+/// Warm-up length for a run of `total_iters` iterations.
+pub fn warmup_iters(total_iters: usize) -> usize {
+    (total_iters as f64 * WARMUP_FRACTION).round() as usize
+}
+
+/// d_WD of rendered images against targets in a feature space, with per-view caching.
+pub struct WdDistortion {
+    space: Box<dyn FeatureSpace<f32>>,
+    sigma: Sigma,
+    cache: HashMap<usize, (u64, Arc<Reference<f32>>)>,
+    order: VecDeque<usize>,
+    cache_bytes: usize,
+    budget: usize,
+}
+
+impl WdDistortion {
+    pub fn new(space: Box<dyn FeatureSpace<f32>>) -> Self {
+        WdDistortion {
+            space,
+            sigma: Sigma::default(),
+            cache: HashMap::new(),
+            order: VecDeque::new(),
+            cache_bytes: 0,
+            budget: DEFAULT_CACHE_BYTES,
+        }
+    }
+
+    /// Uses another σ (constant or per-pixel map); clears the cache.
+    pub fn with_sigma(mut self, sigma: Sigma) -> Self {
+        assert!(sigma.max_log2() <= wd::NUM_LEVELS as f64, "WD needs log2 σ ≤ {}", wd::NUM_LEVELS);
+        self.sigma = sigma;
+        self.clear_cache();
+        self
+    }
+
+    /// Memory budget of the reference cache in bytes (0 disables caching).
+    pub fn with_cache_budget(mut self, bytes: usize) -> Self {
+        self.budget = bytes;
+        self.clear_cache();
+        self
+    }
+
+    pub fn feature_space(&self) -> &dyn FeatureSpace<f32> {
+        self.space.as_ref()
+    }
+
+    pub fn clear_cache(&mut self) {
+        self.cache.clear();
+        self.order.clear();
+        self.cache_bytes = 0;
+    }
+
+    /// Number of views whose reference statistics are cached.
+    pub fn cached_views(&self) -> usize {
+        self.cache.len()
+    }
+
+    fn reference(&mut self, target: &Image, view: Option<usize>) -> Arc<Reference<f32>> {
+        let key = fingerprint(target);
+        if let Some(v) = view {
+            if let Some((k, r)) = self.cache.get(&v) {
+                if *k == key {
+                    return r.clone();
+                }
+            }
+        }
+        let feats = self.space.features(&Tensor::from_image(target));
+        let r = Arc::new(Reference::new(&feats, &self.sigma, target.height as usize, target.width as usize));
+        if let Some(v) = view {
+            self.insert(v, key, r.clone());
+        }
+        r
+    }
+
+    fn insert(&mut self, view: usize, key: u64, r: Arc<Reference<f32>>) {
+        let bytes = r.bytes();
+        if bytes > self.budget {
+            return;
+        }
+        if let Some((_, old)) = self.cache.remove(&view) {
+            self.cache_bytes -= old.bytes();
+            self.order.retain(|&v| v != view);
+        }
+        while self.cache_bytes + bytes > self.budget {
+            let Some(v) = self.order.pop_front() else { break };
+            if let Some((_, old)) = self.cache.remove(&v) {
+                self.cache_bytes -= old.bytes();
+            }
+        }
+        self.cache_bytes += bytes;
+        self.order.push_back(view);
+        self.cache.insert(view, (key, r));
+    }
+
+    /// d_WD(rendered, target); `view` = Some(id) uses and fills the cache.
+    pub fn value(&mut self, rendered: &Image, target: &Image, view: Option<usize>) -> f64 {
+        check_sizes(rendered, target);
+        let r = self.reference(target, view);
+        let feats = self.space.features(&Tensor::from_image(rendered));
+        wd::distortion(&r, &feats)
+    }
+
+    /// d_WD and its gradient w.r.t. the rendered image (interleaved RGB).
+    pub fn value_and_grad(&mut self, rendered: &Image, target: &Image, view: Option<usize>) -> (f64, Vec<f32>) {
+        check_sizes(rendered, target);
+        let r = self.reference(target, view);
+        let ex = self.space.extract(&Tensor::from_image(rendered));
+        let (value, grads) = wd::distortion_and_grad(&r, &ex.arrays);
+        let g = ex.tape.backward(&grads);
+        (value, g.to_interleaved_f32())
+    }
+}
+
+fn check_sizes(a: &Image, b: &Image) {
+    assert_eq!((a.width, a.height), (b.width, b.height), "WD of images of different sizes");
+}
+
+/// FNV-1a over the target's sizes and pixel bits.
+fn fingerprint(img: &Image) -> u64 {
+    let mut h: u64 = 0xcbf29ce484222325;
+    let mut eat = |v: u32| {
+        for b in v.to_le_bytes() {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x100000001b3);
+        }
+    };
+    eat(img.width);
+    eat(img.height);
+    img.data.iter().for_each(|v| eat(v.to_bits()));
+    h
+}
+
+/// `wd`: γ·d_WD after a warm-up with `L_orig`.
+pub struct WdLoss {
+    pub distortion: WdDistortion,
+    pub gamma: f64,
+    pub warmup: usize,
+}
+
+impl WdLoss {
+    pub fn new(space: Box<dyn FeatureSpace<f32>>, total_iters: usize) -> Self {
+        WdLoss { distortion: WdDistortion::new(space), gamma: DEFAULT_GAMMA_WD, warmup: warmup_iters(total_iters) }
+    }
+}
+
+impl ImageLoss for WdLoss {
+    fn loss_and_grad(&mut self, rendered: &Image, target: &Image, view: usize, iter: usize) -> (f64, Vec<f32>) {
+        if iter < self.warmup {
+            return l_orig(rendered, target);
+        }
+        let (v, mut g) = self.distortion.value_and_grad(rendered, target, Some(view));
+        g.iter_mut().for_each(|x| *x *= self.gamma as f32);
+        (self.gamma * v, g)
+    }
+
+    fn name(&self) -> &'static str {
+        "wd"
+    }
+}
+
+/// `wdr`: γ·(d_WD + β·L_orig) after a warm-up with `L_orig`.
+pub struct WdrLoss {
+    pub distortion: WdDistortion,
+    pub gamma: f64,
+    pub beta: f64,
+    pub warmup: usize,
+}
+
+impl WdrLoss {
+    pub fn new(space: Box<dyn FeatureSpace<f32>>, total_iters: usize) -> Self {
+        WdrLoss { distortion: WdDistortion::new(space), gamma: DEFAULT_GAMMA_WDR, beta: BETA, warmup: warmup_iters(total_iters) }
+    }
+}
+
+impl ImageLoss for WdrLoss {
+    fn loss_and_grad(&mut self, rendered: &Image, target: &Image, view: usize, iter: usize) -> (f64, Vec<f32>) {
+        let (lo, go) = l_orig(rendered, target);
+        if iter < self.warmup {
+            return (lo, go);
+        }
+        let (v, gw) = self.distortion.value_and_grad(rendered, target, Some(view));
+        let (g, b) = (self.gamma as f32, self.beta as f32);
+        let grad = gw.iter().zip(&go).map(|(w, o)| g * (w + b * o)).collect();
+        (self.gamma * (v + self.beta * lo), grad)
+    }
+
+    fn name(&self) -> &'static str {
+        "wdr"
+    }
+}
+
+/// TEMPORARY(wd): private `L_orig = 0.8·L1 + 0.2·(1 − SSIM)` with gradient, until the trainer's
+/// `L1Ssim` (`src/loss/{l1,ssim}.rs`) lands in main; then this is replaced by a call to it.
+pub fn l_orig(rendered: &Image, target: &Image) -> (f64, Vec<f32>) {
+    use super::ssim::{blur, channel, C1, C2};
+    check_sizes(rendered, target);
+    let (w, h) = (rendered.width as usize, rendered.height as usize);
+    let n = w * h;
+    let count = (3 * n) as f64;
+    let mut grad = vec![0.0f32; 3 * n];
+    let mut l1 = 0.0;
+    for (i, (r, t)) in rendered.data.iter().zip(&target.data).enumerate() {
+        let d = (*r - *t) as f64;
+        l1 += d.abs();
+        grad[i] = (0.8 * d.signum() / count) as f32 * (d != 0.0) as i32 as f32;
+    }
+    let mut ssim_sum = 0.0;
+    for c in 0..3 {
+        let (x, y) = (channel(rendered, c), channel(target, c));
+        let prod = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
+        let (mx, my) = (blur(&x, w, h), blur(&y, w, h));
+        let (exx, eyy, exy) = (blur(&prod(&x, &x), w, h), blur(&prod(&y, &y), w, h), blur(&prod(&x, &y), w, h));
+        let (mut g_mu, mut g_xx, mut g_xy) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        let dl_ds = -0.2 / count;
+        for i in 0..n {
+            let a = 2.0 * mx[i] * my[i] + C1;
+            let b = 2.0 * (exy[i] - mx[i] * my[i]) + C2;
+            let cc = mx[i] * mx[i] + my[i] * my[i] + C1;
+            let d = (exx[i] - mx[i] * mx[i]) + (eyy[i] - my[i] * my[i]) + C2;
+            let s = a * b / (cc * d);
+            ssim_sum += s;
+            g_mu[i] = dl_ds * s * (2.0 * my[i] / a - 2.0 * my[i] / b - 2.0 * mx[i] / cc + 2.0 * mx[i] / d);
+            g_xy[i] = dl_ds * 2.0 * s / b;
+            g_xx[i] = -dl_ds * s / d;
+        }
+        let (b_mu, b_xx, b_xy) = (blur(&g_mu, w, h), blur(&g_xx, w, h), blur(&g_xy, w, h));
+        for i in 0..n {
+            grad[3 * i + c] += (b_mu[i] + 2.0 * x[i] * b_xx[i] + y[i] * b_xy[i]) as f32;
+        }
+    }
+    (0.8 * l1 / count + 0.2 * (1.0 - ssim_sum / count), grad)
+}
+
+/// TEMPORARY(wd): `l1ssim` as an [`ImageLoss`] until the trainer's `L1Ssim` lands in main.
+pub struct TemporaryL1Ssim;
+
+impl ImageLoss for TemporaryL1Ssim {
+    fn loss_and_grad(&mut self, rendered: &Image, target: &Image, _view: usize, _iter: usize) -> (f64, Vec<f32>) {
+        l_orig(rendered, target)
+    }
+
+    fn name(&self) -> &'static str {
+        "l1ssim"
+    }
+}
+
+/// d_WD in the default feature space (`pyramid`, σ = 4) between two images, for metrics.
+pub fn wd_metric(rendered: &Image, target: &Image) -> f64 {
+    WdDistortion::new(Box::new(super::features::pyramid::Pyramid)).value(rendered, target, None)
+}

@@ -1,0 +1,75 @@
+//! Every metric of one rendered view against its reference, and their mean over views: what
+//! `gscodec eval` reports.
+
+use gscodec_decoder::Image;
+use serde::Serialize;
+
+use super::{flip, ms_ssim, psnr, ssim};
+
+/// All metrics of one view. Optional ones are `None` when not computable (MS-SSIM of views
+/// smaller than 161 px) or not computed.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ViewMetrics {
+    /// PSNR in dB (peak 1).
+    pub psnr: f64,
+    /// SSIM (reference-3DGS window).
+    pub ssim: f64,
+    /// MS-SSIM (5 scales).
+    pub ms_ssim: Option<f64>,
+    /// Mean LDR-ꟻLIP error.
+    pub flip: f64,
+    /// Wasserstein Distortion in the pyramid feature space.
+    pub wd: Option<f64>,
+}
+
+/// Evaluates `test` against `reference` on every metric.
+///
+/// # Panics
+/// If the images differ in size.
+pub fn evaluate(reference: &Image, test: &Image) -> ViewMetrics {
+    ViewMetrics {
+        psnr: psnr(reference, test),
+        ssim: ssim(reference, test),
+        ms_ssim: ms_ssim(reference, test).ok(),
+        flip: flip(reference, test),
+        wd: None,
+    }
+}
+
+/// Mean of each metric over views (an optional metric only when every view has it); `None` for
+/// no views.
+pub fn mean(views: &[ViewMetrics]) -> Option<ViewMetrics> {
+    if views.is_empty() {
+        return None;
+    }
+    let n = views.len() as f64;
+    let avg = |f: fn(&ViewMetrics) -> f64| views.iter().map(f).sum::<f64>() / n;
+    let avg_opt = |f: fn(&ViewMetrics) -> Option<f64>| views.iter().map(f).sum::<Option<f64>>().map(|s| s / n);
+    Some(ViewMetrics {
+        psnr: avg(|v| v.psnr),
+        ssim: avg(|v| v.ssim),
+        ms_ssim: avg_opt(|v| v.ms_ssim),
+        flip: avg(|v| v.flip),
+        wd: avg_opt(|v| v.wd),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn identical_views_are_perfect_and_means_average() {
+        let img = Image { width: 170, height: 165, data: (0..170 * 165 * 3).map(|i| (i % 97) as f32 / 96.0).collect() };
+        let v = evaluate(&img, &img);
+        assert_eq!((v.psnr, v.flip), (100.0, 0.0));
+        assert!((v.ssim - 1.0).abs() < 1e-12 && (v.ms_ssim.unwrap() - 1.0).abs() < 1e-12);
+        let small = Image { width: 20, height: 20, data: vec![0.5; 1200] };
+        let w = evaluate(&small, &Image { data: vec![0.6; 1200], ..small.clone() });
+        assert_eq!(w.ms_ssim, None);
+        let m = mean(&[v, w]).unwrap();
+        assert!((m.psnr - 60.0).abs() < 1e-4, "{}", m.psnr);
+        assert_eq!(m.ms_ssim, None);
+        assert!(mean(&[]).is_none());
+    }
+}

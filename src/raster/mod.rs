@@ -1,0 +1,160 @@
+//! Differentiable rasterizer: the decoder's forward render with saved state, and its analytic
+//! backward pass to every Gaussian parameter.
+//!
+//! The forward pass *is* the decoder's renderer (`preprocess`, `bin_tiles`, and the same per-pixel
+//! compositing), so a trained scene renders identically in any player. It additionally keeps, per
+//! pixel, the final transmittance and how many entries of its tile list were visited; the backward
+//! pass walks each pixel's list back to front from there (as the reference CUDA rasterizer does),
+//! recovering each transmittance by division, so memory is bounded by the image size plus the
+//! tile overlaps.
+//!
+//! Determinism: per-tile partial gradients are written into one slot per tile-list entry and then
+//! summed per Gaussian in tile-list order, so the result does not depend on the thread count.
+
+mod backward;
+
+pub use backward::{backward, Gradients};
+
+use gscodec_decoder::math::{MAX_ALPHA, MIN_ALPHA, MIN_TRANSMITTANCE, TILE};
+use gscodec_decoder::render::{bin_tiles, preprocess, Projected, TileBins};
+use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// What the backward pass needs from a forward render.
+#[derive(Debug, Clone)]
+pub struct RasterState {
+    pub camera: Camera,
+    pub options: RenderOptions,
+    /// SH degree actually used (`min(options.max_sh_degree, splats.sh_degree)`).
+    pub degree: u8,
+    pub projected: Vec<Projected>,
+    pub bins: TileBins,
+    /// Final transmittance per pixel.
+    pub final_t: Vec<f32>,
+    /// Number of tile-list entries visited per pixel.
+    pub n_visited: Vec<u32>,
+}
+
+/// Wall time of the forward stages, seconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct ForwardTimings {
+    pub project: f64,
+    pub sort: f64,
+    pub rasterize: f64,
+}
+
+/// Renders like [`gscodec_decoder::render::render`] (bit-identical) and keeps the state for
+/// [`backward`].
+pub fn forward(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, RasterState) {
+    let (img, state, _) = forward_timed(splats, cam, opts);
+    (img, state)
+}
+
+/// [`forward`] with per-stage wall times.
+pub fn forward_timed(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, RasterState, ForwardTimings) {
+    let (w, h) = (cam.width, cam.height);
+    let t0 = Instant::now();
+    let projected = preprocess(splats, cam, opts.max_sh_degree);
+    let t1 = Instant::now();
+    let bins = bin_tiles(&projected, w, h);
+    let t2 = Instant::now();
+    let n_pix = (w * h) as usize;
+    let mut img = Image::filled(w, h, [0.0; 3]);
+    let mut final_t = vec![0.0f32; n_pix];
+    let mut n_visited = vec![0u32; n_pix];
+    let band_pix = (w * TILE) as usize;
+    let cull = cull_thresholds(&projected);
+    img.data
+        .par_chunks_mut(band_pix * 3)
+        .zip(final_t.par_chunks_mut(band_pix))
+        .zip(n_visited.par_chunks_mut(band_pix))
+        .enumerate()
+        .for_each(|(ty, ((band, band_t), band_n))| {
+            let ty = ty as u32;
+            let rows = (band_t.len() / w as usize) as u32;
+            let mut local = Vec::new();
+            for tx in 0..bins.tiles_x {
+                gather_tile(&projected, &cull, bins.tile((ty * bins.tiles_x + tx) as usize), &mut local);
+                let x1 = ((tx + 1) * TILE).min(w);
+                for ly in 0..rows {
+                    let py = (ty * TILE + ly) as f32;
+                    for x in tx * TILE..x1 {
+                        let (c, t, n) = composite(&local, x as f32, py);
+                        let p = (ly * w + x) as usize;
+                        for k in 0..3 {
+                            band[p * 3 + k] = c[k] + t * opts.background[k];
+                        }
+                        band_t[p] = t;
+                        band_n[p] = n;
+                    }
+                }
+            }
+        });
+    let t3 = Instant::now();
+    let degree = opts.max_sh_degree.min(splats.sh_degree);
+    let timings = ForwardTimings {
+        project: (t1 - t0).as_secs_f64(),
+        sort: (t2 - t1).as_secs_f64(),
+        rasterize: (t3 - t2).as_secs_f64(),
+    };
+    (img, RasterState { camera: *cam, options: *opts, degree, projected, bins, final_t, n_visited }, timings)
+}
+
+/// A projected Gaussian copied into a tile's contiguous working list.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct TileGaussian {
+    /// `mean - 0.5`: the centre in pixel-index coordinates.
+    pub mx: f32,
+    pub my: f32,
+    pub conic: [f32; 3],
+    pub opacity: f32,
+    /// Below this `power` the alpha is certainly under [`MIN_ALPHA`]: skip without `exp`.
+    pub cull: f32,
+    pub color: [f32; 3],
+}
+
+/// Per Gaussian, a `power` below which `opacity · exp(power) < MIN_ALPHA` for sure. The 1e-3
+/// margin dwarfs the rounding of `ln`/`exp`, so the skip decisions (and hence the image) are
+/// exactly those of the decoder's renderer, which evaluates `exp` for every pair.
+pub(crate) fn cull_thresholds(proj: &[Projected]) -> Vec<f32> {
+    proj.iter().map(|p| if p.opacity > 0.0 { (MIN_ALPHA / p.opacity).ln() - 1e-3 } else { f32::INFINITY }).collect()
+}
+
+/// Copies a tile's depth-sorted Gaussians into `out` (contiguous, for cache-friendly reuse by
+/// all pixels of the tile).
+pub(crate) fn gather_tile(proj: &[Projected], cull: &[f32], ids: &[u32], out: &mut Vec<TileGaussian>) {
+    out.clear();
+    out.extend(ids.iter().map(|&g| {
+        let p = &proj[g as usize];
+        TileGaussian { mx: p.mean[0] - 0.5, my: p.mean[1] - 0.5, conic: p.conic, opacity: p.opacity, cull: cull[g as usize], color: p.color }
+    }));
+}
+
+/// The decoder's per-pixel compositing (same arithmetic, same skips; see
+/// `gscodec_decoder::render::composite_pixel_counted`) over a gathered tile list.
+#[inline]
+fn composite(list: &[TileGaussian], px: f32, py: f32) -> ([f32; 3], f32, u32) {
+    let mut c = [0.0f32; 3];
+    let mut t = 1.0f32;
+    for (j, p) in list.iter().enumerate() {
+        let (dx, dy) = (p.mx - px, p.my - py);
+        let power = -0.5 * (p.conic[0] * dx * dx + p.conic[2] * dy * dy) - p.conic[1] * dx * dy;
+        if power > 0.0 || power < p.cull {
+            continue;
+        }
+        let alpha = MAX_ALPHA.min(p.opacity * power.exp());
+        if alpha < MIN_ALPHA {
+            continue;
+        }
+        let next_t = t * (1.0 - alpha);
+        if next_t < MIN_TRANSMITTANCE {
+            return (c, t, j as u32);
+        }
+        for k in 0..3 {
+            c[k] += p.color[k] * alpha * t;
+        }
+        t = next_t;
+    }
+    (c, t, list.len() as u32)
+}

@@ -1,0 +1,186 @@
+//! Writing a quantised scene: tables per group, one range-coded stream per (group, chunk),
+//! the container via `gscodec_decoder::bitstream` (the one definition of the format).
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use gscodec_decoder::bitstream::layout::{chunk_count, Group, CHUNK, INFO_KIND, PADDING_KIND};
+use gscodec_decoder::bitstream::{self, ByteWriter, Header, Section, MAX_GAUSSIANS_PER_BYTE, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MINOR};
+use gscodec_decoder::entropy::{ChannelTable, SymbolEncoder};
+
+use super::quantise::Quantised;
+use super::tables::{self, ChosenTable};
+
+/// Bytes and bits of one attribute group.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct GroupReport {
+    pub group: String,
+    /// Parameter section bytes (steps + tables).
+    pub table_bytes: usize,
+    /// Range-coded stream bytes, all chunks.
+    pub stream_bytes: usize,
+    /// Ideal code length of the streams under the stored tables (the rate estimate), bits.
+    pub estimated_bits: f64,
+    /// Channels stored once as a constant.
+    pub constant_channels: usize,
+    /// Table + stream bits under the static-histogram model alone (the non-learned baseline).
+    pub histogram_bits: f64,
+    /// Table + stream bits under the learned density alone.
+    pub learned_bits: f64,
+}
+
+/// What an encode produced.
+#[derive(Debug, Clone, Serialize)]
+pub struct EncodeReport {
+    pub gaussians: usize,
+    pub sh_degree: u8,
+    pub position_bits: u8,
+    pub file_bytes: usize,
+    pub groups: Vec<GroupReport>,
+}
+
+impl EncodeReport {
+    /// Estimated total bits (tables counted exactly, streams by ideal code length).
+    pub fn estimated_bits(&self) -> f64 {
+        self.groups.iter().map(|g| g.estimated_bits + 8.0 * g.table_bytes as f64).sum()
+    }
+}
+
+/// Bit length of a Morton delta (0 for 0).
+fn bit_len(d: u64) -> u32 {
+    64 - d.leading_zeros()
+}
+
+/// Position stream symbols: per Gaussian, the delta's bit length (table) and the bits below
+/// its leading one (raw). Deltas restart at 0 in each chunk.
+fn morton_deltas(morton: &[u64]) -> Vec<u64> {
+    morton
+        .chunks(CHUNK)
+        .flat_map(|c| {
+            let mut prev = 0;
+            c.iter().map(move |&m| {
+                let d = m - prev;
+                prev = m;
+                d
+            })
+        })
+        .collect()
+}
+
+struct GroupPlan {
+    group: Group,
+    params: Vec<u8>,
+    tables: Vec<ChosenTable>,
+    histogram_bits: f64,
+    learned_bits: f64,
+}
+
+fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
+    let compare = |v: &[i32]| if learned { tables::compare(v) } else { tables::histogram_only(v) };
+    let mut plans = Vec::new();
+    let deltas = morton_deltas(&q.morton);
+    let lens: Vec<i32> = deltas.iter().map(|&d| bit_len(d) as i32).collect();
+    let cmp = compare(&lens);
+    let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
+    let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
+    let t = cmp.best;
+    let mut w = ByteWriter::new();
+    let (origin, step, bits) = q.grid;
+    origin.iter().for_each(|&v| w.f32(v));
+    step.iter().for_each(|&v| w.f32(v));
+    w.u8(bits);
+    w.bytes(&t.bytes);
+    plans.push(GroupPlan { group: Group::Position, params: w.buf, tables: vec![t], histogram_bits: hb, learned_bits: lb });
+    for (g, steps, chans) in &q.groups {
+        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| compare(c)).collect();
+        let histogram_bits = cmps.iter().map(|c| c.histogram_bits).sum();
+        let learned_bits = cmps.iter().map(|c| c.learned_bits).sum();
+        let ts: Vec<ChosenTable> = cmps.into_iter().map(|c| c.best).collect();
+        let mut w = ByteWriter::new();
+        w.u8(chans.len() as u8);
+        for (s, t) in steps.iter().zip(&ts) {
+            w.f32(*s);
+            w.bytes(&t.bytes);
+        }
+        plans.push(GroupPlan { group: *g, params: w.buf, tables: ts, histogram_bits, learned_bits });
+    }
+    plans
+}
+
+fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<u8> {
+    let range = ch * CHUNK..((ch + 1) * CHUNK).min(q.len());
+    let mut e = SymbolEncoder::new();
+    if p.group == Group::Position {
+        for &d in &deltas[range] {
+            let len = bit_len(d);
+            e.value(&p.tables[0].table, len as i32);
+            if len >= 2 {
+                let rest = d & ((1u64 << (len - 1)) - 1);
+                let mut left = len - 1;
+                while left > 0 {
+                    let take = left.min(32);
+                    left -= take;
+                    e.raw_bits(((rest >> left) & ((1u64 << take) - 1)) as u32, take);
+                }
+            }
+        }
+    } else {
+        let chans = &q.groups.iter().find(|x| x.0 == p.group).expect("group").2;
+        for i in range {
+            for (t, c) in p.tables.iter().zip(chans) {
+                e.value(&t.table, c[i]);
+            }
+        }
+    }
+    e.finish()
+}
+
+/// Encodes a quantised scene. `input` = (Gaussians, SH degree) of the encoder's input, for `info`.
+pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8>, EncodeReport) {
+    let n = q.len();
+    let header = Header { version_major: VERSION_MAJOR, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
+    let mut info = ByteWriter::new();
+    info.u32(input.0.min(u32::MAX as usize) as u32);
+    info.u8(input.1);
+    let mut report = EncodeReport { gaussians: n, sh_degree: q.sh_degree, position_bits: q.grid.2, file_bytes: 0, groups: Vec::new() };
+    let mut payloads: Vec<(u16, u16, u32, Vec<u8>)> = Vec::new();
+    if n > 0 {
+        let deltas = morton_deltas(&q.morton);
+        let plans = plan(q, learned_tables);
+        let jobs: Vec<(usize, usize)> = (0..plans.len()).flat_map(|p| (0..chunk_count(n)).map(move |c| (p, c))).collect();
+        let streams: Vec<Vec<u8>> = jobs.par_iter().map(|&(p, c)| encode_chunk(q, &plans[p], &deltas, c)).collect();
+        for p in &plans {
+            payloads.push((p.group.params_kind(), 0, 0, p.params.clone()));
+            report.groups.push(GroupReport {
+                group: p.group.name().into(),
+                table_bytes: p.params.len(),
+                stream_bytes: 0,
+                estimated_bits: p.tables.iter().map(|t| t.bits).sum::<f64>()
+                    + if p.group == Group::Position { deltas.iter().map(|&d| bit_len(d).saturating_sub(1) as f64).sum() } else { 0.0 },
+                constant_channels: p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Constant(_))).count(),
+                histogram_bits: p.histogram_bits,
+                learned_bits: p.learned_bits,
+            });
+        }
+        for (&(p, c), s) in jobs.iter().zip(streams) {
+            report.groups[p].stream_bytes += s.len();
+            if !s.is_empty() {
+                payloads.push((plans[p].group.data_kind(), c as u16, 0, s));
+            }
+        }
+    }
+    payloads.push((INFO_KIND, 0, SECTION_OPTIONAL, info.buf));
+    let build = |payloads: &[(u16, u16, u32, Vec<u8>)]| {
+        let sections: Vec<Section> = payloads.iter().map(|(k, c, f, d)| Section { kind: *k, chunk: *c, flags: *f, data: d }).collect();
+        bitstream::write(&header, &sections)
+    };
+    let mut bytes = build(&payloads);
+    // A file must have at least 1 byte per 8 Gaussians (the decoder's allocation bound).
+    let need = (n as u64).div_ceil(MAX_GAUSSIANS_PER_BYTE) as usize;
+    if bytes.len() < need {
+        payloads.push((PADDING_KIND, 0, SECTION_OPTIONAL, vec![0; need - bytes.len()]));
+        bytes = build(&payloads);
+    }
+    report.file_bytes = bytes.len();
+    (bytes, report)
+}

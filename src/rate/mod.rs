@@ -1,0 +1,60 @@
+//! Rate: quantisation, entropy-model tables and the encoder that writes `.gsc` files.
+//!
+//! * [`quantise`] — scene ⇄ integer channels (Morton-ordered position grid, smallest-three
+//!   rotations, per-channel steps) and pruning.
+//! * [`tables`] — the integer tables written to the file and their exact cost.
+//! * [`encode`] — streams per (group, chunk) and the container.
+
+pub mod encode;
+pub mod model;
+pub mod quantise;
+pub mod rd;
+pub mod term;
+pub mod tables;
+
+use gscodec_decoder::{SceneError, Splats};
+
+pub use encode::{EncodeReport, GroupReport};
+pub use quantise::{Quantised, Steps};
+
+/// Everything the encoder decides besides the Gaussians themselves.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EncodeConfig {
+    pub steps: Steps,
+    /// Gaussians with opacity below this are pruned (1/255 is lossless: they never draw).
+    pub min_opacity: f32,
+    /// SH bands above this degree are left out.
+    pub max_sh_degree: u8,
+    /// Also fit the learned density per channel and store it where it is cheaper than the
+    /// static histogram (slower; the RD search turns it off for its trial encodes).
+    pub learned_tables: bool,
+}
+
+impl Default for EncodeConfig {
+    fn default() -> Self {
+        EncodeConfig { steps: Steps::default(), min_opacity: 1.0 / 255.0, max_sh_degree: 3, learned_tables: true }
+    }
+}
+
+impl EncodeConfig {
+    /// The configuration for rate–distortion trade-off `lambda` ≥ 0 when the Gaussians are not
+    /// retrained: steps grow as `(1 + λ)^½` and the pruning threshold as `(1 + λ)/255`.
+    /// λ = 0 is the finest setting; a huge λ prunes everything (an empty, valid file).
+    pub fn for_lambda(lambda: f64) -> EncodeConfig {
+        let m = (1.0 + lambda.max(0.0)).sqrt() as f32;
+        EncodeConfig { steps: Steps::default().scaled(m), min_opacity: ((1.0 + lambda.max(0.0)) / 255.0).min(2.0) as f32, ..EncodeConfig::default() }
+    }
+}
+
+/// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
+pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
+    splats.validate()?;
+    let input = (splats.len(), splats.sh_degree);
+    let mut s = quantise::prune(splats, config.min_opacity);
+    if s.sh_degree > config.max_sh_degree {
+        s = s.with_sh_degree(config.max_sh_degree);
+    }
+    let q = quantise::quantise(&s, &config.steps);
+    let (bytes, report) = encode::write(&q, input, config.learned_tables);
+    Ok((bytes, report, q))
+}

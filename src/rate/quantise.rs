@@ -1,0 +1,206 @@
+//! Quantisation: a scene to integer channels (positions on a Morton-ordered grid fitted to the
+//! bounds, smallest-three rotations, per-channel uniform steps) and back.
+
+use gscodec_decoder::bitstream::layout::{self, Group, MAX_POSITION_BITS};
+use gscodec_decoder::math::sigmoid;
+use gscodec_decoder::Splats;
+
+/// Step sizes (quantisation bins) of every stored attribute.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Steps {
+    /// Position grid bits per axis; `None` = chosen from the scene (see [`position_bits`]).
+    pub position_bits: Option<u8>,
+    /// Largest position step, relative to the 10th-percentile Gaussian size, when bits are automatic.
+    pub position_rel: f32,
+    pub scale: f32,
+    pub rotation: f32,
+    pub opacity: f32,
+    pub sh_dc: f32,
+    /// Per SH band 1..=3.
+    pub sh_rest: [f32; 3],
+}
+
+impl Default for Steps {
+    fn default() -> Self {
+        Steps { position_bits: None, position_rel: 0.15, scale: 0.04, rotation: 0.006, opacity: 0.08, sh_dc: 0.01, sh_rest: [0.03, 0.04, 0.05] }
+    }
+}
+
+impl Steps {
+    /// All steps multiplied by `m` (coarser for `m > 1`).
+    pub fn scaled(&self, m: f32) -> Steps {
+        Steps {
+            position_bits: self.position_bits,
+            position_rel: self.position_rel * m,
+            scale: self.scale * m,
+            rotation: self.rotation * m,
+            opacity: self.opacity * m,
+            sh_dc: self.sh_dc * m,
+            sh_rest: self.sh_rest.map(|s| s * m),
+        }
+    }
+}
+
+/// A scene in quantised form, Gaussians in Morton order: exactly what the file holds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Quantised {
+    pub sh_degree: u8,
+    /// Grid origin, step and bits per axis.
+    pub grid: ([f32; 3], [f32; 3], u8),
+    /// Sorted Morton codes of the grid positions.
+    pub morton: Vec<u64>,
+    /// For every group except Position: dequantisation steps and channel values (`[channel][gaussian]`).
+    pub groups: Vec<(Group, Vec<f32>, Vec<Vec<i32>>)>,
+}
+
+impl Quantised {
+    pub fn len(&self) -> usize {
+        self.morton.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.morton.is_empty()
+    }
+}
+
+/// Chooses grid bits so the step is at most `rel` × the 10th-percentile Gaussian size
+/// (largest axis), at most 21 bits.
+pub fn position_bits(splats: &Splats, rel: f32) -> u8 {
+    let Some((lo, hi)) = splats.bounds() else { return 0 };
+    let extent = (0..3).map(|a| f64::from(hi[a]) - f64::from(lo[a])).fold(0.0, f64::max);
+    if extent <= 0.0 {
+        return 0;
+    }
+    let mut sizes: Vec<f32> = splats.log_scales.iter().map(|s| s[0].max(s[1]).max(s[2]).exp()).collect();
+    sizes.sort_by(f32::total_cmp);
+    let reference = f64::from(sizes[sizes.len() / 10]).max(extent * 1e-7);
+    let step = reference * f64::from(rel);
+    let bits = ((extent / step) + 1.0).log2().ceil();
+    bits.clamp(1.0, f64::from(MAX_POSITION_BITS)) as u8
+}
+
+fn q(v: f32, step: f32) -> i32 {
+    // `as` saturates: no wrap-around for any value.
+    (v / step).round() as i32
+}
+
+/// Quantises `splats` (already pruned and validated) with `steps`, reordering to Morton order.
+pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
+    let n = splats.len();
+    let bits = steps.position_bits.unwrap_or_else(|| position_bits(splats, steps.position_rel)).min(MAX_POSITION_BITS);
+    let (lo, hi) = splats.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
+    let cells = ((1u64 << bits) - 1) as f64;
+    let mut step = [1.0f32; 3];
+    for a in 0..3 {
+        let ext = f64::from(hi[a]) - f64::from(lo[a]);
+        if ext > 0.0 && bits > 0 {
+            // Round the step up so the far corner stays inside the grid after f32 rounding.
+            step[a] = ((ext / cells) * (1.0 + 1e-6)) as f32;
+        }
+    }
+    let max_q = (1u64 << bits) - 1;
+    let mut keyed: Vec<(u64, usize)> = (0..n)
+        .map(|i| {
+            let qs: [u32; 3] = std::array::from_fn(|a| {
+                let t = (f64::from(splats.positions[i][a]) - f64::from(lo[a])) / f64::from(step[a]);
+                t.round().clamp(0.0, max_q as f64) as u32
+            });
+            (layout::morton_encode(qs, bits), i)
+        })
+        .collect();
+    keyed.sort_unstable();
+    let order: Vec<usize> = keyed.iter().map(|&(_, i)| i).collect();
+
+    let mut groups = Vec::new();
+    let per = |f: &dyn Fn(usize) -> i32| order.iter().map(|&i| f(i)).collect::<Vec<i32>>();
+    groups.push((Group::Scale, vec![steps.scale; 3], (0..3).map(|c| per(&|i| q(splats.log_scales[i][c], steps.scale))).collect()));
+    let rot: Vec<(usize, [i32; 3])> = order.iter().map(|&i| smallest_three(splats.rotations[i], steps.rotation)).collect();
+    let mut rot_ch = vec![rot.iter().map(|r| r.0 as i32).collect::<Vec<_>>()];
+    for j in 0..3 {
+        rot_ch.push(rot.iter().map(|r| r.1[j]).collect());
+    }
+    groups.push((Group::Rotation, vec![1.0, steps.rotation, steps.rotation, steps.rotation], rot_ch));
+    groups.push((Group::Opacity, vec![steps.opacity], vec![per(&|i| q(splats.opacity_logits[i], steps.opacity))]));
+    groups.push((Group::ShDc, vec![steps.sh_dc; 3], (0..3).map(|c| per(&|i| q(splats.sh_dc[i][c], steps.sh_dc))).collect()));
+    let k = splats.rest_coeffs();
+    for b in 1..=splats.sh_degree {
+        let first = (b as usize) * (b as usize) - 1;
+        let w = (2 * b as usize + 1) * 3;
+        let s = steps.sh_rest[b as usize - 1];
+        let chans = (0..w).map(|j| per(&|i| q(splats.sh_rest[(i * k + first) * 3 + j], s))).collect();
+        groups.push((Group::for_band(b), vec![s; w], chans));
+    }
+    let mut out = Quantised { sh_degree: splats.sh_degree, grid: (lo, step, bits), morton: keyed.iter().map(|&(m, _)| m).collect(), groups };
+    // Leave out SH bands whose coefficients all quantise to zero.
+    while out.sh_degree > 0 {
+        let g = Group::for_band(out.sh_degree);
+        let all_zero = out.groups.iter().find(|x| x.0 == g).is_none_or(|x| x.2.iter().all(|c| c.iter().all(|&v| v == 0)));
+        if !all_zero {
+            break;
+        }
+        out.groups.retain(|x| x.0 != g);
+        out.sh_degree -= 1;
+    }
+    out
+}
+
+/// Normalises, makes the largest component positive and quantises the other three.
+pub fn smallest_three(r: [f32; 4], step: f32) -> (usize, [i32; 3]) {
+    let norm = r.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
+    let u: [f64; 4] = std::array::from_fn(|i| f64::from(r[i]) / norm);
+    let mut largest = 0;
+    for i in 1..4 {
+        if u[i].abs() > u[largest].abs() {
+            largest = i;
+        }
+    }
+    let sign = if u[largest] < 0.0 { -1.0 } else { 1.0 };
+    let mut c = [0i32; 3];
+    let mut j = 0;
+    for (i, &x) in u.iter().enumerate() {
+        if i != largest {
+            c[j] = q((x * sign) as f32, step);
+            j += 1;
+        }
+    }
+    (largest, c)
+}
+
+/// Drops Gaussians whose opacity is below `min_opacity` (they draw nothing visible: alpha is
+/// opacity × a Gaussian ≤ 1, and alpha < 1/255 is skipped by the renderer).
+pub fn prune(splats: &Splats, min_opacity: f32) -> Splats {
+    let mut out = splats.clone();
+    out.retain_indices(|i| sigmoid(splats.opacity_logits[i]) >= min_opacity);
+    out
+}
+
+/// The scene a decoder will restore from `q` (same formulas as the decoder, SPEC §7).
+pub fn dequantise(q: &Quantised) -> Splats {
+    let mut s = Splats::new(q.sh_degree);
+    let (origin, step, bits) = q.grid;
+    for &m in &q.morton {
+        let g = layout::morton_decode(m, bits);
+        s.positions.push(std::array::from_fn(|a| layout::dequantise_position(origin[a], step[a], g[a])));
+    }
+    let n = q.len();
+    let k = s.rest_coeffs();
+    s.sh_rest = vec![0.0; n * k * 3];
+    for (g, steps, ch) in &q.groups {
+        let v = |c: usize, i: usize| ch[c][i] as f32 * steps[c];
+        for i in 0..n {
+            match g {
+                Group::Scale => s.log_scales.push([v(0, i), v(1, i), v(2, i)]),
+                Group::Rotation => s.rotations.push(layout::rotation_from_smallest_three(ch[0][i] as usize, [v(1, i), v(2, i), v(3, i)])),
+                Group::Opacity => s.opacity_logits.push(v(0, i)),
+                Group::ShDc => s.sh_dc.push([v(0, i), v(1, i), v(2, i)]),
+                _ => {
+                    let b = g.sh_band() as usize;
+                    for j in 0..(2 * b + 1) * 3 {
+                        s.sh_rest[(i * k + b * b - 1) * 3 + j] = v(j, i);
+                    }
+                }
+            }
+        }
+    }
+    s
+}

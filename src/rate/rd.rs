@@ -1,0 +1,156 @@
+//! Rate–distortion search over the encoder's choices by rendering: per-group step sizes, the
+//! pruning threshold and the SH degree, greedily coarsened while `J = D + λ·R` falls.
+//!
+//! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
+//!   ([`crate::views::orbit_cameras`], up −y as `eval --orbit`, 8 views at 96×96) against the views of the input scene.
+//! * `R` = file size in megabits (bits / 10⁶): a fixed constant, so λ means the same everywhere.
+
+use gscodec_decoder::render::render;
+use gscodec_decoder::{Image, RenderOptions, SceneError, Splats};
+use serde::Serialize;
+
+use super::quantise::{dequantise, Steps};
+use super::{encode, EncodeConfig};
+use crate::views::{orbit_cameras, UpAxis};
+
+/// Views and resolution the search renders.
+pub const VIEWS: usize = 8;
+pub const SIZE: u32 = 96;
+
+/// One accepted step of the search.
+#[derive(Debug, Clone, Serialize)]
+pub struct RdPoint {
+    pub step: usize,
+    pub change: String,
+    pub bytes: usize,
+    pub d: f64,
+    pub psnr: f64,
+    pub j: f64,
+}
+
+/// The D/R evaluation of a configuration.
+pub struct Evaluator<'a> {
+    scene: &'a Splats,
+    cams: Vec<gscodec_decoder::Camera>,
+    refs: Vec<Image>,
+    opts: RenderOptions,
+}
+
+impl<'a> Evaluator<'a> {
+    pub fn new(scene: &'a Splats) -> Self {
+        let cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector());
+        let opts = RenderOptions::default();
+        let refs = cams.iter().map(|c| render(scene, c, &opts)).collect();
+        Evaluator { scene, cams, refs, opts }
+    }
+
+    /// (bytes, D) of `config`.
+    pub fn eval(&self, config: &EncodeConfig) -> Result<(usize, f64), SceneError> {
+        self.eval_report(config).map(|(b, d, _)| (b, d))
+    }
+
+    /// (bytes, D, encoder report) of `config`.
+    pub fn eval_report(&self, config: &EncodeConfig) -> Result<(usize, f64, super::EncodeReport), SceneError> {
+        let (bytes, report, q) = encode(self.scene, config)?;
+        let dec = dequantise(&q);
+        let mse = self.cams.iter().zip(&self.refs).map(|(c, r)| crate::metrics::mse(r, &render(&dec, c, &self.opts))).sum::<f64>() / self.cams.len() as f64;
+        Ok((bytes.len(), mse * 255.0 * 255.0, report))
+    }
+}
+
+fn psnr_of(d: f64) -> f64 {
+    10.0 * (255.0f64 * 255.0 / d.max(1e-12)).log10()
+}
+
+/// Knobs of the search: one step multiplier per group.
+const KNOBS: [&str; 8] = ["position", "scale", "rotation", "opacity", "sh_dc", "sh_band1", "sh_band2", "sh_band3"];
+const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
+const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
+
+fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
+    let mut c = *c;
+    let s = &mut c.steps;
+    match knob {
+        0 => s.position_rel *= m,
+        1 => s.scale *= m,
+        2 => s.rotation *= m,
+        3 => s.opacity *= m,
+        4 => s.sh_dc *= m,
+        k => s.sh_rest[k - 5] *= m,
+    }
+    c
+}
+
+/// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
+/// (each group's coarsening is measured alone) and group rates as independent, so each group's
+/// step is chosen separately: first the pruning threshold, then the SH degree, then per group
+/// the multiplier of the fine step minimising `ΔD_g + λ·R_g`. `on_step` sees each trial.
+pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
+    scene.validate()?;
+    let ev = Evaluator::new(scene);
+    let j = |bytes: usize, d: f64| d + lambda * bytes as f64 * 8.0 / 1e6;
+    let mut path = Vec::new();
+    let mut record = |change: String, bytes: usize, d: f64, path: &mut Vec<RdPoint>| {
+        let p = RdPoint { step: path.len(), change, bytes, d, psnr: psnr_of(d), j: j(bytes, d) };
+        on_step(&p);
+        path.push(p);
+    };
+    let fine = EncodeConfig { steps: Steps::default().scaled(0.7), learned_tables: false, ..EncodeConfig::default() };
+    // 1. Pruning threshold (at fine steps), including "everything" (an empty file).
+    let mut best = (f64::INFINITY, fine);
+    for t in [1.0f32, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 512.0] {
+        let c = EncodeConfig { min_opacity: t / 255.0, ..fine };
+        let (b, d) = ev.eval(&c)?;
+        record(format!("prune<{t}/255"), b, d, &mut path);
+        if j(b, d) < best.0 {
+            best = (j(b, d), c);
+        }
+    }
+    let base = best.1;
+    let (b0, _) = ev.eval(&base)?;
+    if b0 < 200 {
+        return Ok((EncodeConfig { learned_tables: true, ..base }, path)); // nothing (or almost nothing) left to allocate
+    }
+    // 2. SH degree (at fine steps): keep the degree with the lowest J.
+    let mut best = (f64::INFINITY, base);
+    for deg in (0..=scene.sh_degree.min(3)).rev() {
+        let c = EncodeConfig { max_sh_degree: deg, ..base };
+        let (b, d) = ev.eval(&c)?;
+        record(format!("sh_degree={deg}"), b, d, &mut path);
+        if j(b, d) < best.0 {
+            best = (j(b, d), c);
+        }
+    }
+    let base = best.1;
+    let (b0, d0, r0) = ev.eval_report(&base)?;
+    let group_bytes = |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
+    // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
+    //    (half-octave moves around the first choice).
+    let mut chosen = base;
+    for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..])] {
+        let start = chosen;
+        let (b0, d0, r0) = if pass == 0 { (b0, d0, r0.clone()) } else { ev.eval_report(&start)? };
+        for k in 0..KNOBS.len() {
+            if group_bytes(&r0, k) == 0 {
+                continue;
+            }
+            let mut best_k = (f64::INFINITY, 1.0f32);
+            for &m in mults {
+                let c = with_knob(&start, k, m);
+                let (b, d, gb) = if m == 1.0 {
+                    (b0, d0, group_bytes(&r0, k))
+                } else {
+                    let (b, d, r) = ev.eval_report(&c)?;
+                    (b, d, group_bytes(&r, k))
+                };
+                record(format!("pass{pass} {}x{m}", KNOBS[k]), b, d, &mut path);
+                let cost = (d - d0) + lambda * gb as f64 * 8.0 / 1e6;
+                if cost < best_k.0 {
+                    best_k = (cost, m);
+                }
+            }
+            chosen = with_knob(&chosen, k, best_k.1);
+        }
+    }
+    Ok((EncodeConfig { learned_tables: true, ..chosen }, path))
+}

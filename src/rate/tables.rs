@@ -1,0 +1,160 @@
+//! Choosing a channel's integer table: range, escape and weight precision that minimise
+//! table bytes plus coded bits (the static-histogram model), and its exact cost.
+
+use gscodec_decoder::bitstream::ByteWriter;
+use gscodec_decoder::entropy::{ChannelTable, FreqTable, SymbolEncoder, MAX_SYMBOLS};
+
+/// A channel's table as it will be written, with its cost on the values it codes.
+#[derive(Debug, Clone)]
+pub struct ChosenTable {
+    pub table: ChannelTable,
+    /// Serialised table bytes (what [`ChannelTable::read`] parses).
+    pub bytes: Vec<u8>,
+    /// Ideal code length of the channel's values under `table`, in bits.
+    pub bits: f64,
+}
+
+/// Builds the table for `values` from weights proportional to `weights_of(range)`; `counts`
+/// are the observed counts used to measure the cost. Candidates: several ranges (full, or
+/// trimmed with escapes for the rare tails) × weight scales; the cheapest wins.
+pub fn choose(values: &[i32]) -> ChosenTable {
+    choose_with(values, None)
+}
+
+/// As [`choose`], but the distribution shape comes from `model_weights(lo, n)` (a learned
+/// density rendered as non-negative weights over `lo..lo+n` and the escape) when given.
+pub fn choose_with(values: &[i32], model: Option<&dyn Fn(i32, usize) -> Vec<f64>>) -> ChosenTable {
+    let (Some(&min), Some(&max)) = (values.iter().min(), values.iter().max()) else {
+        return constant(0);
+    };
+    if min == max {
+        return constant(min);
+    }
+    let mut sorted = values.to_vec();
+    sorted.sort_unstable();
+    let quantile = |f: f64| sorted[((sorted.len() - 1) as f64 * f).round() as usize];
+    let mut best: Option<ChosenTable> = None;
+    for trim in [0.0, 1e-4, 1e-3, 1e-2] {
+        let (lo, hi) = (quantile(trim), quantile(1.0 - trim));
+        let n = (i64::from(hi) - i64::from(lo) + 1) as usize;
+        if n > MAX_SYMBOLS || (lo == hi && trim > 0.0) {
+            continue;
+        }
+        let mut counts = vec![0u64; n + 1];
+        for &v in values {
+            let d = i64::from(v) - i64::from(lo);
+            if d >= 0 && (d as usize) < n {
+                counts[d as usize] += 1;
+            } else {
+                counts[n] += 1;
+            }
+        }
+        let shape: Vec<f64> = match model {
+            Some(m) => m(lo, n),
+            None => counts.iter().map(|&c| c as f64).collect(),
+        };
+        let peak = shape.iter().cloned().fold(0.0, f64::max).max(1e-300);
+        for scale in [15.0, 127.0, 1023.0, 16383.0, 1e6] {
+            let weights: Vec<u32> = shape.iter().map(|&c| (c / peak * scale).round() as u32).collect();
+            let table = FreqTable::from_weights(&weights);
+            let mut w = ByteWriter::new();
+            ChannelTable::write_coded(&mut w, lo, &weights);
+            let bits: f64 = counts.iter().enumerate().filter(|(_, &c)| c > 0).map(|(s, &c)| c as f64 * (table.bits(s) + if s == n { 32.0 } else { 0.0 })).sum();
+            let cand = ChosenTable { table: ChannelTable::Coded { lo, table }, bytes: w.buf, bits };
+            if best.as_ref().is_none_or(|b| cand.total_bits() < b.total_bits()) {
+                best = Some(cand);
+            }
+        }
+    }
+    best.unwrap_or_else(|| wide(values))
+}
+
+/// Both models for one channel: the static histogram and the learned (trained Laplace) density,
+/// each with its table; the cheaper (table bytes + coded bits) is the one to store.
+pub struct Compared {
+    pub best: ChosenTable,
+    /// Total bits (table + stream) under the static histogram.
+    pub histogram_bits: f64,
+    /// Total bits (table + stream) under the learned density.
+    pub learned_bits: f64,
+}
+
+/// The static histogram only (the learned cost is reported as NaN).
+pub fn histogram_only(values: &[i32]) -> Compared {
+    let best = choose(values);
+    let h = best.total_bits();
+    Compared { best, histogram_bits: h, learned_bits: f64::NAN }
+}
+
+/// Builds both tables for `values` and keeps the cheaper.
+pub fn compare(values: &[i32]) -> Compared {
+    let hist = choose(values);
+    if matches!(hist.table, ChannelTable::Constant(_)) {
+        let b = hist.total_bits();
+        return Compared { best: hist, histogram_bits: b, learned_bits: b };
+    }
+    let as_f32: Vec<f32> = values.iter().map(|&v| v as f32).collect();
+    let mut model = crate::rate::model::LearnedChannel::fit_init(&as_f32);
+    model.train(&as_f32, 1.0, 60);
+    let shape = move |lo: i32, n: usize| model.weights(lo, n, 1.0);
+    let learned = choose_with(values, Some(&shape));
+    let (h, l) = (hist.total_bits(), learned.total_bits());
+    Compared { best: if l < h { learned } else { hist }, histogram_bits: h, learned_bits: l }
+}
+
+impl ChosenTable {
+    /// Table bytes plus coded bits.
+    pub fn total_bits(&self) -> f64 {
+        self.bits + 8.0 * self.bytes.len() as f64
+    }
+}
+
+fn constant(v: i32) -> ChosenTable {
+    let mut w = ByteWriter::new();
+    ChannelTable::write_constant(&mut w, v);
+    ChosenTable { table: ChannelTable::Constant(v), bytes: w.buf, bits: 0.0 }
+}
+
+/// Fallback for a range wider than any table: the central 4096 values, the rest escaped.
+fn wide(values: &[i32]) -> ChosenTable {
+    let mut sorted = values.to_vec();
+    sorted.sort_unstable();
+    let mid = sorted[sorted.len() / 2];
+    let lo = mid.saturating_sub(MAX_SYMBOLS as i32 / 2);
+    let n = MAX_SYMBOLS;
+    let mut weights = vec![0u32; n + 1];
+    for &v in values {
+        let d = i64::from(v) - i64::from(lo);
+        let s = if d >= 0 && (d as usize) < n { d as usize } else { n };
+        weights[s] = weights[s].saturating_add(1);
+    }
+    let mut w = ByteWriter::new();
+    ChannelTable::write_coded(&mut w, lo, &weights);
+    let table = ChannelTable::Coded { lo, table: FreqTable::from_weights(&weights) };
+    let bits = values.iter().map(|&v| SymbolEncoder::value_bits(&table, v)).sum();
+    ChosenTable { table, bytes: w.buf, bits }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn constant_and_coded_costs_are_exact() {
+        assert!(matches!(choose(&[4, 4, 4]).table, ChannelTable::Constant(4)));
+        let values: Vec<i32> = (0..1000).map(|i| if i % 4 == 0 { 1 } else { 0 }).collect();
+        let t = choose(&values);
+        let exact: f64 = values.iter().map(|&v| SymbolEncoder::value_bits(&t.table, v)).sum();
+        assert!((t.bits - exact).abs() < 1e-6);
+        // Entropy of (1/4, 3/4) is 0.811 bits per value.
+        assert!((t.bits / 1000.0 - 0.811).abs() < 0.01, "{}", t.bits / 1000.0);
+    }
+
+    #[test]
+    fn outliers_are_escaped_not_tabled() {
+        let mut values: Vec<i32> = (0..10000).map(|i| i % 3).collect();
+        values.push(1_000_000_000);
+        let t = choose(&values);
+        assert!(t.bytes.len() < 16, "table of {} bytes", t.bytes.len());
+    }
+}

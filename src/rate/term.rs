@@ -1,0 +1,198 @@
+//! The rate term for training (`gscodec::train::RdTerm` once the trainer lands): renders with
+//! straight-through quantised parameters and adds `λ·R/R_NORM` with its gradient, where `R`
+//! is the learned entropy model's bit estimate of everything the file will hold.
+
+use gscodec_decoder::math::sigmoid;
+use gscodec_decoder::Splats;
+
+use super::model::LearnedChannel;
+use super::quantise::Steps;
+
+/// `R` is measured in megabits: λ = 1 trades one unit of loss for 10⁶ bits, on every scene.
+pub const R_NORM: f64 = 1e6;
+/// Bits per Gaussian charged for what the learned channels do not model (position, rotation,
+/// escapes, table share); measured on the shared scenes at default steps (docs/codec.md).
+pub const FIXED_BITS_PER_GAUSSIAN: f64 = 30.0;
+
+/// Rate term with a learned factorized model per channel (scale 3, opacity 1, DC 3, rest K·3).
+#[derive(Debug, Clone)]
+pub struct RateTerm {
+    pub lambda: f64,
+    pub steps: Steps,
+    /// Opacity at which Gaussians are pruned; the term charges each Gaussian its bits times a
+    /// soft "kept" factor σ((logit − logit(min_opacity)) / 0.5), so pruning pays.
+    pub min_opacity: f32,
+    models: Vec<LearnedChannel>,
+    /// Bits of the last evaluation (for reports).
+    pub last_bits: f64,
+}
+
+impl RateTerm {
+    pub fn new(lambda: f64, steps: Steps, min_opacity: f32) -> Self {
+        RateTerm { lambda, steps, min_opacity, models: Vec::new(), last_bits: 0.0 }
+    }
+
+    fn channel_count(s: &Splats) -> usize {
+        7 + s.rest_coeffs() * 3
+    }
+
+    /// (value, step) of channel `c` of Gaussian `i`.
+    fn value(&self, s: &Splats, c: usize, i: usize) -> (f32, f32) {
+        match c {
+            0..=2 => (s.log_scales[i][c], self.steps.scale),
+            3 => (s.opacity_logits[i], self.steps.opacity),
+            4..=6 => (s.sh_dc[i][c - 4], self.steps.sh_dc),
+            _ => {
+                let j = c - 7;
+                let band = ((j / 3 + 1) as f32).sqrt().floor() as usize; // coefficient k = j/3 is in band ⌊√(k+1)⌋
+                (s.rest_of(i)[j], self.steps.sh_rest[band.clamp(1, 3) - 1])
+            }
+        }
+    }
+
+    fn grad_slot<'a>(g: &'a mut Splats, c: usize, i: usize, k3: usize) -> &'a mut f32 {
+        match c {
+            0..=2 => &mut g.log_scales[i][c],
+            3 => &mut g.opacity_logits[i],
+            4..=6 => &mut g.sh_dc[i][c - 4],
+            _ => &mut g.sh_rest[i * k3 + c - 7],
+        }
+    }
+
+    /// Straight-through quantised parameters: what the decoder will see (rounded per step;
+    /// positions and rotations are left as they are, their quantisation error is far below a pixel).
+    pub fn render_params(&mut self, params: &Splats, _iter: usize) -> Option<Splats> {
+        let mut out = params.clone();
+        let q = |v: &mut f32, s: f32| *v = (*v / s).round() * s;
+        for i in 0..out.len() {
+            out.log_scales[i].iter_mut().for_each(|v| q(v, self.steps.scale));
+            q(&mut out.opacity_logits[i], self.steps.opacity);
+            out.sh_dc[i].iter_mut().for_each(|v| q(v, self.steps.sh_dc));
+        }
+        let k = out.rest_coeffs();
+        for (j, v) in out.sh_rest.iter_mut().enumerate() {
+            let coeff = (j / 3) % k.max(1);
+            let band = ((coeff + 1) as f32).sqrt().floor() as usize;
+            q(v, self.steps.sh_rest[band.clamp(1, 3) - 1]);
+        }
+        Some(out)
+    }
+
+    /// Adds `λ·R/R_NORM` and its gradient into `grad`; trains the entropy model one step.
+    pub fn rate_and_grad(&mut self, params: &Splats, grad: &mut Splats, _iter: usize) -> f64 {
+        let n = params.len();
+        let nc = Self::channel_count(params);
+        let k3 = params.rest_coeffs() * 3;
+        if self.models.len() != nc {
+            self.models = (0..nc).map(|c| LearnedChannel::fit_init(&(0..n).map(|i| self.value(params, c, i).0).collect::<Vec<_>>())).collect();
+        }
+        let logit_min = (self.min_opacity / (1.0 - self.min_opacity).max(1e-6)).max(1e-9).ln();
+        let mut total = 0.0;
+        let mut model_grads = vec![(0.0f64, 0.0f64); nc];
+        for i in 0..n {
+            let mut bits_i = FIXED_BITS_PER_GAUSSIAN;
+            let mut d_values = vec![0.0f64; nc];
+            for c in 0..nc {
+                let (v, step) = self.value(params, c, i);
+                let g = self.models[c].bits(f64::from(v), f64::from(step));
+                bits_i += g.bits;
+                d_values[c] = g.d_value;
+                model_grads[c].0 += g.d_mu;
+                model_grads[c].1 += g.d_log_b;
+            }
+            let t = (params.opacity_logits[i] - logit_min) / 0.5;
+            let keep = f64::from(sigmoid(t));
+            let d_keep = keep * (1.0 - keep) / 0.5;
+            total += keep * bits_i;
+            let scale = self.lambda / R_NORM;
+            for c in 0..nc {
+                *Self::grad_slot(grad, c, i, k3) += (scale * keep * d_values[c]) as f32;
+            }
+            grad.opacity_logits[i] += (scale * bits_i * d_keep) as f32;
+        }
+        // One normalised gradient step on the entropy model (it minimises the same bits).
+        for (m, (gm, gb)) in self.models.iter_mut().zip(model_grads) {
+            let nn = n.max(1) as f64;
+            m.mu -= 0.1 * m.log_b.exp() * gm / nn;
+            m.log_b -= 0.1 * gb / nn;
+        }
+        self.last_bits = total;
+        self.lambda * total / R_NORM
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene() -> Splats {
+        let mut s = Splats::new(1);
+        for i in 0..50 {
+            let x = i as f32 * 0.37;
+            s.push([x.sin(), x.cos(), 0.0], [-3.0 + x.sin(), -3.2, -2.9 + 0.1 * x.cos()], [1.0, 0.0, 0.0, 0.0], 1.0 + x.sin(), [0.2 * x.cos(), 0.1, -0.1], &[0.05 * x.sin(); 9]);
+        }
+        s
+    }
+
+    #[test]
+    fn gradient_matches_finite_differences() {
+        let s = scene();
+        let mut term = RateTerm::new(1e6, Steps::default(), 0.02);
+        let mut g = s.clone();
+        let zero = |g: &mut Splats| {
+            g.log_scales.iter_mut().flatten().for_each(|v| *v = 0.0);
+            g.opacity_logits.iter_mut().for_each(|v| *v = 0.0);
+            g.sh_dc.iter_mut().flatten().for_each(|v| *v = 0.0);
+            g.sh_rest.iter_mut().for_each(|v| *v = 0.0);
+        };
+        zero(&mut g);
+        term.rate_and_grad(&s, &mut g, 0); // fits the model
+        let frozen = term.clone();
+        zero(&mut g);
+        let mut t = frozen.clone();
+        t.rate_and_grad(&s, &mut g, 0);
+        let eval = |s: &Splats| {
+            let mut t = frozen.clone();
+            let mut scratch = s.clone();
+            t.rate_and_grad(s, &mut scratch, 0)
+        };
+        let h = 1e-3;
+        for (name, get) in [("opacity", 0usize), ("scale", 1), ("dc", 2), ("rest", 3)] {
+            let mut p = s.clone();
+            let mut m = s.clone();
+            let analytic = match get {
+                0 => {
+                    p.opacity_logits[7] += h;
+                    m.opacity_logits[7] -= h;
+                    g.opacity_logits[7]
+                }
+                1 => {
+                    p.log_scales[7][0] += h;
+                    m.log_scales[7][0] -= h;
+                    g.log_scales[7][0]
+                }
+                2 => {
+                    p.sh_dc[7][0] += h;
+                    m.sh_dc[7][0] -= h;
+                    g.sh_dc[7][0]
+                }
+                _ => {
+                    p.sh_rest[7 * 9 + 4] += h;
+                    m.sh_rest[7 * 9 + 4] -= h;
+                    g.sh_rest[7 * 9 + 4]
+                }
+            };
+            let fd = (eval(&p) - eval(&m)) / (2.0 * f64::from(h));
+            assert!((f64::from(analytic) - fd).abs() <= 0.02 * fd.abs() + 1e-3, "{name}: analytic {analytic} fd {fd}");
+        }
+    }
+
+    #[test]
+    fn rate_is_linear_in_lambda() {
+        let s = scene();
+        let mut g = s.clone();
+        let a = RateTerm::new(1.0, Steps::default(), 1.0 / 255.0).rate_and_grad(&s, &mut g, 0);
+        let b = RateTerm::new(10.0, Steps::default(), 1.0 / 255.0).rate_and_grad(&s, &mut g, 0);
+        assert!((b / a - 10.0).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,348 @@
+//! The trainer: Adam over the Gaussian parameters with the reference 3DGS schedule (scaled to the
+//! run length), adaptive density control, pluggable image loss ([`ImageLoss`]) and rate term
+//! ([`RdTerm`]).
+
+pub mod adam;
+pub mod densify;
+pub mod init;
+pub mod rng;
+pub mod targets;
+
+use crate::io::{Dataset, Frame, Split};
+use crate::loss::ImageLoss;
+use crate::raster;
+use crate::{Error, Result};
+use adam::{first_non_finite, Adam, Group};
+use densify::{DensifyParams, DensifyStats};
+use gscodec_decoder::render::render;
+use gscodec_decoder::{RenderOptions, Splats};
+use rng::Rng;
+use serde::Serialize;
+use std::time::Instant;
+
+/// A rate (or any regulariser) term added to the image loss; the codec plugs quantisation and λ·R
+/// in through this.
+pub trait RdTerm: Send {
+    /// Parameters to render with at this iteration (e.g. quantised, straight-through); None = as is.
+    fn render_params(&mut self, _params: &Splats, _iter: usize) -> Option<Splats> {
+        None
+    }
+    /// Adds λ·R (in loss units) and its gradient w.r.t. the raw params into `grad`
+    /// (a Splats of the same shape used as a gradient buffer); returns the value.
+    fn rate_and_grad(&mut self, params: &Splats, grad: &mut Splats, iter: usize) -> f64;
+}
+
+/// Training settings. Schedules are the reference 30k-iteration recipe scaled to `iters`.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainConfig {
+    pub iters: usize,
+    pub seed: u64,
+    /// Highest SH degree (raised step by step during training).
+    pub sh_degree_max: u8,
+    /// Clone/split/prune/opacity reset (off to fine-tune an existing scene).
+    pub densify: bool,
+    /// Multiplies every learning rate.
+    pub lr_scale: f32,
+    /// Held-out PSNR every this many iterations (0 = only at the end).
+    pub eval_interval: usize,
+    /// Random initial Gaussians when the dataset has no points and no initial scene is given.
+    pub init_points: usize,
+    /// Densification never grows the scene beyond this.
+    pub max_gaussians: usize,
+    /// Densification gradient threshold (NDC units, as the reference's 2e-4).
+    pub densify_grad_threshold: f32,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig {
+            iters: 5000,
+            seed: 0,
+            sh_degree_max: 3,
+            densify: true,
+            lr_scale: 1.0,
+            eval_interval: 500,
+            init_points: 10_000,
+            max_gaussians: 100_000,
+            densify_grad_threshold: 2e-4,
+        }
+    }
+}
+
+/// Learning rates of the reference recipe (position relative to the scene extent).
+pub const LR_POSITION_INIT: f32 = 1.6e-4;
+pub const LR_POSITION_FINAL: f32 = 1.6e-6;
+pub const LR_SCALE: f32 = 5e-3;
+pub const LR_ROTATION: f32 = 1e-3;
+pub const LR_OPACITY: f32 = 5e-2;
+pub const LR_SH_DC: f32 = 2.5e-3;
+pub const LR_SH_REST: f32 = LR_SH_DC / 20.0;
+
+/// Iteration schedule derived from the reference 30k recipe.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Schedule {
+    pub sh_up_every: usize,
+    pub densify_from: usize,
+    pub densify_until: usize,
+    pub densify_every: usize,
+    pub opacity_reset_every: usize,
+}
+
+impl Schedule {
+    pub fn for_iters(iters: usize) -> Self {
+        let s = iters as f64 / 30_000.0;
+        let at = |v: f64| ((v * s).round() as usize).max(1);
+        Schedule {
+            sh_up_every: at(1000.0),
+            densify_from: at(500.0),
+            densify_until: at(15_000.0),
+            // Densifying more often than every 50 steps leaves new Gaussians no time to settle.
+            densify_every: at(100.0).clamp(50.min(iters.max(1)), 100),
+            opacity_reset_every: at(3000.0),
+        }
+    }
+}
+
+/// A progress update (once per iteration).
+#[derive(Debug, Clone, Copy)]
+pub struct Progress {
+    pub iteration: usize,
+    pub iters: usize,
+    pub loss: f64,
+    pub gaussians: usize,
+    /// Held-out PSNR when it was evaluated at this iteration.
+    pub test_psnr: Option<f64>,
+}
+
+/// One point of the error-against-run-time record.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReportPoint {
+    pub iteration: usize,
+    /// Training wall time so far (evaluation excluded).
+    pub seconds: f64,
+    /// Mean training loss since the previous point.
+    pub loss: f64,
+    pub gaussians: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub test_psnr: Option<f64>,
+}
+
+/// Accumulated wall time per training stage, seconds.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct StageTimes {
+    pub project: f64,
+    pub sort: f64,
+    pub rasterize: f64,
+    pub loss: f64,
+    pub backward: f64,
+    pub optimiser: f64,
+    pub densify: f64,
+}
+
+/// What a training run did.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainReport {
+    pub loss: String,
+    pub config: TrainConfig,
+    pub schedule: Schedule,
+    pub extent: f32,
+    pub points: Vec<ReportPoint>,
+    pub gaussians: usize,
+    /// Training wall time (evaluation excluded).
+    pub train_seconds: f64,
+    pub test_views: usize,
+    pub test_psnr: Option<f64>,
+    pub test_ssim: Option<f64>,
+    pub stages: StageTimes,
+}
+
+/// Mean held-out PSNR and SSIM of `splats` over `frames` (None without frames).
+pub fn evaluate(splats: &Splats, frames: &[&Frame], background: [f32; 3]) -> Option<(f64, f64)> {
+    if frames.is_empty() {
+        return None;
+    }
+    let opts = RenderOptions { background, max_sh_degree: 3 };
+    let (mut p, mut s) = (0.0, 0.0);
+    for f in frames {
+        let img = render(splats, &f.camera, &opts);
+        p += crate::metrics::psnr(&img, &f.image);
+        s += crate::metrics::ssim(&img, &f.image);
+    }
+    let n = frames.len() as f64;
+    Some((p / n, s / n))
+}
+
+fn non_finite_error(what: &str, iter: usize, i: usize, g: Group) -> Error {
+    Error::Failure(format!("training diverged at iteration {iter}: non-finite {what} in parameter group `{}` (Gaussian {i})", g.name()))
+}
+
+/// Trains Gaussians on `dataset`'s training split.
+///
+/// `init` is the starting scene (fine-tuning); without it the dataset's points or random points
+/// are used. The loss is `loss` on each rendered training view plus `rd`'s term.
+///
+/// # Errors
+/// No training views, an empty or invalid start scene, or a non-finite value reaching a
+/// parameter (the message names the group and iteration).
+pub fn train(
+    dataset: &Dataset,
+    init: Option<Splats>,
+    cfg: &TrainConfig,
+    mut loss: Box<dyn ImageLoss>,
+    mut rd: Option<Box<dyn RdTerm>>,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<(Splats, TrainReport)> {
+    let train_frames = dataset.split(Split::Train);
+    let test_frames = dataset.split(Split::Test);
+    if train_frames.is_empty() {
+        return Err(Error::Input("dataset has no training views".into()));
+    }
+    let view_of = |f: &Frame| dataset.frames.iter().position(|g| std::ptr::eq(g, f)).unwrap_or(f.index);
+    let mut rng = Rng::new(cfg.seed);
+    let extent = init::camera_extent(dataset);
+    let max_degree = cfg.sh_degree_max.min(3);
+    let (mut params, mut degree) = match init {
+        Some(s) => {
+            let d = s.sh_degree.min(max_degree);
+            (if s.sh_degree < max_degree { s.with_sh_degree(max_degree) } else { s }, d)
+        }
+        None => (init::initial_splats(dataset, cfg.init_points, max_degree, &mut rng), 0),
+    };
+    params.validate().map_err(|e| Error::Input(format!("initial scene: {e}")))?;
+    if params.is_empty() {
+        return Err(Error::Input("initial scene has no Gaussians".into()));
+    }
+    let sched = Schedule::for_iters(cfg.iters);
+    let mut adam = Adam::new(&params);
+    let mut stats = DensifyStats::new(params.len());
+    let mut order: Vec<usize> = Vec::new();
+    let mut points = Vec::new();
+    let mut stages = StageTimes::default();
+    let (mut loss_sum, mut loss_n) = (0.0f64, 0usize);
+    let mut train_seconds = 0.0;
+    let log_every = (cfg.iters / 500).max(1);
+    let lr = |g: Group, it: usize| -> f32 {
+        let base = match g {
+            Group::Position => {
+                let t = (it as f64 / cfg.iters.max(1) as f64).clamp(0.0, 1.0);
+                let l = ((LR_POSITION_INIT as f64).ln() * (1.0 - t) + (LR_POSITION_FINAL as f64).ln() * t).exp();
+                (l * extent as f64) as f32
+            }
+            Group::LogScale => LR_SCALE,
+            Group::Rotation => LR_ROTATION,
+            Group::Opacity => LR_OPACITY,
+            Group::ShDc => LR_SH_DC,
+            Group::ShRest => LR_SH_REST,
+        };
+        base * cfg.lr_scale
+    };
+
+    for it in 1..=cfg.iters {
+        let t_iter = Instant::now();
+        if it % sched.sh_up_every == 0 && degree < max_degree {
+            degree += 1;
+        }
+        if order.is_empty() {
+            order = (0..train_frames.len()).collect();
+            rng.shuffle(&mut order);
+        }
+        let frame = train_frames[order.pop().unwrap()];
+        let opts = RenderOptions { background: dataset.background, max_sh_degree: degree };
+
+        let rendered = rd.as_mut().and_then(|r| r.render_params(&params, it));
+        let render_from = rendered.as_ref().unwrap_or(&params);
+        let (img, state, ft) = raster::forward_timed(render_from, &frame.camera, &opts);
+        stages.project += ft.project;
+        stages.sort += ft.sort;
+        stages.rasterize += ft.rasterize;
+
+        let t0 = Instant::now();
+        let (mut l, dl) = loss.loss_and_grad(&img, &frame.image, view_of(frame), it);
+        let t1 = Instant::now();
+        let grads = raster::backward(render_from, &state, &dl);
+        let raster::Gradients { params: mut grad, mean2d_ndc_norm } = grads;
+        if let Some(r) = rd.as_mut() {
+            l += r.rate_and_grad(&params, &mut grad, it);
+        }
+        let t2 = Instant::now();
+        stages.loss += (t1 - t0).as_secs_f64();
+        stages.backward += (t2 - t1).as_secs_f64();
+        if let Some((i, g)) = first_non_finite(&grad) {
+            return Err(non_finite_error("gradient", it, i, g));
+        }
+        if !l.is_finite() {
+            return Err(Error::Failure(format!("training diverged at iteration {it}: loss is {l}")));
+        }
+
+        // Densification statistics.
+        if cfg.densify && it < sched.densify_until {
+            let r_scale = 800.0 / frame.camera.width.max(frame.camera.height) as f32;
+            for (i, p) in state.projected.iter().enumerate() {
+                if p.radius > 0.0 {
+                    stats.grad_accum[i] += mean2d_ndc_norm[i];
+                    stats.count[i] += 1;
+                    stats.max_radius[i] = stats.max_radius[i].max(p.radius * r_scale);
+                }
+            }
+        }
+
+        adam.step(&mut params, &grad, |g| lr(g, it));
+        if let Some((i, g)) = first_non_finite(&params) {
+            return Err(non_finite_error("value", it, i, g));
+        }
+        let t3 = Instant::now();
+        stages.optimiser += (t3 - t2).as_secs_f64();
+
+        if cfg.densify && it < sched.densify_until {
+            if it > sched.densify_from && it % sched.densify_every == 0 {
+                let dp = DensifyParams {
+                    grad_threshold: cfg.densify_grad_threshold,
+                    percent_dense: 0.01,
+                    extent,
+                    min_opacity: 0.005,
+                    max_screen_radius: (it > sched.opacity_reset_every).then_some(20.0),
+                    max_world_fraction: 0.1,
+                    max_gaussians: cfg.max_gaussians,
+                };
+                densify::densify_and_prune(&mut params, &mut adam, &stats, &dp, &mut rng);
+                if params.is_empty() {
+                    return Err(Error::Failure(format!("training collapsed at iteration {it}: every Gaussian was pruned")));
+                }
+                stats = DensifyStats::new(params.len());
+            }
+            if it % sched.opacity_reset_every == 0 || (dataset.background == [1.0; 3] && it == sched.densify_from) {
+                densify::reset_opacity(&mut params, &mut adam, 0.01);
+            }
+        }
+        stages.densify += t3.elapsed().as_secs_f64();
+        train_seconds += t_iter.elapsed().as_secs_f64();
+
+        loss_sum += l;
+        loss_n += 1;
+        let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
+        let test_psnr = if eval_now { evaluate(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
+        if it % log_every == 0 || eval_now || it == cfg.iters {
+            points.push(ReportPoint { iteration: it, seconds: train_seconds, loss: loss_sum / loss_n as f64, gaussians: params.len(), test_psnr });
+            (loss_sum, loss_n) = (0.0, 0);
+        }
+        progress(&Progress { iteration: it, iters: cfg.iters, loss: l, gaussians: params.len(), test_psnr });
+    }
+    let final_eval = evaluate(&params, &test_frames, dataset.background);
+    if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
+        last.test_psnr = Some(p);
+    }
+    let report = TrainReport {
+        loss: loss.name().to_string(),
+        config: cfg.clone(),
+        schedule: sched,
+        extent,
+        points,
+        gaussians: params.len(),
+        train_seconds,
+        test_views: test_frames.len(),
+        test_psnr: final_eval.map(|e| e.0),
+        test_ssim: final_eval.map(|e| e.1),
+        stages,
+    };
+    Ok((params, report))
+}

@@ -1,0 +1,64 @@
+//! `gscodec encode/decode/info` from outside: outputs, exit codes, one-line errors.
+
+use std::path::Path;
+use std::process::Command;
+
+fn gscodec(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_gscodec")).args(args).output().unwrap()
+}
+
+fn vectors() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("bitstream-spec/vectors")
+}
+
+#[test]
+fn decode_and_info_of_a_vector() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("hand.ply");
+    let gsc = vectors().join("hand.gsc");
+    let o = gscodec(&["decode", gsc.to_str().unwrap(), "-o", out.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(std::fs::read(&out).unwrap(), std::fs::read(vectors().join("hand.ply")).unwrap());
+    let o = gscodec(&["info", gsc.to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["gaussians"], 3);
+    assert_eq!(v["sh_degree"], 1);
+    assert_eq!(v["version"], "1.0");
+    assert!(v["sections"].as_array().unwrap().len() >= 5);
+}
+
+#[test]
+fn bad_files_exit_2_with_one_error_line_and_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.gsc");
+    let mut bytes = std::fs::read(vectors().join("tiny.gsc")).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x40;
+    std::fs::write(&bad, &bytes).unwrap();
+    let out = dir.path().join("out.ply");
+    for args in [vec!["decode", bad.to_str().unwrap(), "-o", out.to_str().unwrap()], vec!["info", bad.to_str().unwrap()]] {
+        let o = gscodec(&args);
+        assert_eq!(o.status.code(), Some(2));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(err.starts_with("error: ") && err.contains("bad.gsc") && err.contains("checksum"), "{err}");
+    }
+    assert!(!out.exists());
+}
+
+#[test]
+fn huge_lambda_encodes_an_empty_scene_that_decodes() {
+    let dir = tempfile::tempdir().unwrap();
+    let gsc = dir.path().join("e.gsc");
+    let ply = dir.path().join("e.ply");
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let o = gscodec(&["encode", input.to_str().unwrap(), "-o", gsc.to_str().unwrap(), "--lambda", "1e12", "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = gscodec(&["decode", gsc.to_str().unwrap(), "-o", ply.to_str().unwrap()]);
+    assert!(o.status.success());
+    let o = gscodec(&["info", gsc.to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["gaussians"], 0);
+    let o = gscodec(&["encode", input.to_str().unwrap(), "-o", gsc.to_str().unwrap(), "--lambda", "-1"]);
+    assert_eq!(o.status.code(), Some(2));
+}

@@ -1,0 +1,177 @@
+//! Encoder ⇄ decoder: bit-exact round trips, determinism, leave-out and refusal of bad input.
+
+use gscodec::rate::{self, quantise, EncodeConfig};
+use gscodec_decoder::{decode, DecodeError, DecodeOptions, Splats};
+
+/// A deterministic random scene of `n` Gaussians (SH degree `d`) spread over `extent`.
+fn scene(n: usize, d: u8, extent: f32, seed: u64) -> Splats {
+    let mut state = seed;
+    let mut r = move || {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+    };
+    let mut s = Splats::new(d);
+    let k3 = s.rest_coeffs() * 3;
+    for _ in 0..n {
+        let pos = [r() * extent, r() * extent, r() * extent * 0.5];
+        let e = extent.max(1e-3).ln();
+        let ls = [r() - 4.0 + e, r() - 4.0 + e, r() * 3.0 - 5.0 + e];
+        let rot = [r(), r(), r(), r() + 0.01];
+        let rest: Vec<f32> = (0..k3).map(|_| r() * 0.2).collect();
+        s.push(pos, ls, rot, r() * 6.0, [r(), r(), r()], &rest);
+    }
+    s
+}
+
+#[test]
+fn decode_of_encode_is_the_dequantised_scene_bit_exactly() {
+    for (n, d, extent) in [(1, 0, 1.0), (500, 3, 1.0), (300, 1, 1e-4), (300, 2, 1e5), (2, 3, 0.0)] {
+        let s = scene(n, d, extent, n as u64);
+        let (bytes, report, q) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+        let decoded = decode(&bytes, &DecodeOptions::default()).unwrap();
+        let expected = quantise::dequantise(&q);
+        assert_eq!(decoded, expected, "n={n} d={d} extent={extent}");
+        assert_eq!(report.file_bytes, bytes.len());
+        decoded.validate().unwrap();
+        // Positions stay within a grid step of the input (no wrap-around), scene-scale invariant.
+        let (lo, hi) = s.bounds().unwrap();
+        for p in &decoded.positions {
+            for a in 0..3 {
+                let slack = (hi[a] - lo[a]) * 1e-3 + 1e-30;
+                assert!(p[a] >= lo[a] - slack && p[a] <= hi[a] + slack);
+            }
+        }
+    }
+}
+
+#[test]
+fn rate_estimate_matches_file_size() {
+    let s = scene(3000, 3, 1.0, 7);
+    let (bytes, report, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+    let est = report.estimated_bits() / 8.0;
+    let actual = bytes.len() as f64;
+    for g in &report.groups {
+        eprintln!("{} est {:.0} stream {} table {}", g.group, g.estimated_bits / 8.0, g.stream_bytes, g.table_bytes);
+    }
+    assert!((est - actual).abs() / actual < 0.03, "estimated {est} actual {actual}");
+}
+
+#[test]
+fn decode_is_identical_across_thread_counts_and_runs() {
+    let s = scene(2000, 3, 3.0, 11);
+    let (bytes, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+    let one = decode(&bytes, &DecodeOptions { threads: 1, ..Default::default() }).unwrap();
+    let four = decode(&bytes, &DecodeOptions { threads: 4, ..Default::default() }).unwrap();
+    let again = decode(&bytes, &DecodeOptions { threads: 4, ..Default::default() }).unwrap();
+    let bits = |s: &Splats| s.positions.iter().flatten().chain(s.sh_rest.iter()).map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&one), bits(&four));
+    assert_eq!(one, again);
+    // Encoding is deterministic too.
+    assert_eq!(rate::encode(&s, &EncodeConfig::default()).unwrap().0, bytes);
+}
+
+#[test]
+fn max_sh_degree_skips_bands() {
+    let s = scene(200, 3, 1.0, 3);
+    let (bytes, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+    let full = decode(&bytes, &DecodeOptions::default()).unwrap();
+    let d1 = decode(&bytes, &DecodeOptions { max_sh_degree: 1, threads: 0 }).unwrap();
+    assert_eq!(d1.sh_degree, 1);
+    assert_eq!(d1, full.with_sh_degree(1));
+}
+
+#[test]
+fn leave_out_constant_channels_zero_bands_and_transparent_gaussians() {
+    let mut s = scene(100, 3, 1.0, 5);
+    // Band 3 and 2 all zero: dropped; opacity constant; half the Gaussians invisible.
+    for i in 0..s.len() {
+        for k in 3..15 {
+            for c in 0..3 {
+                s.sh_rest[(i * 15 + k) * 3 + c] = 0.0;
+            }
+        }
+        s.opacity_logits[i] = if i % 2 == 0 { 2.0 } else { -8.0 };
+    }
+    let (bytes, report, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+    assert_eq!(report.sh_degree, 1);
+    assert_eq!(report.gaussians, 50);
+    let info = gscodec_decoder::inspect(&bytes).unwrap();
+    assert!(info.constant_channels.contains(&"opacity/0".to_string()));
+    assert!(!info.sections.iter().any(|x| x.name == "opacity" && x.kind >= 0x20), "constant group has no stream");
+    assert_eq!(info.input_gaussians, Some(100));
+}
+
+#[test]
+fn empty_and_huge_lambda_give_valid_files() {
+    let empty = Splats::new(3);
+    let (bytes, _, _) = rate::encode(&empty, &EncodeConfig::default()).unwrap();
+    assert!(decode(&bytes, &DecodeOptions::default()).unwrap().is_empty());
+    let s = scene(300, 3, 1.0, 9);
+    let (bytes, report, _) = rate::encode(&s, &EncodeConfig::for_lambda(1e12)).unwrap();
+    assert_eq!(report.gaussians, 0);
+    assert!(decode(&bytes, &DecodeOptions::default()).unwrap().is_empty());
+    let sizes: Vec<usize> = [0.0, 1.0, 10.0, 100.0].iter().map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(l)).unwrap().0.len()).collect();
+    assert!(sizes.windows(2).all(|w| w[1] < w[0]), "{sizes:?}");
+}
+
+#[test]
+fn nan_input_is_refused() {
+    let mut s = scene(10, 0, 1.0, 1);
+    s.log_scales[3][1] = f32::NAN;
+    assert!(rate::encode(&s, &EncodeConfig::default()).is_err());
+    s.log_scales[3][1] = 0.0;
+    s.positions[2][0] = f32::INFINITY;
+    assert!(rate::encode(&s, &EncodeConfig::default()).is_err());
+}
+
+#[test]
+fn mutated_files_never_panic() {
+    let s = scene(300, 3, 1.0, 13);
+    let (bytes, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+    let mut state = 99u64;
+    let mut rnd = move |m: usize| {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((state >> 33) as usize) % m.max(1)
+    };
+    let opts = DecodeOptions { threads: 1, ..Default::default() };
+    let mut errors = 0;
+    for _ in 0..3000 {
+        let mut b = bytes.clone();
+        for _ in 0..1 + rnd(4) {
+            match rnd(3) {
+                0 => {
+                    let i = rnd(b.len());
+                    b[i] ^= 1 << rnd(8);
+                }
+                1 => b.truncate(rnd(b.len())),
+                _ => {
+                    let i = rnd(b.len() + 1);
+                    b.insert(i, rnd(256) as u8);
+                }
+            }
+            if b.is_empty() {
+                break;
+            }
+        }
+        if decode(&b, &opts).is_err() {
+            errors += 1;
+        }
+    }
+    // CRCs catch (nearly) every mutation.
+    assert!(errors > 2900, "{errors}");
+}
+
+#[test]
+fn typed_errors_for_bad_files() {
+    let s = scene(20, 0, 1.0, 2);
+    let (bytes, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+    assert_eq!(decode(b"PK\x03\x04", &DecodeOptions::default()).unwrap_err(), DecodeError::BadMagic);
+    let mut newer = bytes.clone();
+    newer[4] = 2;
+    assert!(matches!(decode(&newer, &DecodeOptions::default()), Err(DecodeError::UnsupportedVersion { major: 2, .. })));
+    assert!(matches!(decode(&bytes[..bytes.len() - 1], &DecodeOptions::default()), Err(DecodeError::Truncated(_))));
+    // Hostile Gaussian count: refused before anything is allocated.
+    let mut hostile = bytes.clone();
+    hostile[8..12].copy_from_slice(&u32::MAX.to_le_bytes());
+    assert!(matches!(decode(&hostile, &DecodeOptions::default()), Err(DecodeError::Limit(_))));
+}

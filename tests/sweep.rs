@@ -1,0 +1,171 @@
+//! `gscodec sweep` machinery on fake per-point results: collect, tables, plots, BD-rates, jobs.
+
+use std::path::Path;
+use std::process::Command;
+
+use gscodec::sweep::results::{read_results, PointResult, TimelinePoint, CSV_HEADER};
+
+fn gscodec() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_gscodec"))
+}
+
+/// A fake finished point: quality grows with log-size; `scale` multiplies the size.
+fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
+    let bytes0 = 2e4 / lambda.sqrt(); // bigger files for smaller λ
+    let q = (bytes0 / 1e4).ln();
+    PointResult {
+        lambda,
+        loss: loss.into(),
+        iters: None,
+        bytes: (bytes0 * scale).round() as u64,
+        gaussians: (bytes0 / 10.0) as u64,
+        psnr: Some(20.0 + 3.0 * q),
+        ssim: Some(0.7 + 0.05 * q),
+        ms_ssim: None,
+        flip: Some(0.3 - 0.04 * q),
+        wd: Some(1.0 / (1.0 + q)),
+        encode_s: 12.5,
+        decode_s: 0.25,
+        timeline: (0..5).map(|i| TimelinePoint { time_s: i as f64 * 2.0, psnr: Some(15.0 + q * i as f64), wd: None }).collect(),
+    }
+}
+
+fn write_point(dir: &Path, r: &PointResult) {
+    let d = dir.join("points").join(format!("{}_lambda{}", r.loss, r.lambda));
+    std::fs::create_dir_all(&d).unwrap();
+    std::fs::write(d.join("result.json"), serde_json::to_string(r).unwrap()).unwrap();
+}
+
+#[test]
+fn collect_writes_tables_plots_and_bd_rates() {
+    let tmp = tempfile::tempdir().unwrap();
+    let lambdas = [0.1, 0.03, 0.01, 0.003, 0.001];
+    for &l in &lambdas {
+        write_point(tmp.path(), &fake("l1ssim", l, 1.0));
+        // wdr reaches the same quality with exactly half the bytes: BD-rate −50 % everywhere.
+        write_point(tmp.path(), &fake("wdr", l, 0.5));
+    }
+    let out = tmp.path().join("out");
+    let res = gscodec().arg("sweep").arg("unused").arg("-o").arg(&out).arg("--collect").arg(tmp.path()).output().unwrap();
+    assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
+    let stdout = String::from_utf8(res.stdout).unwrap();
+    for m in ["psnr", "ssim", "flip", "wd"] {
+        let line = stdout.lines().find(|l| l.contains(&format!("on {m}:"))).unwrap_or_else(|| panic!("{stdout}"));
+        let v: f64 = line.rsplit(' ').next().unwrap().trim_end_matches('%').parse().unwrap();
+        assert!((v + 50.0).abs() < 0.5, "{line}");
+    }
+    assert!(stdout.contains("on ms_ssim: n/a"), "{stdout}");
+
+    let csv = std::fs::read_to_string(out.join("rd.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines[0], CSV_HEADER);
+    assert_eq!(lines.len(), 11);
+    // l1ssim first, λ descending, so bytes grow down its rows; ms_ssim empty.
+    let bytes: Vec<u64> = lines[1..6].iter().map(|l| l.split(',').nth(2).unwrap().parse().unwrap()).collect();
+    assert!(bytes.windows(2).all(|w| w[0] < w[1]), "{bytes:?}");
+    assert!(lines[1].starts_with("0.1,l1ssim,"));
+    assert_eq!(lines[1].split(',').nth(6), Some(""));
+
+    let rd = std::fs::read_to_string(out.join("rd.svg")).unwrap();
+    assert_eq!(rd.matches("<polyline").count(), 8, "two losses on four metrics with data");
+    let time = std::fs::read_to_string(out.join("time.svg")).unwrap();
+    assert_eq!(time.matches("<polyline").count(), 10, "one PSNR curve per run, no WD panels");
+    assert!(time.contains("wdr: PSNR during encode") && !time.contains("WD during"));
+
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["points"].as_array().unwrap().len(), 10);
+    assert_eq!(summary["bd_rate"].as_array().unwrap().len(), 5);
+    assert_eq!(read_results(tmp.path()).unwrap().len(), 10);
+}
+
+#[test]
+fn collect_of_nothing_or_garbage_is_bad_input() {
+    let tmp = tempfile::tempdir().unwrap();
+    let res = gscodec().args(["sweep", "x", "-o"]).arg(tmp.path().join("o")).arg("--collect").arg(tmp.path()).output().unwrap();
+    assert_eq!(res.status.code(), Some(2));
+    let d = tmp.path().join("points/l1ssim_lambda0.1");
+    std::fs::create_dir_all(&d).unwrap();
+    std::fs::write(d.join("result.json"), "{ not json").unwrap();
+    let res = gscodec().args(["sweep", "x", "-o"]).arg(tmp.path().join("o")).arg("--collect").arg(tmp.path()).output().unwrap();
+    assert_eq!(res.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&res.stderr);
+    assert!(err.starts_with("error: ") && err.contains("result.json") && err.lines().count() == 1, "{err}");
+    assert!(!tmp.path().join("o/rd.csv").exists());
+}
+
+#[test]
+fn bad_flags_and_missing_input_exit_2() {
+    let tmp = tempfile::tempdir().unwrap();
+    for args in [vec!["--lambdas", "0.1,-2"], vec!["--loss", "mse"]] {
+        let res = gscodec().args(["sweep"]).arg(tmp.path()).arg("-o").arg(tmp.path().join("o")).args(&args).output().unwrap();
+        assert_eq!(res.status.code(), Some(2), "{args:?}");
+    }
+    let res = gscodec().args(["sweep", "/no/such/scene", "-o"]).arg(tmp.path().join("o")).output().unwrap();
+    assert_eq!(res.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&res.stderr).contains("/no/such/scene"));
+}
+
+#[test]
+fn finished_points_are_skipped() {
+    // Every point already has its result: nothing is encoded, the tables are (re)written.
+    let tmp = tempfile::tempdir().unwrap();
+    let input = tmp.path().join("scene.ply");
+    std::fs::write(&input, "ply\n").unwrap();
+    let out = tmp.path().join("sw");
+    for l in [0.1, 0.01] {
+        write_point(&out, &fake("l1ssim", l, 1.0));
+    }
+    let res = gscodec()
+        .arg("sweep")
+        .arg(&input)
+        .arg("-o")
+        .arg(&out)
+        .args(["--lambdas", "0.1,0.01", "--loss", "l1ssim"])
+        .output()
+        .unwrap();
+    assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
+    assert!(String::from_utf8_lossy(&res.stderr).contains("2 finished point(s) kept, 0 to run"));
+    assert_eq!(std::fs::read_to_string(out.join("rd.csv")).unwrap().lines().count(), 3);
+    assert!(!out.join("points/l1ssim_lambda0.1/log.txt").exists(), "no child was run");
+
+    // Other settings (--iters) redo the points; here the encode fails (the input is no scene):
+    // exit 1 naming the point's log, the old results stay.
+    let res = gscodec()
+        .arg("sweep")
+        .arg(&input)
+        .arg("-o")
+        .arg(&out)
+        .args(["--lambdas", "0.1", "--loss", "l1ssim", "--iters", "7"])
+        .output()
+        .unwrap();
+    assert_eq!(res.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&res.stderr);
+    assert!(err.contains("1 of 1 point(s) failed") && err.contains("l1ssim_lambda0.1/log.txt"), "{err}");
+    let log = std::fs::read_to_string(out.join("points/l1ssim_lambda0.1/log.txt")).unwrap();
+    assert!(log.starts_with("$ gscodec encode ") && log.contains("--iters 7"), "{log}");
+    assert!(out.join("points/l1ssim_lambda0.1/result.json").exists());
+}
+
+#[test]
+fn emit_jobs_writes_slurm_and_parallel_lists() {
+    let tmp = tempfile::tempdir().unwrap();
+    let input = tmp.path().join("scene.ply");
+    std::fs::write(&input, "ply\n").unwrap();
+    let file = tmp.path().join("jobs.sh");
+    let res = gscodec()
+        .arg("sweep")
+        .arg(&input)
+        .arg("-o")
+        .arg(tmp.path().join("sw"))
+        .args(["--lambdas", "0.1,0.01,0.001", "--loss", "l1ssim,wdr", "--iters", "100", "--emit-jobs"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
+    let script = std::fs::read_to_string(&file).unwrap();
+    assert!(script.starts_with("#!/bin/bash") && script.contains("#SBATCH --array=0-5"));
+    let list = std::fs::read_to_string(tmp.path().join("jobs.commands.txt")).unwrap();
+    assert_eq!(list.lines().count(), 6);
+    assert!(list.lines().all(|l| l.contains(" sweep ") && l.contains("--points-only") && l.contains("--iters 100")));
+    assert!(list.contains("--lambdas 0.001 --loss wdr"));
+}

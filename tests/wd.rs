@@ -1,0 +1,545 @@
+//! WD: invariants, the texture property, an independent naive implementation, f64
+//! finite-difference gradient checks (raw arrays, pyramid, VGG-16 with random weights, WD-R),
+//! stability on constant images, and cache exactness.
+
+use gscodec::decoder::Image;
+use gscodec::loss::features::pyramid::Pyramid;
+use gscodec::loss::features::vgg16::{Vgg16, CONV_INDICES, VGG16_CHANNELS};
+use gscodec::loss::features::FeatureSpace;
+use gscodec::loss::tensor::{Real, Tensor};
+use gscodec::loss::wd::{self, Reference, Sigma};
+use gscodec::loss::wdr::{self, WdDistortion, WdrLoss};
+use gscodec::loss::ImageLoss;
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn normal(&mut self) -> f64 {
+        let (u, v) = (self.next().max(1e-12), self.next());
+        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
+    }
+}
+
+fn random_tensor<T: Real>(rng: &mut Rng, c: usize, h: usize, w: usize) -> Tensor<T> {
+    Tensor::from_vec(c, h, w, (0..c * h * w).map(|_| T::c(rng.normal())).collect())
+}
+
+fn random_image<T: Real>(rng: &mut Rng, h: usize, w: usize) -> Tensor<T> {
+    Tensor::from_vec(3, h, w, (0..3 * h * w).map(|_| T::c(0.1 + 0.8 * rng.next())).collect())
+}
+
+fn to_image(t: &Tensor<f64>) -> Image {
+    let n = t.h * t.w;
+    let mut data = vec![0.0f32; 3 * n];
+    for i in 0..n {
+        for c in 0..3 {
+            data[3 * i + c] = t.data[c * n + i] as f32;
+        }
+    }
+    Image { width: t.w as u32, height: t.h as u32, data }
+}
+
+fn wd_of(space: &dyn FeatureSpace<f64>, a: &Tensor<f64>, b: &Tensor<f64>, sigma: &Sigma) -> f64 {
+    let r = Reference::new(&space.features(a), sigma, a.h, a.w);
+    wd::distortion(&r, &space.features(b))
+}
+
+// ---------------------------------------------------------------- naive reference formula
+
+fn naive_blur(x: &[f64], h: usize, w: usize) -> Vec<f64> {
+    let k = [0.25, 0.5, 0.25];
+    let mut out = vec![0.0; h * w];
+    for y in 0..h {
+        for i in 0..w {
+            let mut s = 0.0;
+            for (a, ka) in k.iter().enumerate() {
+                for (b, kb) in k.iter().enumerate() {
+                    let (yy, xx) = (y as isize + a as isize - 1, i as isize + b as isize - 1);
+                    if yy >= 0 && xx >= 0 && (yy as usize) < h && (xx as usize) < w {
+                        s += ka * kb * x[yy as usize * w + xx as usize];
+                    }
+                }
+            }
+            out[y * w + i] = s;
+        }
+    }
+    out
+}
+
+fn naive_sub(x: &[f64], h: usize, w: usize, oy: usize, ox: usize) -> (Vec<f64>, usize, usize) {
+    let (h2, w2) = (h.div_ceil(2), w.div_ceil(2));
+    let mut o = vec![0.0; h2 * w2];
+    for j in 0..h2 {
+        for i in 0..w2 {
+            o[j * w2 + i] = x[(oy + 2 * j) * w + ox + 2 * i];
+        }
+    }
+    (o, h2, w2)
+}
+
+/// Every level computed, weights applied afterwards: the reference's formula without shortcuts.
+fn naive_wd(a: &Tensor<f64>, b: &Tensor<f64>, ls: &[f64]) -> f64 {
+    let (c, h0, w0) = (a.c, a.h, a.w);
+    let mut ls = ls.to_vec();
+    let (mut lh, mut lw) = (h0, w0);
+    let mut total = 0.0;
+    // level 0
+    let wt = |l: f64, i: usize| (1.0 - (l - i as f64).abs()).max(0.0);
+    let mut s0 = 0.0;
+    for ch in 0..c {
+        for p in 0..h0 * w0 {
+            let d = a.data[ch * h0 * w0 + p] - b.data[ch * h0 * w0 + p];
+            s0 += wt(ls[p], 0) * d * d;
+        }
+    }
+    total += s0 / (c * h0 * w0) as f64;
+    let mut xs: Vec<Vec<f64>> = (0..c).map(|ch| a.plane(ch).to_vec()).collect();
+    let mut ys: Vec<Vec<f64>> = (0..c).map(|ch| b.plane(ch).to_vec()).collect();
+    let mut qx: Vec<Vec<f64>> = xs.iter().map(|p| p.iter().map(|v| v * v).collect()).collect();
+    let mut qy: Vec<Vec<f64>> = ys.iter().map(|p| p.iter().map(|v| v * v).collect()).collect();
+    let (mut h, mut w) = (h0, w0);
+    for k in 1..=5 {
+        let mut s = 0.0;
+        for ch in 0..c {
+            let (mx, px) = (naive_blur(&xs[ch], h, w), naive_blur(&qx[ch], h, w));
+            let (my, py) = (naive_blur(&ys[ch], h, w), naive_blur(&qy[ch], h, w));
+            for p in 0..h * w {
+                let sx = (px[p] - mx[p] * mx[p]).max(0.0).sqrt();
+                let sy = (py[p] - my[p] * my[p]).max(0.0).sqrt();
+                s += wt(ls[p], k) * ((mx[p] - my[p]).powi(2) + (sx - sy).powi(2));
+            }
+            xs[ch] = naive_sub(&mx, h, w, 0, 0).0;
+            qx[ch] = naive_sub(&px, h, w, 0, 0).0;
+            ys[ch] = naive_sub(&my, h, w, 0, 0).0;
+            qy[ch] = naive_sub(&py, h, w, 0, 0).0;
+        }
+        total += s / (c * h * w) as f64;
+        if k >= 1 {
+            // stride-2 "SAME" low-pass of ℓ: centred on odd samples for even sizes.
+            let (oy, ox) = (if lh % 2 == 0 { 1 } else { 0 }, if lw % 2 == 0 { 1 } else { 0 });
+            let (n, nh, nw) = naive_sub(&naive_blur(&ls, lh, lw), lh, lw, oy, ox);
+            ls = n;
+            lh = nh;
+            lw = nw;
+        }
+        h = h.div_ceil(2);
+        w = w.div_ceil(2);
+    }
+    total
+}
+
+#[test]
+fn matches_naive_formula_with_all_levels_computed() {
+    let mut rng = Rng(7);
+    for &(c, h, w) in &[(2, 16, 16), (3, 13, 10), (1, 9, 24)] {
+        let a = random_tensor::<f64>(&mut rng, c, h, w);
+        let b = random_tensor::<f64>(&mut rng, c, h, w);
+        for sigma in [4.0, 2.5, 1.0, 5.7, 32.0] {
+            let ls = vec![(sigma as f64).log2(); h * w];
+            let got = wd::wd(&[a.clone()], &[b.clone()], &Sigma::Constant(sigma), h, w);
+            let want = naive_wd(&a, &b, &ls);
+            assert!((got - want).abs() <= 1e-12 * want.abs().max(1.0), "σ={sigma} {c}x{h}x{w}: {got} vs {want}");
+        }
+        // a per-pixel σ map at the array's own resolution (no resize involved)
+        let sig: Vec<f64> = (0..h * w).map(|_| 2f64.powf(4.0 * rng.next())).collect();
+        let got = wd::wd(&[a.clone()], &[b.clone()], &Sigma::map(h, w, &sig), h, w);
+        let want = naive_wd(&a, &b, &sig.iter().map(|s| s.log2()).collect::<Vec<_>>());
+        assert!((got - want).abs() <= 1e-12 * want.abs().max(1.0), "σ map: {got} vs {want}");
+    }
+}
+
+#[test]
+fn downscaled_arrays_get_smaller_sigma_and_zero_levels_are_skipped() {
+    // σ = 4 on a 64×64 image: the full-resolution arrays use level 2 only, a ½ array level 1,
+    // a ¼ array level 0 and an ⅛ array level 0 (relu'd): 5 of 30 levels.
+    let mut rng = Rng(3);
+    let img = random_image::<f64>(&mut rng, 64, 64);
+    let feats = Pyramid.features(&img);
+    let r = Reference::new(&feats, &Sigma::Constant(4.0), 64, 64);
+    assert_eq!(feats.len(), 5);
+    assert_eq!(r.active_levels(), 5);
+    let levels: Vec<Vec<usize>> =
+        r.arrays.iter().map(|a| (0..=5).filter(|&i| a.plan.weights[i].is_some()).collect()).collect();
+    assert_eq!(levels, vec![vec![2], vec![2], vec![1], vec![0], vec![0]]);
+    // The skipped computation equals the full naive one with the reduced ℓ per array.
+    let other = random_image::<f64>(&mut rng, 64, 64);
+    let fo = Pyramid.features(&other);
+    let got = wd::distortion(&r, &fo);
+    let want: f64 = feats
+        .iter()
+        .zip(&fo)
+        .map(|(a, b)| {
+            let l = (2.0 - (64.0 / a.h as f64).log2()).max(0.0);
+            naive_wd(a, b, &vec![l; a.h * a.w])
+        })
+        .sum();
+    assert!((got - want).abs() <= 1e-12 * want, "{got} vs {want}");
+}
+
+#[test]
+fn identity_nonnegativity_and_pointwise_limit() {
+    let mut rng = Rng(11);
+    let a = random_image::<f64>(&mut rng, 24, 20);
+    let b = random_image::<f64>(&mut rng, 24, 20);
+    for sigma in [Sigma::Constant(4.0), Sigma::Constant(1.5), Sigma::map(3, 2, &[1.0, 2.0, 4.0, 8.0, 3.0, 0.5])] {
+        assert_eq!(wd_of(&Pyramid, &a, &a, &sigma), 0.0);
+        assert!(wd_of(&Pyramid, &a, &b, &sigma) > 0.0);
+    }
+    for seed in 0..20 {
+        let mut r = Rng(100 + seed);
+        let x = random_tensor::<f64>(&mut r, 2, 7 + seed as usize % 5, 9);
+        let y = random_tensor::<f64>(&mut r, 2, x.h, 9);
+        assert!(wd::wd(&[x.clone()], &[y], &Sigma::Constant(1.0 + r.next() * 20.0), x.h, 9) >= 0.0);
+    }
+    // σ → 0: the pointwise mean squared feature difference, summed over arrays.
+    let (fa, fb) = (Pyramid.features(&a), Pyramid.features(&b));
+    let pointwise: f64 = fa
+        .iter()
+        .zip(&fb)
+        .map(|(x, y)| x.data.iter().zip(&y.data).map(|(p, q)| (p - q) * (p - q)).sum::<f64>() / x.data.len() as f64)
+        .sum();
+    for tiny in [1e-6, 0.0] {
+        let got = wd::distortion(&Reference::new(&fa, &Sigma::Constant(tiny), 24, 20), &fb);
+        assert!((got - pointwise).abs() < 1e-12 * pointwise, "{got} vs {pointwise}");
+    }
+}
+
+/// Stripes of period 4 (or a noise texture), its half-period shift, and its blurred copy.
+fn textures(h: usize, w: usize, stripes: bool) -> (Tensor<f64>, Tensor<f64>, Tensor<f64>) {
+    let mut rng = Rng(5);
+    let mut rng2 = Rng(999);
+    let period = 4.0;
+    let make = |shift: f64, rng: &mut Rng| -> Tensor<f64> {
+        let mut t = Tensor::zeros(3, h, w);
+        for y in 0..h {
+            for x in 0..w {
+                let v = if stripes {
+                    0.5 + 0.35 * (2.0 * std::f64::consts::PI * (x as f64 + shift) / period).sin().signum()
+                } else {
+                    0.5 + 0.15 * rng.normal().clamp(-2.5, 2.5)
+                };
+                for c in 0..3 {
+                    t.data[c * h * w + y * w + x] = v * [1.0, 0.9, 0.7][c];
+                }
+            }
+        }
+        t
+    };
+    let a = make(0.0, &mut rng);
+    let shifted = make(period / 2.0, &mut rng2);
+    // Blurred copy: 5× the 3×3 binomial per channel.
+    let mut blurred = a.clone();
+    for _ in 0..5 {
+        blurred = blurred.blur();
+    }
+    // undo the border darkening of zero padding so the copy only differs in sharpness
+    let mut ones = Tensor::<f64>::from_vec(3, h, w, vec![1.0; 3 * h * w]);
+    for _ in 0..5 {
+        ones = ones.blur();
+    }
+    blurred.data.iter_mut().zip(&ones.data).for_each(|(v, o)| *v /= o);
+    (a, shifted, blurred)
+}
+
+#[test]
+fn texture_property_phase_shift_is_close_blur_is_far() {
+    for stripes in [true, false] {
+        let (a, shifted, blurred) = textures(48, 48, stripes);
+        let mse = |x: &Tensor<f64>, y: &Tensor<f64>| {
+            x.data.iter().zip(&y.data).map(|(p, q)| (p - q) * (p - q)).sum::<f64>() / x.data.len() as f64
+        };
+        let sigma = Sigma::Constant(4.0);
+        let (l2_shift, l2_blur) = (mse(&a, &shifted), mse(&a, &blurred));
+        let (wd_shift, wd_blur) = (wd_of(&Pyramid, &a, &shifted, &sigma), wd_of(&Pyramid, &a, &blurred, &sigma));
+        // Pixel-wise, the shifted texture is the worse copy; WD ranks it the better one.
+        assert!(l2_shift > 2.0 * l2_blur, "stripes={stripes}: L2 shift {l2_shift} blur {l2_blur}");
+        assert!(wd_shift < 0.5 * wd_blur, "stripes={stripes}: WD shift {wd_shift} blur {wd_blur}");
+        // And the shifted texture is far pointwise (σ → 0) but close under WD.
+        let pointwise = wd_of(&Pyramid, &a, &shifted, &Sigma::Constant(0.0));
+        assert!(wd_shift < 0.25 * pointwise, "stripes={stripes}: WD {wd_shift} vs pointwise {pointwise}");
+    }
+}
+
+// ---------------------------------------------------------------- gradients
+
+/// Central differences of `f` at the given flat indices of `x` against `grad`.
+fn check_grad(x: &Tensor<f64>, grad: &Tensor<f64>, idx: &[usize], eps: f64, tol: f64, f: &dyn Fn(&Tensor<f64>) -> f64) {
+    let scale = grad.data.iter().map(|g| g.abs()).fold(0.0, f64::max);
+    assert!(scale > 0.0, "zero gradient");
+    for &i in idx {
+        let (mut p, mut m) = (x.clone(), x.clone());
+        p.data[i] += eps;
+        m.data[i] -= eps;
+        let fd = (f(&p) - f(&m)) / (2.0 * eps);
+        let an = grad.data[i];
+        assert!((fd - an).abs() <= tol * scale, "index {i}: finite difference {fd} vs analytic {an} (max |g| {scale})");
+    }
+}
+
+fn some_indices(rng: &mut Rng, n: usize, k: usize) -> Vec<usize> {
+    (0..k).map(|_| (rng.next() * n as f64) as usize % n).collect()
+}
+
+#[test]
+fn gradient_of_raw_wd_matches_finite_differences() {
+    let mut rng = Rng(21);
+    let sigmas = [
+        Sigma::Constant(4.0),
+        Sigma::Constant(2.7),
+        Sigma::Constant(1.0),
+        Sigma::map(4, 3, &(0..12).map(|i| 1.0 + i as f64 * 1.3).collect::<Vec<_>>()),
+    ];
+    for (s, sigma) in sigmas.iter().enumerate() {
+        let (c, h, w) = (2, 11 + s, 14);
+        let refs = vec![random_tensor::<f64>(&mut rng, c, h, w), random_tensor::<f64>(&mut rng, 3, 6, 7)];
+        let x = vec![random_tensor::<f64>(&mut rng, c, h, w), random_tensor::<f64>(&mut rng, 3, 6, 7)];
+        let r = Reference::new(&refs, sigma, h, w);
+        let (_, grads) = wd::distortion_and_grad(&r, &x);
+        for a in 0..2 {
+            let idx = some_indices(&mut rng, x[a].data.len(), 12);
+            check_grad(&x[a], &grads[a], &idx, 1e-6, 1e-6, &|t| {
+                let mut y = x.clone();
+                y[a] = t.clone();
+                wd::distortion(&r, &y)
+            });
+        }
+    }
+}
+
+#[test]
+fn gradient_through_pyramid_matches_finite_differences() {
+    let mut rng = Rng(33);
+    let (h, w) = (21, 18);
+    let target = random_image::<f64>(&mut rng, h, w);
+    let x = random_image::<f64>(&mut rng, h, w);
+    let sigma = Sigma::Constant(4.0);
+    let r = Reference::new(&Pyramid.features(&target), &sigma, h, w);
+    let ex = Pyramid.extract(&x);
+    let (_, grads) = wd::distortion_and_grad(&r, &ex.arrays);
+    let g = ex.tape.backward(&grads);
+    let idx = some_indices(&mut rng, x.data.len(), 16);
+    check_grad(&x, &g, &idx, 1e-6, 1e-6, &|t| wd::distortion(&r, &Pyramid.features(t)));
+}
+
+/// A safetensors file of VGG-16 layout with the given output widths and random weights.
+fn vgg_bytes(widths: &[usize; 13], seed: u64) -> Vec<u8> {
+    let mut rng = Rng(seed);
+    let mut bufs: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
+    let mut cin = 3;
+    for (l, &idx) in CONV_INDICES.iter().enumerate() {
+        let cout = widths[l];
+        let std = (2.0 / (cin * 9) as f64).sqrt();
+        let wv: Vec<u8> = (0..cout * cin * 9).flat_map(|_| ((rng.normal() * std) as f32).to_le_bytes()).collect();
+        let bv: Vec<u8> = (0..cout).flat_map(|_| ((rng.normal() * 0.05) as f32).to_le_bytes()).collect();
+        bufs.push((format!("features.{idx}.weight"), vec![cout, cin, 3, 3], wv));
+        bufs.push((format!("features.{idx}.bias"), vec![cout], bv));
+        cin = cout;
+    }
+    let views: Vec<(String, safetensors::tensor::TensorView)> = bufs
+        .iter()
+        .map(|(n, s, d)| (n.clone(), safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), d).unwrap()))
+        .collect();
+    safetensors::serialize(views, None).unwrap()
+}
+
+const NARROW: [usize; 13] = [4, 4, 6, 6, 8, 8, 8, 8, 8, 8, 8, 8, 8];
+
+#[test]
+fn gradient_through_vgg16_matches_finite_differences() {
+    let net = Vgg16::<f64>::from_safetensors(&vgg_bytes(&NARROW, 5)).unwrap();
+    assert!(!net.is_full_size());
+    let mut rng = Rng(44);
+    let (h, w) = (34, 36);
+    let target = random_image::<f64>(&mut rng, h, w);
+    let x = random_image::<f64>(&mut rng, h, w);
+    let sigma = Sigma::Constant(4.0);
+    let ft = net.features(&target);
+    // 1 + 5 (34×36) + 5 (17×18) + 4 (9×9: relu5_3 would be 0×0)
+    assert_eq!(ft.len(), 15);
+    let r = Reference::new(&ft, &sigma, h, w);
+    let ex = net.extract(&x);
+    let (_, grads) = wd::distortion_and_grad(&r, &ex.arrays);
+    let g = ex.tape.backward(&grads);
+    let idx = some_indices(&mut rng, x.data.len(), 10);
+    check_grad(&x, &g, &idx, 1e-6, 1e-5, &|t| wd::distortion(&r, &net.features(t)));
+}
+
+#[test]
+fn vgg16_full_shapes_load_from_file_and_give_16_arrays() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("vgg16.safetensors");
+    std::fs::write(&path, vgg_bytes(&VGG16_CHANNELS, 9)).unwrap();
+    let net = Vgg16::<f32>::load(&path).unwrap();
+    assert!(net.is_full_size());
+    let mut rng = Rng(1);
+    let img = random_image::<f32>(&mut rng, 64, 64);
+    let f = net.features(&img);
+    let shapes: Vec<(usize, usize, usize)> = f.iter().map(|t| (t.c, t.h, t.w)).collect();
+    let mut want = vec![(3, 64, 64)];
+    for s in [64, 32, 16] {
+        for (b, c) in [64, 128, 256, 512, 512].into_iter().enumerate() {
+            want.push((c, s >> b, s >> b));
+        }
+    }
+    assert_eq!(shapes, want);
+    assert!(f.iter().all(|t| t.data.iter().all(|v| v.is_finite())));
+    // bad files: one clear input error naming the file
+    std::fs::write(&path, b"not safetensors").unwrap();
+    let e = Vgg16::<f32>::load(&path).unwrap_err();
+    assert_eq!(e.exit_code(), 2);
+    assert!(e.to_string().contains("vgg16.safetensors"), "{e}");
+    let mut narrow = NARROW;
+    narrow[3] = 0;
+    std::fs::write(&path, vgg_bytes(&narrow, 1)).unwrap();
+    assert!(Vgg16::<f32>::load(&path).is_err());
+}
+
+#[test]
+fn wdr_gradient_matches_finite_differences_and_composition() {
+    let mut rng = Rng(55);
+    let (h, w) = (20, 22);
+    // keep |rendered − target| ≥ 0.05 so the L1 kink is never crossed
+    let target = random_image::<f64>(&mut rng, h, w);
+    let mut x = target.clone();
+    x.data.iter_mut().for_each(|v| *v += if rng.next() < 0.5 { -0.05 - 0.04 * rng.next() } else { 0.05 + 0.04 * rng.next() });
+    // make every value exactly representable in f32 so the f32 and f64 paths see the same image
+    x.data.iter_mut().for_each(|v| *v = *v as f32 as f64);
+    let target: Tensor<f64> = Tensor::from_vec(3, h, w, target.data.iter().map(|v| *v as f32 as f64).collect());
+    let (ti, xi) = (to_image(&target), to_image(&x));
+
+    let total = 1000;
+    let mut loss = WdrLoss::new(Box::new(Pyramid), total);
+    assert_eq!(loss.warmup, 100);
+    // warm-up: L_orig alone
+    let (lw, gw) = loss.loss_and_grad(&xi, &ti, 0, 99);
+    let (lo, go) = wdr::l_orig(&xi, &ti);
+    assert_eq!((lw, &gw), (lo, &go));
+    // after: γ(d_WD + β L_orig), checked against f64 finite differences of that formula
+    let (l, g) = loss.loss_and_grad(&xi, &ti, 0, 100);
+    let sigma = Sigma::Constant(4.0);
+    let r = Reference::new(&Pyramid.features(&target), &sigma, h, w);
+    let f = |t: &Tensor<f64>| {
+        let d = wd::distortion(&r, &Pyramid.features(t));
+        wdr::DEFAULT_GAMMA_WDR * (d + wdr::BETA * wdr::l_orig(&to_image(t), &ti).0)
+    };
+    assert!((l - f(&x)).abs() < 1e-5 * l, "{l} vs {}", f(&x));
+    let gt = Tensor::<f64>::from_vec(3, h, w, {
+        let n = h * w;
+        let mut d = vec![0.0; 3 * n];
+        for i in 0..n {
+            for c in 0..3 {
+                d[c * n + i] = g[3 * i + c] as f64;
+            }
+        }
+        d
+    });
+    let idx = some_indices(&mut rng, x.data.len(), 12);
+    // eps 2^-10 keeps the perturbed values exact in f32
+    check_grad(&x, &gt, &idx, 1.0 / 1024.0, 2e-3, &f);
+}
+
+#[test]
+fn constant_images_and_flat_regions_give_finite_gradients() {
+    let (h, w) = (24, 24);
+    let flat = |v: f32| Image { width: w, height: h, data: vec![v; (3 * w * h) as usize] };
+    let mut rng = Rng(66);
+    let textured = to_image(&random_image::<f64>(&mut rng, h as usize, w as usize));
+    let mut half = textured.clone();
+    half.data[..(3 * w * h / 2) as usize].iter_mut().for_each(|v| *v = 0.3);
+    let net = Vgg16::<f32>::from_safetensors(&vgg_bytes(&NARROW, 2)).unwrap();
+    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid), Box::new(net)];
+    for space in spaces {
+        let mut d = WdDistortion::new(space);
+        for (a, b) in [(flat(0.5), flat(0.5)), (flat(0.2), flat(0.7)), (flat(0.5), textured.clone()), (half.clone(), textured.clone()), (textured.clone(), half.clone())] {
+            let (v, g) = d.value_and_grad(&a, &b, None);
+            assert!(v.is_finite() && v >= 0.0);
+            assert!(g.iter().all(|x| x.is_finite()), "non-finite gradient");
+        }
+        assert_eq!(d.value_and_grad(&flat(0.5), &flat(0.5), None).0, 0.0);
+    }
+}
+
+#[test]
+fn cached_equals_uncached_exactly() {
+    let mut rng = Rng(77);
+    let target = to_image(&random_image::<f64>(&mut rng, 30, 26));
+    let other_target = to_image(&random_image::<f64>(&mut rng, 30, 26));
+    let x = to_image(&random_image::<f64>(&mut rng, 30, 26));
+    let net = Vgg16::<f32>::from_safetensors(&vgg_bytes(&NARROW, 3)).unwrap();
+    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid), Box::new(net)];
+    for space in spaces {
+        let mut d = WdDistortion::new(space);
+        let uncached = d.value_and_grad(&x, &target, None);
+        assert_eq!(d.cached_views(), 0);
+        let first = d.value_and_grad(&x, &target, Some(3));
+        let second = d.value_and_grad(&x, &target, Some(3));
+        assert_eq!(d.cached_views(), 1);
+        for r in [&first, &second] {
+            assert_eq!(r.0.to_bits(), uncached.0.to_bits());
+            assert!(r.1.iter().zip(&uncached.1).all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
+        // the same view id with a different target is recomputed, not served stale
+        let fresh = d.value(&x, &other_target, None);
+        assert_eq!(d.value(&x, &other_target, Some(3)), fresh);
+        // and a zero budget disables caching
+        let mut d = d.with_cache_budget(0);
+        d.value(&x, &target, Some(1));
+        assert_eq!(d.cached_views(), 0);
+    }
+}
+
+
+#[test]
+fn loss_options_parse_and_fail_cleanly() {
+    use clap::Parser;
+    use gscodec::loss::{build_loss, FeatureSpec, LossArgs, LossKind};
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        loss: LossArgs,
+    }
+    let c = Cli::try_parse_from(["x", "--loss", "wdr", "--features", "vgg16=/nonexistent/w.safetensors"]).unwrap();
+    assert_eq!(c.loss.loss, LossKind::Wdr);
+    assert_eq!(c.loss.features, FeatureSpec::Vgg16("/nonexistent/w.safetensors".into()));
+    let e = build_loss(&c.loss, 100).err().expect("missing weights file");
+    assert_eq!(e.exit_code(), 2);
+    assert!(e.to_string().contains("/nonexistent/w.safetensors"), "{e}");
+    assert!(Cli::try_parse_from(["x", "--features", "alexnet"]).is_err());
+    assert!(Cli::try_parse_from(["x", "--features", "vgg16="]).is_err());
+    assert!(Cli::try_parse_from(["x", "--loss", "lpips"]).is_err());
+    let d = Cli::try_parse_from(["x"]).unwrap();
+    assert_eq!((d.loss.loss, d.loss.features.clone()), (LossKind::L1ssim, FeatureSpec::Pyramid));
+    assert_eq!(build_loss(&d.loss, 10).unwrap().name(), "l1ssim");
+    let g = Cli::try_parse_from(["x", "--loss", "wd", "--wd-gamma=-1"]).unwrap();
+    assert_eq!(build_loss(&g.loss, 10).err().unwrap().exit_code(), 2);
+    let ok = Cli::try_parse_from(["x", "--loss", "wd", "--wd-gamma", "0.5"]).unwrap();
+    assert_eq!(build_loss(&ok.loss, 10).unwrap().name(), "wd");
+}
+
+#[test]
+fn sigma_maps_resize_like_the_reference() {
+    // a constant map at any resolution is the constant σ
+    let mut rng = Rng(88);
+    let a = random_image::<f64>(&mut rng, 40, 30);
+    let b = random_image::<f64>(&mut rng, 40, 30);
+    let c = wd_of(&Pyramid, &a, &b, &Sigma::Constant(4.0));
+    for (h, w) in [(40, 30), (7, 5), (80, 61)] {
+        let m = wd_of(&Pyramid, &a, &b, &Sigma::map(h, w, &vec![4.0; h * w]));
+        assert!((m - c).abs() < 1e-12 * c, "{h}x{w}: {m} vs {c}");
+    }
+    // linear, antialiased resize: halving averages pairs with weights ¼ ¾ ¾ ¼ (triangle of
+    // radius 2), upsampling interpolates between sample centres
+    let ramp: Vec<f64> = (0..8).map(|i| i as f64).collect();
+    let down = wd::resize_linear_antialias(&ramp, 1, 8, 1, 4);
+    let want = [0.0 * 0.0 + (0.0 * 0.75 + 1.0 * 0.75 + 2.0 * 0.25) / 1.75, 2.5, 4.5, (5.0 * 0.25 + 6.0 * 0.75 + 7.0 * 0.75) / 1.75];
+    for (d, w) in down.iter().zip(want) {
+        assert!((d - w).abs() < 1e-12, "{down:?}");
+    }
+    let up = wd::resize_linear_antialias(&[0.0, 4.0], 1, 2, 1, 4);
+    assert_eq!(up, vec![0.0, 1.0, 3.0, 4.0]);
+}
