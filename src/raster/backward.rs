@@ -2,7 +2,8 @@
 //! back to front) -> parameter gradients through the EWA projection, the 3D covariance, the
 //! quaternion normalisation, the sigmoid and the SH colour (with its clamp at 0).
 
-use super::{cull_thresholds, gather_tile, RasterState};
+use super::RasterState;
+use gscodec_decoder::render::{cull_thresholds, gather_tile};
 use gscodec_decoder::math::{self, MAX_ALPHA, MIN_ALPHA, SH_C1, SH_C2, SH_C3, TILE};
 use gscodec_decoder::Splats;
 use glam::{Mat3, Vec3};

@@ -15,8 +15,8 @@ mod backward;
 
 pub use backward::{backward, Gradients};
 
-use gscodec_decoder::math::{MAX_ALPHA, MIN_ALPHA, MIN_TRANSMITTANCE, TILE};
-use gscodec_decoder::render::{bin_tiles, preprocess, Projected, TileBins};
+use gscodec_decoder::math::TILE;
+use gscodec_decoder::render::{bin_tiles, composite, cull_thresholds, gather_tile, preprocess, Projected, TileBins};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
 use rayon::prelude::*;
 use std::time::Instant;
@@ -101,60 +101,3 @@ pub fn forward_timed(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Im
     (img, RasterState { camera: *cam, options: *opts, degree, projected, bins, final_t, n_visited }, timings)
 }
 
-/// A projected Gaussian copied into a tile's contiguous working list.
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct TileGaussian {
-    /// `mean - 0.5`: the centre in pixel-index coordinates.
-    pub mx: f32,
-    pub my: f32,
-    pub conic: [f32; 3],
-    pub opacity: f32,
-    /// Below this `power` the alpha is certainly under [`MIN_ALPHA`]: skip without `exp`.
-    pub cull: f32,
-    pub color: [f32; 3],
-}
-
-/// Per Gaussian, a `power` below which `opacity · exp(power) < MIN_ALPHA` for sure. The 1e-3
-/// margin dwarfs the rounding of `ln`/`exp`, so the skip decisions (and hence the image) are
-/// exactly those of the decoder's renderer, which evaluates `exp` for every pair.
-pub(crate) fn cull_thresholds(proj: &[Projected]) -> Vec<f32> {
-    proj.iter().map(|p| if p.opacity > 0.0 { (MIN_ALPHA / p.opacity).ln() - 1e-3 } else { f32::INFINITY }).collect()
-}
-
-/// Copies a tile's depth-sorted Gaussians into `out` (contiguous, for cache-friendly reuse by
-/// all pixels of the tile).
-pub(crate) fn gather_tile(proj: &[Projected], cull: &[f32], ids: &[u32], out: &mut Vec<TileGaussian>) {
-    out.clear();
-    out.extend(ids.iter().map(|&g| {
-        let p = &proj[g as usize];
-        TileGaussian { mx: p.mean[0] - 0.5, my: p.mean[1] - 0.5, conic: p.conic, opacity: p.opacity, cull: cull[g as usize], color: p.color }
-    }));
-}
-
-/// The decoder's per-pixel compositing (same arithmetic, same skips; see
-/// `gscodec_decoder::render::composite_pixel_counted`) over a gathered tile list.
-#[inline]
-fn composite(list: &[TileGaussian], px: f32, py: f32) -> ([f32; 3], f32, u32) {
-    let mut c = [0.0f32; 3];
-    let mut t = 1.0f32;
-    for (j, p) in list.iter().enumerate() {
-        let (dx, dy) = (p.mx - px, p.my - py);
-        let power = -0.5 * (p.conic[0] * dx * dx + p.conic[2] * dy * dy) - p.conic[1] * dx * dy;
-        if power > 0.0 || power < p.cull {
-            continue;
-        }
-        let alpha = MAX_ALPHA.min(p.opacity * power.exp());
-        if alpha < MIN_ALPHA {
-            continue;
-        }
-        let next_t = t * (1.0 - alpha);
-        if next_t < MIN_TRANSMITTANCE {
-            return (c, t, j as u32);
-        }
-        for k in 0..3 {
-            c[k] += p.color[k] * alpha * t;
-        }
-        t = next_t;
-    }
-    (c, t, list.len() as u32)
-}

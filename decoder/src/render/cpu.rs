@@ -128,17 +128,47 @@ pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
     TileBins { tiles_x, tiles_y, ranges, ids }
 }
 
-/// Composites one pixel (pixel-index coordinates `px, py`) from a depth-sorted list; returns the
-/// accumulated colour and the final transmittance.
+/// A projected Gaussian copied into a tile's contiguous working list.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TileGaussian {
+    /// `mean - 0.5`: the centre in pixel-index coordinates.
+    pub mx: f32,
+    pub my: f32,
+    pub conic: [f32; 3],
+    pub opacity: f32,
+    /// Below this `power` the alpha is certainly under [`MIN_ALPHA`]: skip without `exp`.
+    pub cull: f32,
+    pub color: [f32; 3],
+}
+
+/// Per Gaussian, a `power` below which `opacity · exp(power) < MIN_ALPHA` for sure. The 1e-3
+/// margin dwarfs the rounding of `ln`/`exp`, so skipping there changes no decision: the image is
+/// exactly the one that evaluating `exp` for every pair gives.
+pub fn cull_thresholds(proj: &[Projected]) -> Vec<f32> {
+    proj.iter().map(|p| if p.opacity > 0.0 { (MIN_ALPHA / p.opacity).ln() - 1e-3 } else { f32::INFINITY }).collect()
+}
+
+/// Copies a tile's depth-sorted Gaussians into `out` (contiguous, for cache-friendly reuse by
+/// all pixels of the tile).
+pub fn gather_tile(proj: &[Projected], cull: &[f32], ids: &[u32], out: &mut Vec<TileGaussian>) {
+    out.clear();
+    out.extend(ids.iter().map(|&g| {
+        let p = &proj[g as usize];
+        TileGaussian { mx: p.mean[0] - 0.5, my: p.mean[1] - 0.5, conic: p.conic, opacity: p.opacity, cull: cull[g as usize], color: p.color }
+    }));
+}
+
+/// Composites one pixel (pixel-index coordinates `px, py`) front to back over a gathered,
+/// depth-sorted tile list. Returns the colour, the final transmittance and the number of list
+/// entries visited (what a backward pass needs to walk the list back).
 #[inline]
-pub(crate) fn composite_pixel(proj: &[Projected], ids: &[u32], px: f32, py: f32) -> ([f32; 3], f32) {
+pub fn composite(list: &[TileGaussian], px: f32, py: f32) -> ([f32; 3], f32, u32) {
     let mut c = [0.0f32; 3];
     let mut t = 1.0f32;
-    for &g in ids {
-        let p = &proj[g as usize];
-        let (dx, dy) = (p.mean[0] - 0.5 - px, p.mean[1] - 0.5 - py);
+    for (j, p) in list.iter().enumerate() {
+        let (dx, dy) = (p.mx - px, p.my - py);
         let power = -0.5 * (p.conic[0] * dx * dx + p.conic[2] * dy * dy) - p.conic[1] * dx * dy;
-        if power > 0.0 {
+        if power > 0.0 || power < p.cull {
             continue;
         }
         let alpha = MAX_ALPHA.min(p.opacity * power.exp());
@@ -147,14 +177,14 @@ pub(crate) fn composite_pixel(proj: &[Projected], ids: &[u32], px: f32, py: f32)
         }
         let next_t = t * (1.0 - alpha);
         if next_t < MIN_TRANSMITTANCE {
-            break;
+            return (c, t, j as u32);
         }
         for k in 0..3 {
             c[k] += p.color[k] * alpha * t;
         }
         t = next_t;
     }
-    (c, t)
+    (c, t, list.len() as u32)
 }
 
 /// Renders `splats` from `cam` with the reference 3DGS semantics (see DESIGN §3).
@@ -162,17 +192,19 @@ pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Image {
     let (w, h) = (cam.width, cam.height);
     let proj = preprocess(splats, cam, opts.max_sh_degree);
     let bins = bin_tiles(&proj, w, h);
+    let cull = cull_thresholds(&proj);
     let mut img = Image::filled(w, h, [0.0; 3]);
     let row_len = (w * 3) as usize;
     // One task per tile row; rows of pixels are disjoint slices of the output.
     img.data.par_chunks_mut(row_len * TILE as usize).enumerate().for_each(|(ty, band)| {
+        let mut local = Vec::new();
         for tx in 0..bins.tiles_x {
-            let ids = bins.tile((ty as u32 * bins.tiles_x + tx) as usize);
+            gather_tile(&proj, &cull, bins.tile((ty as u32 * bins.tiles_x + tx) as usize), &mut local);
             let x1 = ((tx + 1) * TILE).min(w);
             for (ly, row) in band.chunks_mut(row_len).enumerate() {
                 let py = (ty as u32 * TILE + ly as u32) as f32;
                 for x in tx * TILE..x1 {
-                    let (c, t) = composite_pixel(&proj, ids, x as f32, py);
+                    let (c, t, _) = composite(&local, x as f32, py);
                     for k in 0..3 {
                         row[x as usize * 3 + k] = c[k] + t * opts.background[k];
                     }

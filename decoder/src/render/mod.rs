@@ -4,7 +4,7 @@
 mod cpu;
 pub mod reference;
 
-pub use cpu::{bin_tiles, preprocess, render, Projected, TileBins};
+pub use cpu::{bin_tiles, composite, cull_thresholds, gather_tile, preprocess, render, Projected, TileBins, TileGaussian};
 
 /// A linear-in-file RGB float image, row-major, channels interleaved (`data[(y*w + x)*3 + c]`).
 #[derive(Debug, Clone, PartialEq)]
