@@ -18,11 +18,16 @@ pub struct Steps {
     pub sh_dc: f32,
     /// Per SH band 1..=3.
     pub sh_rest: [f32; 3],
+    /// Dead zone of the SH rest quantiser, in steps (0 = plain rounding, < 0.5): a value is
+    /// rounded as `sign(v)·⌊|v|/s + ½ − deadzone⌋`, so small coefficients go to zero. An
+    /// encoder-only choice (the decoder sees integers); it lowers the entropy of the Laplacian
+    /// SH coefficients for a small distortion cost, and the RD search picks it.
+    pub rest_deadzone: f32,
 }
 
 impl Default for Steps {
     fn default() -> Self {
-        Steps { position_bits: None, position_rel: 0.15, scale: 0.04, rotation: 0.006, opacity: 0.08, sh_dc: 0.01, sh_rest: [0.03, 0.04, 0.05] }
+        Steps { position_bits: None, position_rel: 0.15, scale: 0.04, rotation: 0.006, opacity: 0.08, sh_dc: 0.01, sh_rest: [0.03, 0.04, 0.05], rest_deadzone: 0.0 }
     }
 }
 
@@ -37,6 +42,7 @@ impl Steps {
             opacity: self.opacity * m,
             sh_dc: self.sh_dc * m,
             sh_rest: self.sh_rest.map(|s| s * m),
+            rest_deadzone: self.rest_deadzone,
         }
     }
 }
@@ -84,6 +90,15 @@ fn q(v: f32, step: f32) -> i32 {
     (v / step).round() as i32
 }
 
+/// Dead-zone quantiser (see [`Steps::rest_deadzone`]); `dz = 0` is [`q`].
+fn q_dz(v: f32, step: f32, dz: f32) -> i32 {
+    if dz <= 0.0 {
+        return q(v, step);
+    }
+    let t = (v / step).abs() + 0.5 - dz;
+    (t.floor().max(0.0) * v.signum()) as i32
+}
+
 /// Quantises `splats` (already pruned and validated) with `steps`, reordering to Morton order.
 pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
     let n = splats.len();
@@ -127,7 +142,7 @@ pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
         let first = (b as usize) * (b as usize) - 1;
         let w = (2 * b as usize + 1) * 3;
         let s = steps.sh_rest[b as usize - 1];
-        let chans = (0..w).map(|j| per(&|i| q(splats.sh_rest[(i * k + first) * 3 + j], s))).collect();
+        let chans = (0..w).map(|j| per(&|i| q_dz(splats.sh_rest[(i * k + first) * 3 + j], s, steps.rest_deadzone))).collect();
         groups.push((Group::for_band(b), vec![s; w], chans));
     }
     let mut out = Quantised { sh_degree: splats.sh_degree, grid: (lo, step, bits), morton: keyed.iter().map(|&(m, _)| m).collect(), groups };
@@ -171,6 +186,23 @@ pub fn smallest_three(r: [f32; 4], step: f32) -> (usize, [i32; 3]) {
 pub fn prune(splats: &Splats, min_opacity: f32) -> Splats {
     let mut out = splats.clone();
     out.retain_indices(|i| sigmoid(splats.opacity_logits[i]) >= min_opacity);
+    out
+}
+
+/// How much a Gaussian can show: opacity × the area of its two largest axes (world units²).
+/// Small faint Gaussians score low; large faint ones (which still tint many pixels) do not.
+pub fn footprint(splats: &Splats, i: usize) -> f32 {
+    let mut l = splats.log_scales[i];
+    l.sort_by(f32::total_cmp);
+    sigmoid(splats.opacity_logits[i]) * (l[1] + l[2]).exp()
+}
+
+/// Drops Gaussians whose [`footprint`] is below `min_footprint` (0 keeps all).
+pub fn prune_footprint(splats: &Splats, min_footprint: f32) -> Splats {
+    let mut out = splats.clone();
+    if min_footprint > 0.0 {
+        out.retain_indices(|i| footprint(splats, i) >= min_footprint);
+    }
     out
 }
 
