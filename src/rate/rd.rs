@@ -72,6 +72,8 @@ const FOOTPRINT_QUANTILES: [f32; 7] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5];
 /// SH rest dead zones tried after the steps are chosen (see `Steps::rest_deadzone`).
 const DEADZONES: [f32; 4] = [0.1, 0.2, 0.3, 0.4];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
+/// Quarter-octave moves of the last pass.
+const REFINE_FINE: [f32; 3] = [0.840_896_4, 1.0, 1.189_207_1];
 
 fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
     let mut c = *c;
@@ -145,9 +147,9 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
     let (b0, d0, r0) = ev.eval_report(&base)?;
     let group_bytes = |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
     // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
-    //    (half-octave moves around the first choice).
+    //    (half-octave moves around the first choice), then quarter-octave moves.
     let mut chosen = base;
-    for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..])] {
+    for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
         let start = chosen;
         let (b0, d0, r0) = if pass == 0 { (b0, d0, r0.clone()) } else { ev.eval_report(&start)? };
         for k in 0..KNOBS.len() {
