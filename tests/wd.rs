@@ -504,21 +504,22 @@ fn loss_options_parse_and_fail_cleanly() {
         loss: LossArgs,
     }
     let c = Cli::try_parse_from(["x", "--loss", "wdr", "--features", "vgg16=/nonexistent/w.safetensors"]).unwrap();
-    assert_eq!(c.loss.loss, LossKind::Wdr);
+    assert_eq!(c.loss.loss, Some(LossKind::Wdr));
     assert_eq!(c.loss.features, FeatureSpec::Vgg16("/nonexistent/w.safetensors".into()));
-    let e = build_loss(&c.loss, 100).err().expect("missing weights file");
+    let e = build_loss(&c.loss, 100, LossKind::L1ssim).err().expect("missing weights file");
     assert_eq!(e.exit_code(), 2);
     assert!(e.to_string().contains("/nonexistent/w.safetensors"), "{e}");
     assert!(Cli::try_parse_from(["x", "--features", "alexnet"]).is_err());
     assert!(Cli::try_parse_from(["x", "--features", "vgg16="]).is_err());
     assert!(Cli::try_parse_from(["x", "--loss", "lpips"]).is_err());
     let d = Cli::try_parse_from(["x"]).unwrap();
-    assert_eq!((d.loss.loss, d.loss.features.clone()), (LossKind::L1ssim, FeatureSpec::Pyramid));
-    assert_eq!(build_loss(&d.loss, 10).unwrap().name(), "l1ssim");
+    assert_eq!((d.loss.loss, d.loss.features.clone()), (None, FeatureSpec::Pyramid));
+    assert_eq!(build_loss(&d.loss, 10, LossKind::L1ssim).unwrap().name(), "l1ssim");
+    assert_eq!(build_loss(&d.loss, 10, LossKind::Wdr).unwrap().name(), "wdr");
     let g = Cli::try_parse_from(["x", "--loss", "wd", "--wd-gamma=-1"]).unwrap();
-    assert_eq!(build_loss(&g.loss, 10).err().unwrap().exit_code(), 2);
+    assert_eq!(build_loss(&g.loss, 10, LossKind::L1ssim).err().unwrap().exit_code(), 2);
     let ok = Cli::try_parse_from(["x", "--loss", "wd", "--wd-gamma", "0.5"]).unwrap();
-    assert_eq!(build_loss(&ok.loss, 10).unwrap().name(), "wd");
+    assert_eq!(build_loss(&ok.loss, 10, LossKind::L1ssim).unwrap().name(), "wd");
 }
 
 #[test]

@@ -6,7 +6,9 @@
 //! * [`Splats`] — the decoded scene as structure-of-arrays.
 //! * [`Camera`] — a pinhole camera in the OpenCV convention (x right, y down, z forward).
 //! * [`math`] — the one definition of covariance, EWA projection and spherical-harmonic colour.
-//! * [`render`] — the tile-based CPU rasterizer (f32) and its f64 reference.
+//! * [`render`] — the tile-based CPU rasterizer (f32), its f64 reference and, with the `gpu`
+//!   feature, the wgpu renderer [`render::gpu`].
+//! * `capi` (feature `capi`) — the C ABI declared in `include/gscodec.h`.
 
 pub mod bitstream;
 #[cfg(feature = "capi")]

@@ -27,10 +27,10 @@ pub struct Args {
     #[command(flatten)]
     pub loss: crate::loss::LossArgs,
     /// Fine-tuning (a .ply: against 24 orbit renders of itself, densification off) or training
-    /// (a dataset) iterations under D + λ·R with straight-through quantisation; 0 = code as is
-    /// (a dataset needs at least 1).
-    #[arg(long, default_value_t = 0)]
-    pub iters: usize,
+    /// (a dataset) iterations under D + λ·R with straight-through quantisation; 0 = code as is.
+    /// Default: 0 for a .ply, 3000 for a dataset.
+    #[arg(long)]
+    pub iters: Option<usize>,
     /// Write a JSON report (sizes per attribute group, estimated vs actual, time series).
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -46,13 +46,17 @@ pub fn orbit_psnr(a: &Splats, b: &Splats) -> f64 {
     cams.iter().map(|c| crate::metrics::psnr(&render(a, c, &opts), &render(b, c, &opts))).sum::<f64>() / cams.len() as f64
 }
 
+/// Training iterations when encoding a dataset without `--iters`.
+pub const DEFAULT_DATASET_ITERS: usize = 3000;
+
 pub fn run(args: Args) -> crate::Result<()> {
     let start = Instant::now();
     if !(args.lambda >= 0.0 && args.lambda.is_finite()) {
         return Err(Error::Input(format!("--lambda {}: must be a finite number >= 0", args.lambda)));
     }
     let input_is_dir = args.input.is_dir();
-    if input_is_dir && args.iters == 0 {
+    let iters = args.iters.unwrap_or(if input_is_dir { DEFAULT_DATASET_ITERS } else { 0 });
+    if input_is_dir && iters == 0 {
         return Err(Error::input(&args.input, "encoding a dataset needs training: pass --iters N"));
     }
     let mut scene = if input_is_dir { Splats::new(3) } else { crate::io::read_ply(&args.input)? };
@@ -64,8 +68,8 @@ pub fn run(args: Args) -> crate::Result<()> {
     .map_err(|e| Error::input(&args.input, e))?;
     let mut config = config;
     let original = scene.clone();
-    if args.iters > 0 {
-        let (trained, steps) = fine_tune(&args, &scene, &config, &start, &mut series)?;
+    if iters > 0 {
+        let (trained, steps) = fine_tune(&args, iters, &scene, &config, &start, &mut series)?;
         scene = trained;
         if input_is_dir {
             // The RD search above ran on an empty scene: run it now on the trained one.
@@ -95,8 +99,8 @@ pub fn run(args: Args) -> crate::Result<()> {
         let v = json!({
             "input": args.input.display().to_string(),
             "lambda": args.lambda,
-            "loss": format!("{:?}", args.loss.loss).to_lowercase(),
-            "iters": args.iters,
+            "loss": format!("{:?}", args.loss.loss.unwrap_or(crate::loss::LossKind::Wdr)).to_lowercase(),
+            "iters": iters,
             "file_bytes": bytes.len(),
             "estimated_bytes": estimated / 8.0,
             "gaussians": report.gaussians,
@@ -119,7 +123,7 @@ pub fn run(args: Args) -> crate::Result<()> {
 pub const TRAIN_LAMBDA_SCALE: f64 = 1e-3;
 
 /// Fine-tunes `scene` (or trains from the dataset at `args.input`) with the rate term.
-fn fine_tune(args: &Args, scene: &Splats, config: &rate::EncodeConfig, start: &Instant, series: &mut Vec<serde_json::Value>) -> crate::Result<(Splats, rate::Steps)> {
+fn fine_tune(args: &Args, iters: usize, scene: &Splats, config: &rate::EncodeConfig, start: &Instant, series: &mut Vec<serde_json::Value>) -> crate::Result<(Splats, rate::Steps)> {
     use crate::train::{train, TrainConfig};
     let (dataset, init) = if args.input.is_dir() {
         (crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?, None)
@@ -127,10 +131,10 @@ fn fine_tune(args: &Args, scene: &Splats, config: &rate::EncodeConfig, start: &I
         let cams = orbit_cameras(scene, 24, 256, 256, UpAxis::NegY.vector());
         (crate::train::targets::render_targets(scene, &cams, [0.0; 3]), Some(scene.clone()))
     };
-    let cfg = TrainConfig { iters: args.iters, densify: init.is_none(), sh_degree_max: if init.is_some() { scene.sh_degree } else { 3 }, eval_interval: (args.iters / 10).max(1), ..Default::default() };
+    let cfg = TrainConfig { iters, densify: init.is_none(), sh_degree_max: if init.is_some() { scene.sh_degree } else { 3 }, eval_interval: (iters / 10).max(1), ..Default::default() };
     let term = rate::term::RateTerm::new(args.lambda * TRAIN_LAMBDA_SCALE, config.steps, config.min_opacity);
-    let pb = super::progress::bar(args.iters as u64, "train", args.quiet);
-    let (trained, _) = train(&dataset, init, &cfg, crate::loss::build_loss(&args.loss, args.iters)?, Some(Box::new(term)), &mut |p| {
+    let pb = super::progress::bar(iters as u64, "train", args.quiet);
+    let (trained, _) = train(&dataset, init, &cfg, crate::loss::build_loss(&args.loss, iters, crate::loss::LossKind::Wdr)?, Some(Box::new(term)), &mut |p| {
         pb.set_position(p.iteration as u64);
         if let Some(psnr) = p.test_psnr {
             series.push(json!({"iteration": p.iteration, "trial": "train", "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": null, "d": p.loss, "heldout_psnr": psnr}));

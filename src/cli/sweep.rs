@@ -16,7 +16,7 @@ pub struct Args {
     /// Output directory: rd.csv, rd.svg, time.svg, summary.json and points/<loss>_lambda<λ>/.
     #[arg(short, long)]
     pub out: PathBuf,
-    /// λ values, comma-separated [default: 0.1,0.03,0.01,0.003,0.001].
+    /// λ values, comma-separated [default: 200,60,20,6,2].
     #[arg(long, value_delimiter = ',')]
     pub lambdas: Vec<f64>,
     /// Losses, comma-separated (l1ssim, wd, wdr); BD-rates are against l1ssim [default: l1ssim,wdr].

@@ -55,7 +55,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     check_output(&args.output, "ply")?;
     // Before the dataset, so a bad --features file fails fast.
-    let loss = build_loss(&args.loss, args.iters)?;
+    let loss = build_loss(&args.loss, args.iters, crate::loss::LossKind::L1ssim)?;
     let ds = io::load_dataset(&args.data, &LoadOptions::default())?;
     let init = args.init.as_deref().map(io::read_ply).transpose()?;
     let cfg = TrainConfig {

@@ -41,9 +41,9 @@ pub enum LossKind {
 /// The loss options shared by `train` and `encode`.
 #[derive(clap::Args, Clone, Debug, PartialEq, Default)]
 pub struct LossArgs {
-    /// Training distortion.
-    #[arg(long, value_enum, default_value_t = LossKind::L1ssim)]
-    pub loss: LossKind,
+    /// Training distortion (default: `l1ssim` for `train`, `wdr` for `encode`).
+    #[arg(long, value_enum)]
+    pub loss: Option<LossKind>,
     /// Feature space of WD: `pyramid` (built in) or `vgg16=PATH` (VGG-16 weights as safetensors,
     /// see scripts/export_vgg16.py).
     #[arg(long, default_value = "pyramid", value_name = "pyramid|vgg16=PATH")]
@@ -53,17 +53,18 @@ pub struct LossArgs {
     pub wd_gamma: Option<f64>,
 }
 
-/// Builds the loss for a run of `total_iters` iterations (the WD warm-up is 10 % of it).
+/// Builds the loss for a run of `total_iters` iterations (the WD warm-up is 10 % of it);
+/// `default` is used when `--loss` was not given.
 ///
 /// # Errors
 /// Bad input (exit 2) for an unreadable VGG weights file or a γ that is not a positive number.
-pub fn build_loss(args: &LossArgs, total_iters: usize) -> crate::Result<Box<dyn ImageLoss>> {
+pub fn build_loss(args: &LossArgs, total_iters: usize, default: LossKind) -> crate::Result<Box<dyn ImageLoss>> {
     if let Some(g) = args.wd_gamma {
         if !(g.is_finite() && g > 0.0) {
             return Err(crate::Error::Input(format!("--wd-gamma must be a positive number, got {g}")));
         }
     }
-    Ok(match args.loss {
+    Ok(match args.loss.unwrap_or(default) {
         LossKind::L1ssim => Box::new(L1Ssim::default()),
         LossKind::Wd => {
             let mut l = wdr::WdLoss::new(args.features.build()?, total_iters);

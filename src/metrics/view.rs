@@ -32,8 +32,17 @@ pub fn evaluate(reference: &Image, test: &Image) -> ViewMetrics {
         ssim: ssim(reference, test),
         ms_ssim: ms_ssim(reference, test).ok(),
         flip: flip(reference, test),
-        wd: Some(crate::loss::wdr::wd_metric(test, reference)),
+        wd: Some(wd(reference, test)),
     }
+}
+
+/// Wasserstein Distortion of `test` against `reference` in the encoder's default `pyramid`
+/// feature space with σ = 4 (`crate::loss::wd`); 0 for identical images, lower is better.
+///
+/// # Panics
+/// If the images differ in size.
+pub fn wd(reference: &Image, test: &Image) -> f64 {
+    crate::loss::wdr::wd_metric(test, reference)
 }
 
 /// Mean of each metric over views (an optional metric only when every view has it); `None` for
@@ -62,11 +71,12 @@ mod tests {
     fn identical_views_are_perfect_and_means_average() {
         let img = Image { width: 170, height: 165, data: (0..170 * 165 * 3).map(|i| (i % 97) as f32 / 96.0).collect() };
         let v = evaluate(&img, &img);
-        assert_eq!((v.psnr, v.flip), (100.0, 0.0));
+        assert_eq!((v.psnr, v.flip, v.wd), (100.0, 0.0, Some(0.0)));
         assert!((v.ssim - 1.0).abs() < 1e-12 && (v.ms_ssim.unwrap() - 1.0).abs() < 1e-12);
         let small = Image { width: 20, height: 20, data: vec![0.5; 1200] };
         let w = evaluate(&small, &Image { data: vec![0.6; 1200], ..small.clone() });
         assert_eq!(w.ms_ssim, None);
+        assert!(w.wd.unwrap() > 0.0);
         let m = mean(&[v, w]).unwrap();
         assert!((m.psnr - 60.0).abs() < 1e-4, "{}", m.psnr);
         assert_eq!(m.ms_ssim, None);

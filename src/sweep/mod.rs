@@ -25,11 +25,11 @@ use results::{PointResult, TimelinePoint, RESULT_FILE};
 
 /// Default λ grid of `sweep`, largest first (smallest files first).
 ///
-/// `encode --lambda` weighs the rate term of `D + λ·R`, where R is normalised by a fixed constant
-/// (DESIGN §5) so that λ is comparable across scenes. The paper sweeps λ ∈ [3⁻⁵, 3⁻²]
-/// (≈ 0.004 … 0.11); this grid covers that range in roughly ×3 steps and one step beyond the
-/// high-quality end.
-pub const DEFAULT_LAMBDAS: [f64; 5] = [0.1, 0.03, 0.01, 0.003, 0.001];
+/// `encode --lambda` is λ in `J = D + λ·R` with D = 255²·MSE of orbit renders and R in megabits
+/// (larger: smaller files; 0: finest; the encoder's default is 20). The grid steps ×≈3 around
+/// that default over two decades. Not yet re-measured with the RD-search encoder; see
+/// `docs/sweep.md`.
+pub const DEFAULT_LAMBDAS: [f64; 5] = [200.0, 60.0, 20.0, 6.0, 2.0];
 
 /// Default losses compared by `sweep`.
 pub const DEFAULT_LOSSES: [&str; 2] = ["l1ssim", "wdr"];
