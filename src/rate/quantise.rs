@@ -236,3 +236,35 @@ pub fn dequantise(q: &Quantised) -> Splats {
     }
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dead_zone_rounds_small_values_to_zero_symmetrically() {
+        for v in [-1.26f32, -0.74, -0.2, 0.0, 0.3, 0.51, 0.74, 1.26, 3.49] {
+            assert_eq!(q_dz(v, 0.5, 0.0), q(v, 0.5), "dz=0 is plain rounding at {v}");
+            assert_eq!(q_dz(v, 0.5, 0.25), -q_dz(-v, 0.5, 0.25), "symmetric at {v}");
+        }
+        // |v|/s = 1.4: plain rounding gives 1; a dead zone of 0.25 needs 1.75 for 2 and 0.75 for 1.
+        assert_eq!(q_dz(0.7, 0.5, 0.25), 1);
+        assert_eq!(q_dz(0.35, 0.5, 0.25), 0); // 0.7 steps < 0.75
+        assert_eq!(q_dz(-0.4, 0.5, 0.25), -1); // 0.8 steps
+        assert_eq!(q_dz(0.85, 0.5, 0.25), 1); // 1.7 steps < 1.75
+    }
+
+    #[test]
+    fn footprint_pruning_drops_small_faint_gaussians_only() {
+        let mut s = Splats::new(0);
+        // small faint, large faint, small opaque
+        s.push([0.0; 3], [-5.0; 3], [1.0, 0.0, 0.0, 0.0], -3.0, [0.0; 3], &[]);
+        s.push([1.0; 3], [-1.0, -1.0, -6.0], [1.0, 0.0, 0.0, 0.0], -3.0, [0.0; 3], &[]);
+        s.push([2.0; 3], [-5.0; 3], [1.0, 0.0, 0.0, 0.0], 4.0, [0.0; 3], &[]);
+        let f: Vec<f32> = (0..3).map(|i| footprint(&s, i)).collect();
+        assert!(f[0] < f[2] && f[2] < f[1], "{f:?}");
+        let kept = prune_footprint(&s, f[0] * 1.01);
+        assert_eq!(kept.positions, vec![[1.0; 3], [2.0; 3]]);
+        assert_eq!(prune_footprint(&s, 0.0).len(), 3);
+    }
+}
