@@ -23,6 +23,9 @@ pub struct EncodeConfig {
     pub steps: Steps,
     /// Gaussians with opacity below this are pruned (1/255 is lossless: they never draw).
     pub min_opacity: f32,
+    /// Gaussians whose footprint (opacity × area, [`quantise::footprint`]) is below this are
+    /// pruned too (0 = off; the RD search sets it).
+    pub min_footprint: f32,
     /// SH bands above this degree are left out.
     pub max_sh_degree: u8,
     /// Also fit the learned density per channel and store it where it is cheaper than the
@@ -32,7 +35,7 @@ pub struct EncodeConfig {
 
 impl Default for EncodeConfig {
     fn default() -> Self {
-        EncodeConfig { steps: Steps::default(), min_opacity: 1.0 / 255.0, max_sh_degree: 3, learned_tables: true }
+        EncodeConfig { steps: Steps::default(), min_opacity: 1.0 / 255.0, min_footprint: 0.0, max_sh_degree: 3, learned_tables: true }
     }
 }
 
@@ -50,7 +53,7 @@ impl EncodeConfig {
 pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let mut s = quantise::prune(splats, config.min_opacity);
+    let mut s = quantise::prune_footprint(&quantise::prune(splats, config.min_opacity), config.min_footprint);
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);
     }

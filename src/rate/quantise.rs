@@ -18,11 +18,16 @@ pub struct Steps {
     pub sh_dc: f32,
     /// Per SH band 1..=3.
     pub sh_rest: [f32; 3],
+    /// Dead zone of the SH rest quantiser, in steps (0 = plain rounding, < 0.5): a value is
+    /// rounded as `sign(v)·⌊|v|/s + ½ − deadzone⌋`, so small coefficients go to zero. An
+    /// encoder-only choice (the decoder sees integers); it lowers the entropy of the Laplacian
+    /// SH coefficients for a small distortion cost, and the RD search picks it.
+    pub rest_deadzone: f32,
 }
 
 impl Default for Steps {
     fn default() -> Self {
-        Steps { position_bits: None, position_rel: 0.15, scale: 0.04, rotation: 0.006, opacity: 0.08, sh_dc: 0.01, sh_rest: [0.03, 0.04, 0.05] }
+        Steps { position_bits: None, position_rel: 0.15, scale: 0.04, rotation: 0.006, opacity: 0.08, sh_dc: 0.01, sh_rest: [0.03, 0.04, 0.05], rest_deadzone: 0.0 }
     }
 }
 
@@ -37,6 +42,7 @@ impl Steps {
             opacity: self.opacity * m,
             sh_dc: self.sh_dc * m,
             sh_rest: self.sh_rest.map(|s| s * m),
+            rest_deadzone: self.rest_deadzone,
         }
     }
 }
@@ -84,6 +90,15 @@ fn q(v: f32, step: f32) -> i32 {
     (v / step).round() as i32
 }
 
+/// Dead-zone quantiser (see [`Steps::rest_deadzone`]); `dz = 0` is [`q`].
+fn q_dz(v: f32, step: f32, dz: f32) -> i32 {
+    if dz <= 0.0 {
+        return q(v, step);
+    }
+    let t = (v / step).abs() + 0.5 - dz;
+    (t.floor().max(0.0) * v.signum()) as i32
+}
+
 /// Quantises `splats` (already pruned and validated) with `steps`, reordering to Morton order.
 pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
     let n = splats.len();
@@ -127,7 +142,7 @@ pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
         let first = (b as usize) * (b as usize) - 1;
         let w = (2 * b as usize + 1) * 3;
         let s = steps.sh_rest[b as usize - 1];
-        let chans = (0..w).map(|j| per(&|i| q(splats.sh_rest[(i * k + first) * 3 + j], s))).collect();
+        let chans = (0..w).map(|j| per(&|i| q_dz(splats.sh_rest[(i * k + first) * 3 + j], s, steps.rest_deadzone))).collect();
         groups.push((Group::for_band(b), vec![s; w], chans));
     }
     let mut out = Quantised { sh_degree: splats.sh_degree, grid: (lo, step, bits), morton: keyed.iter().map(|&(m, _)| m).collect(), groups };
@@ -174,6 +189,23 @@ pub fn prune(splats: &Splats, min_opacity: f32) -> Splats {
     out
 }
 
+/// How much a Gaussian can show: opacity × the area of its two largest axes (world units²).
+/// Small faint Gaussians score low; large faint ones (which still tint many pixels) do not.
+pub fn footprint(splats: &Splats, i: usize) -> f32 {
+    let mut l = splats.log_scales[i];
+    l.sort_by(f32::total_cmp);
+    sigmoid(splats.opacity_logits[i]) * (l[1] + l[2]).exp()
+}
+
+/// Drops Gaussians whose [`footprint`] is below `min_footprint` (0 keeps all).
+pub fn prune_footprint(splats: &Splats, min_footprint: f32) -> Splats {
+    let mut out = splats.clone();
+    if min_footprint > 0.0 {
+        out.retain_indices(|i| footprint(splats, i) >= min_footprint);
+    }
+    out
+}
+
 /// The scene a decoder will restore from `q` (same formulas as the decoder, SPEC §7).
 pub fn dequantise(q: &Quantised) -> Splats {
     let mut s = Splats::new(q.sh_degree);
@@ -203,4 +235,36 @@ pub fn dequantise(q: &Quantised) -> Splats {
         }
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dead_zone_rounds_small_values_to_zero_symmetrically() {
+        for v in [-1.26f32, -0.74, -0.2, 0.0, 0.3, 0.51, 0.74, 1.26, 3.49] {
+            assert_eq!(q_dz(v, 0.5, 0.0), q(v, 0.5), "dz=0 is plain rounding at {v}");
+            assert_eq!(q_dz(v, 0.5, 0.25), -q_dz(-v, 0.5, 0.25), "symmetric at {v}");
+        }
+        // |v|/s = 1.4: plain rounding gives 1; a dead zone of 0.25 needs 1.75 for 2 and 0.75 for 1.
+        assert_eq!(q_dz(0.7, 0.5, 0.25), 1);
+        assert_eq!(q_dz(0.35, 0.5, 0.25), 0); // 0.7 steps < 0.75
+        assert_eq!(q_dz(-0.4, 0.5, 0.25), -1); // 0.8 steps
+        assert_eq!(q_dz(0.85, 0.5, 0.25), 1); // 1.7 steps < 1.75
+    }
+
+    #[test]
+    fn footprint_pruning_drops_small_faint_gaussians_only() {
+        let mut s = Splats::new(0);
+        // small faint, large faint, small opaque
+        s.push([0.0; 3], [-5.0; 3], [1.0, 0.0, 0.0, 0.0], -3.0, [0.0; 3], &[]);
+        s.push([1.0; 3], [-1.0, -1.0, -6.0], [1.0, 0.0, 0.0, 0.0], -3.0, [0.0; 3], &[]);
+        s.push([2.0; 3], [-5.0; 3], [1.0, 0.0, 0.0, 0.0], 4.0, [0.0; 3], &[]);
+        let f: Vec<f32> = (0..3).map(|i| footprint(&s, i)).collect();
+        assert!(f[0] < f[2] && f[2] < f[1], "{f:?}");
+        let kept = prune_footprint(&s, f[0] * 1.01);
+        assert_eq!(kept.positions, vec![[1.0; 3], [2.0; 3]]);
+        assert_eq!(prune_footprint(&s, 0.0).len(), 3);
+    }
 }

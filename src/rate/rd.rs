@@ -65,7 +65,15 @@ fn psnr_of(d: f64) -> f64 {
 /// Knobs of the search: one step multiplier per group.
 const KNOBS: [&str; 8] = ["position", "scale", "rotation", "opacity", "sh_dc", "sh_band1", "sh_band2", "sh_band3"];
 const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
+/// Pruning thresholds tried, in units of 1/255 opacity.
+const PRUNE_THRESHOLDS: [f32; 12] = [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 64.0, 512.0];
+/// Fractions of the Gaussians (smallest footprints first) the footprint pruning tries.
+const FOOTPRINT_QUANTILES: [f32; 7] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5];
+/// SH rest dead zones tried after the steps are chosen (see `Steps::rest_deadzone`).
+const DEADZONES: [f32; 4] = [0.1, 0.2, 0.3, 0.4];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
+/// Quarter-octave moves of the last pass.
+const REFINE_FINE: [f32; 3] = [0.840_896_4, 1.0, 1.189_207_1];
 
 fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
     let mut c = *c;
@@ -98,10 +106,24 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
     let fine = EncodeConfig { steps: Steps::default().scaled(0.7), learned_tables: false, ..EncodeConfig::default() };
     // 1. Pruning threshold (at fine steps), including "everything" (an empty file).
     let mut best = (f64::INFINITY, fine);
-    for t in [1.0f32, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 512.0] {
+    for t in PRUNE_THRESHOLDS {
         let c = EncodeConfig { min_opacity: t / 255.0, ..fine };
         let (b, d) = ev.eval(&c)?;
         record(format!("prune<{t}/255"), b, d, &mut path);
+        if j(b, d) < best.0 {
+            best = (j(b, d), c);
+        }
+    }
+    // 1b. Footprint pruning (small faint Gaussians) at quantiles of the kept Gaussians' footprints.
+    let kept = super::quantise::prune(scene, best.1.min_opacity);
+    let mut fp: Vec<f32> = (0..kept.len()).map(|i| super::quantise::footprint(&kept, i)).collect();
+    fp.sort_by(f32::total_cmp);
+    let start = best.1;
+    for f in FOOTPRINT_QUANTILES {
+        let Some(&t) = fp.get((fp.len() as f64 * f64::from(f)) as usize) else { continue };
+        let c = EncodeConfig { min_footprint: t, ..start };
+        let (b, d) = ev.eval(&c)?;
+        record(format!("footprint<q{f}"), b, d, &mut path);
         if j(b, d) < best.0 {
             best = (j(b, d), c);
         }
@@ -125,9 +147,9 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
     let (b0, d0, r0) = ev.eval_report(&base)?;
     let group_bytes = |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
     // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
-    //    (half-octave moves around the first choice).
+    //    (half-octave moves around the first choice), then quarter-octave moves.
     let mut chosen = base;
-    for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..])] {
+    for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
         let start = chosen;
         let (b0, d0, r0) = if pass == 0 { (b0, d0, r0.clone()) } else { ev.eval_report(&start)? };
         for k in 0..KNOBS.len() {
@@ -151,6 +173,21 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
             }
             chosen = with_knob(&chosen, k, best_k.1);
         }
+    }
+    // 4. SH rest dead zone (whole-file J: it changes only the SH band groups).
+    if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
+        let (b, d) = ev.eval(&chosen)?;
+        let mut best = (j(b, d), chosen);
+        for dz in DEADZONES {
+            let mut c = chosen;
+            c.steps.rest_deadzone = dz;
+            let (b, d) = ev.eval(&c)?;
+            record(format!("rest_deadzone={dz}"), b, d, &mut path);
+            if j(b, d) < best.0 {
+                best = (j(b, d), c);
+            }
+        }
+        chosen = best.1;
     }
     Ok((EncodeConfig { learned_tables: true, ..chosen }, path))
 }
