@@ -12,7 +12,8 @@ use gscodec::rate::{self, EncodeConfig};
 use std::path::{Path, PathBuf};
 
 fn scene() -> (String, Splats) {
-    let data = std::env::var_os("GSCODEC_DATA").map(PathBuf::from).unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let data =
+        std::env::var_os("GSCODEC_DATA").map(PathBuf::from).unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
     let k7000 = data.join("scenes/k7000.ply");
     if k7000.exists() {
         ("k7000".into(), read_ply(&k7000).unwrap())

@@ -5,9 +5,9 @@
 //! cameras (256×256, `views::orbit_cameras` of the original, up −y: the cameras of `gscodec eval --reference X --orbit 8`) and prints PSNR vs the original and bytes.
 
 use gscodec::io::read_ply;
-use gscodec::views::{orbit_cameras, UpAxis};
 use gscodec::metrics::psnr;
 use gscodec::rate::{self, EncodeConfig};
+use gscodec::views::{orbit_cameras, UpAxis};
 use gscodec_decoder::render::render;
 use gscodec_decoder::{decode, DecodeOptions, RenderOptions};
 
@@ -26,16 +26,36 @@ fn main() {
         let spz_bytes = std::fs::metadata(format!("{data}/spz-baseline/{spz}.spz")).expect("spz").len();
         let cams = orbit_cameras(&orig, 8, 256, 256, UpAxis::NegY.vector());
         let refs: Vec<_> = cams.iter().map(|c| render(&orig, c, &opts)).collect();
-        let score = |s: &gscodec_decoder::Splats| cams.iter().zip(&refs).map(|(c, r)| psnr(r, &render(s, c, &opts))).sum::<f64>() / cams.len() as f64;
+        let score = |s: &gscodec_decoder::Splats| {
+            cams.iter().zip(&refs).map(|(c, r)| psnr(r, &render(s, c, &opts))).sum::<f64>() / cams.len() as f64
+        };
         let spz_psnr = score(&spz_scene);
         println!("{name}: spz {spz_bytes} bytes, PSNR {spz_psnr:.2} dB");
         for &l in &lambdas {
-            let config = if std::env::var("RD").is_ok() { rate::rd::search(&orig, l, |p| if std::env::var("RD").as_deref() == Ok("v") { eprintln!("    {:?}", p) }).expect("rd").0 } else { EncodeConfig::for_lambda(l) };
+            let config = if std::env::var("RD").is_ok() {
+                rate::rd::search(&orig, l, |p| {
+                    if std::env::var("RD").as_deref() == Ok("v") {
+                        eprintln!("    {:?}", p)
+                    }
+                })
+                .expect("rd")
+                .0
+            } else {
+                EncodeConfig::for_lambda(l)
+            };
             let (bytes, report, _) = rate::encode(&orig, &config).expect("encode");
             let dec = decode(&bytes, &DecodeOptions::default()).expect("decode");
             let p = score(&dec);
-            let groups: Vec<String> = report.groups.iter().map(|g| format!("{}={:.1}", g.group, 8.0 * (g.stream_bytes + g.table_bytes) as f64 / report.gaussians.max(1) as f64)).collect();
-            let learned: Vec<String> = report.groups.iter().map(|g| format!("{}: hist {:.0} B learned {:.0} B", g.group, g.histogram_bits / 8.0, g.learned_bits / 8.0)).collect();
+            let groups: Vec<String> = report
+                .groups
+                .iter()
+                .map(|g| format!("{}={:.1}", g.group, 8.0 * (g.stream_bytes + g.table_bytes) as f64 / report.gaussians.max(1) as f64))
+                .collect();
+            let learned: Vec<String> = report
+                .groups
+                .iter()
+                .map(|g| format!("{}: hist {:.0} B learned {:.0} B", g.group, g.histogram_bits / 8.0, g.learned_bits / 8.0))
+                .collect();
             println!("    static histogram vs learned density per group: {}", learned.join("; "));
             println!(
                 "  λ={l:<6} {:>8} bytes ({:.2}x smaller than spz) PSNR {p:.2} dB  est/actual {:.4}  N={} d={}  bits/G: {}",

@@ -53,7 +53,14 @@ fn main() {
             adam.step(&mut params, &g.params, |grp| if grp == Group::Position { 1e-4 } else { 1e-3 });
             let t3 = Instant::now();
             let c4 = cpu_seconds();
-            for (acc, v) in t.iter_mut().zip([ft.project, ft.sort, ft.rasterize, (t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), (t3 - t2).as_secs_f64()]) {
+            for (acc, v) in t.iter_mut().zip([
+                ft.project,
+                ft.sort,
+                ft.rasterize,
+                (t1 - t0).as_secs_f64(),
+                (t2 - t1).as_secs_f64(),
+                (t3 - t2).as_secs_f64(),
+            ]) {
                 *acc += v;
             }
             for (acc, v) in cpu.iter_mut().zip([c1 - c0, c2 - c1, c3 - c2, c4 - c3]) {
@@ -69,7 +76,11 @@ fn main() {
         );
         println!(
             "{n:>6} Gaussians, CPU time: forward {:.1} ms, loss {:.1} ms, backward {:.1} ms, optimiser {:.1} ms, total {:.1} CPU-ms/iter",
-            cms[0], cms[1], cms[2], cms[3], cms.iter().sum::<f64>()
+            cms[0],
+            cms[1],
+            cms[2],
+            cms[3],
+            cms.iter().sum::<f64>()
         );
     }
 }

@@ -9,9 +9,7 @@ use gscodec::loss::wd::{self, Reference, Sigma};
 
 fn main() {
     let (h, w) = (200, 200);
-    let img = |p: f32| {
-        Tensor::<f32>::from_vec(3, h, w, (0..3 * h * w).map(|i| 0.5 + 0.3 * ((i as f32) * 0.37 + p).sin()).collect())
-    };
+    let img = |p: f32| Tensor::<f32>::from_vec(3, h, w, (0..3 * h * w).map(|i| 0.5 + 0.3 * ((i as f32) * 0.37 + p).sin()).collect());
     let (a, b) = (img(0.0), img(0.5));
     let r = Reference::new(&Pyramid.features(&a), &Sigma::Constant(4.0), h, w);
     let n = 20;

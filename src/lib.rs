@@ -8,10 +8,10 @@ pub mod io;
 pub mod loss;
 pub mod metrics;
 pub mod raster;
-pub mod train;
 pub mod rate;
 pub mod sample;
 pub mod sweep;
+pub mod train;
 pub mod views;
 
 pub use error::{Error, Result};

@@ -12,11 +12,11 @@ use crate::io::atomic::write_dir_atomic;
 use crate::io::image::write_png;
 use crate::io::{camera_spread, nerf, ply};
 use crate::{Error, Result};
+use glam::Vec3;
 use gscodec_decoder::camera::DEFAULT_ZNEAR;
 use gscodec_decoder::math::{sh_rest_coeffs, SH_C0};
 use gscodec_decoder::render::render;
 use gscodec_decoder::{Camera, RenderOptions, Splats};
-use glam::Vec3;
 use std::path::Path;
 
 /// Horizontal field of view of the sample cameras (radians).
@@ -94,7 +94,14 @@ pub fn scene(n: usize, seed: u64) -> Splats {
             let base = if check % 2 == 0 { [0.85, 0.8, 0.7] } else { [0.25, 0.3, 0.45] };
             let noise = rng.range(-0.05, 0.05);
             let ls = (cell * 0.6).ln();
-            s.push([x, y, -0.5], [ls, ls, (cell * 0.02).ln()], [1.0, 0.0, 0.0, rng.range(-0.05, 0.05)], 4.0, dc(base.map(|c| c + noise)), &zero);
+            s.push(
+                [x, y, -0.5],
+                [ls, ls, (cell * 0.02).ln()],
+                [1.0, 0.0, 0.0, rng.range(-0.05, 0.05)],
+                4.0,
+                dc(base.map(|c| c + noise)),
+                &zero,
+            );
         }
     }
     let left = n.saturating_sub(s.len());
@@ -172,7 +179,8 @@ pub fn write_sample(dir: &Path, opts: &SampleOptions, progress: &indicatif::Prog
         ply::write_ply(&tmp.join("truth.ply"), &splats)?;
         // Cameras exactly as `load_dataset` rebuilds them from the JSON just written.
         let specs = nerf::parse_transforms(&json_path)?;
-        let mut cams: Vec<Camera> = specs.iter().map(|s| s.camera(opts.width, opts.height, 1).map_err(|m| Error::failure(&json_path, m))).collect::<Result<_>>()?;
+        let mut cams: Vec<Camera> =
+            specs.iter().map(|s| s.camera(opts.width, opts.height, 1).map_err(|m| Error::failure(&json_path, m))).collect::<Result<_>>()?;
         let znear = DEFAULT_ZNEAR * camera_spread(cams.iter().map(|c| c.center()));
         cams.iter_mut().for_each(|c| c.znear = znear);
         let train = tmp.join("train");

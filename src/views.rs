@@ -1,8 +1,8 @@
 //! Camera sets for looking at a scene without a dataset (orbits for `render`, `eval`, encoding from
 //! a `.ply`).
 
-use gscodec_decoder::{Camera, Splats};
 use glam::Vec3;
+use gscodec_decoder::{Camera, Splats};
 
 /// Horizontal field of view of orbit cameras (radians, about 46°).
 pub const ORBIT_FOV_X: f32 = 0.8;

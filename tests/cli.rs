@@ -27,7 +27,8 @@ fn assert_bad(args: &[&str], needle: &str, out: &Path) {
     assert!(!out.exists(), "{args:?} left {}", out.display());
     // No temporary left beside the output either.
     let parent = out.parent().unwrap();
-    let stray: Vec<_> = std::fs::read_dir(parent).unwrap().flatten().filter(|e| e.file_name().to_string_lossy().contains(".tmp-")).collect();
+    let stray: Vec<_> =
+        std::fs::read_dir(parent).unwrap().flatten().filter(|e| e.file_name().to_string_lossy().contains(".tmp-")).collect();
     assert!(stray.is_empty(), "{args:?} left temporaries");
 }
 
@@ -50,7 +51,11 @@ fn bad_inputs_exit_2_with_one_error_line_and_no_output() {
         ("nan.ply", ply_with(|b, s| b[s + 4..s + 8].copy_from_slice(&f32::NAN.to_le_bytes())), "not finite"),
         ("zeroquat.ply", ply_with(|b, s| b[s + stride - 16..s + stride].fill(0)), "zero norm"),
         ("truncated.ply", ply_with(|b, _| b.truncate(b.len() - 100)), "truncated"),
-        ("lying.ply", ply_with(|b, _| *b = String::from_utf8_lossy(b).replacen("vertex 1000", "vertex 99999999", 1).into_bytes()), "truncated"),
+        (
+            "lying.ply",
+            ply_with(|b, _| *b = String::from_utf8_lossy(b).replacen("vertex 1000", "vertex 99999999", 1).into_bytes()),
+            "truncated",
+        ),
     ];
     for (name, bytes, msg) in &cases {
         let p = d.join(name);
@@ -132,7 +137,9 @@ fn convert_ply_round_trips_and_eval_reports_metrics() {
 
     // A different scene scores lower against the reference.
     let other = dir.path().join("other");
-    assert!(gscodec(&["sample", s(&other), "--gaussians", "300", "--views", "1", "--size", "8x8", "--seed", "3", "--quiet"]).status.success());
+    assert!(gscodec(&["sample", s(&other), "--gaussians", "300", "--views", "1", "--size", "8x8", "--seed", "3", "--quiet"])
+        .status
+        .success());
     let o = gscodec(&["eval", s(&other.join("truth.ply")), "--reference", s(&truth), "--orbit", "2", "--size", "32x32", "--json"]);
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(j["psnr"].as_f64().unwrap() < 40.0, "{j}");

@@ -69,7 +69,19 @@ fn fine_tuning_encode_writes_a_decodable_file_and_report() {
     let gsc = dir.path().join("t.gsc");
     let report = dir.path().join("r.json");
     let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
-    let o = gscodec(&["encode", input.to_str().unwrap(), "-o", gsc.to_str().unwrap(), "--iters", "3", "--lambda", "20", "--report", report.to_str().unwrap(), "--quiet"]);
+    let o = gscodec(&[
+        "encode",
+        input.to_str().unwrap(),
+        "-o",
+        gsc.to_str().unwrap(),
+        "--iters",
+        "3",
+        "--lambda",
+        "20",
+        "--report",
+        report.to_str().unwrap(),
+        "--quiet",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     let bytes = std::fs::read(&gsc).unwrap();

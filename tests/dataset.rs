@@ -1,10 +1,10 @@
 //! Dataset loading: NeRF transforms, COLMAP .bin/.txt, the shared lego-200 set.
 
+use glam::{Mat3, Quat, Vec3};
 use gscodec::decoder::{Camera, Image};
 use gscodec::io::colmap::read_model;
 use gscodec::io::image::write_png;
 use gscodec::io::{load_dataset, LoadOptions, Split};
-use glam::{Mat3, Quat, Vec3};
 use std::path::Path;
 
 mod common;
@@ -34,7 +34,12 @@ fn model() -> Model {
             (1, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 5.0], 1, "a.png"),
             (2, [0.7, 0.7, 0.1, 0.0], [1.0, 2.0, 3.0], 1, "b.png"),
         ],
-        pts: vec![(1, [0.1, 0.2, 0.3], [255, 0, 10]), (5, [-1.5, 2.25, 1e-3], [1, 2, 3]), (9, [3.0, -4.0, 5.0], [200, 100, 50]), (10, [0.0; 3], [0, 0, 0])],
+        pts: vec![
+            (1, [0.1, 0.2, 0.3], [255, 0, 10]),
+            (5, [-1.5, 2.25, 1e-3], [1, 2, 3]),
+            (9, [3.0, -4.0, 5.0], [200, 100, 50]),
+            (10, [0.0; 3], [0, 0, 0]),
+        ],
     }
 }
 
@@ -108,7 +113,11 @@ fn colmap_dir(m: &Model, bin: bool) -> tempfile::TempDir {
     for (_, _, _, _, name) in &m.imgs {
         write_png(&dir.path().join("images").join(name), &gradient(32, 24)).unwrap();
     }
-    if bin { write_bin(m, &sparse) } else { write_txt(m, &sparse) }
+    if bin {
+        write_bin(m, &sparse)
+    } else {
+        write_txt(m, &sparse)
+    }
     dir
 }
 

@@ -50,7 +50,9 @@ fn sample_scene_gpu_matches_cpu() {
 #[test]
 fn k7000_gpu_matches_cpu() {
     // `GSCODEC_DATA` overrides the data location (default ../shared/data).
-    let root = std::env::var_os("GSCODEC_DATA").map(std::path::PathBuf::from).unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let root = std::env::var_os("GSCODEC_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
     let path = root.join("scenes/k7000.ply");
     if !path.exists() {
         eprintln!("SKIP: {} not found (test data absent)", path.display());

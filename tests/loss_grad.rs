@@ -86,7 +86,8 @@ fn ssim_direct(x: &[f64], y: &[f64], w: usize, h: usize) -> f64 {
                 }
             }
             let (c1, c2) = (1e-4, 9e-4);
-            total += ((2.0 * mx * my + c1) * (2.0 * (sxy - mx * my) + c2)) / ((mx * mx + my * my + c1) * (sxx - mx * mx + syy - my * my + c2));
+            total +=
+                ((2.0 * mx * my + c1) * (2.0 * (sxy - mx * my) + c2)) / ((mx * mx + my * my + c1) * (sxx - mx * mx + syy - my * my + c2));
         }
     }
     total / (w * h) as f64

@@ -1,7 +1,7 @@
 //! `.ply` round trips and format variants.
 
-use gscodec::io::ply::{ply_bytes, read_ply, read_ply_bytes, write_ply};
 use gscodec::decoder::Splats;
+use gscodec::io::ply::{ply_bytes, read_ply, read_ply_bytes, write_ply};
 use std::path::Path;
 
 mod common;
@@ -136,7 +136,22 @@ fn channel_major_f_rest_maps_to_coefficient_major() {
 #[test]
 fn integer_and_double_properties_are_converted() {
     let mut text = String::from("ply\nformat binary_little_endian 1.0\nelement vertex 1\n");
-    for (ty, name) in [("double", "x"), ("int", "y"), ("uchar", "z"), ("short", "f_dc_0"), ("float", "f_dc_1"), ("char", "f_dc_2"), ("ushort", "opacity"), ("uint", "scale_0"), ("float", "scale_1"), ("float", "scale_2"), ("double", "rot_0"), ("float", "rot_1"), ("float", "rot_2"), ("float", "rot_3")] {
+    for (ty, name) in [
+        ("double", "x"),
+        ("int", "y"),
+        ("uchar", "z"),
+        ("short", "f_dc_0"),
+        ("float", "f_dc_1"),
+        ("char", "f_dc_2"),
+        ("ushort", "opacity"),
+        ("uint", "scale_0"),
+        ("float", "scale_1"),
+        ("float", "scale_2"),
+        ("double", "rot_0"),
+        ("float", "rot_1"),
+        ("float", "rot_2"),
+        ("float", "rot_3"),
+    ] {
         text.push_str(&format!("property {ty} {name}\n"));
     }
     text.push_str("end_header\n");

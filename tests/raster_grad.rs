@@ -92,7 +92,8 @@ fn sh_basis64(degree: u8, d: DVec3) -> [f64; 16] {
 fn oracle(p: &[f64], n: usize, sh_degree: u8, degree: u8, cam: &Camera, bg: [f64; 3], weights: &[f64]) -> f64 {
     let kall = sh_rest_coeffs(sh_degree);
     let g = group_ranges(n, kall);
-    let (pos, ls, rot, op, dc, rest) = (&p[g[0].1.clone()], &p[g[1].1.clone()], &p[g[2].1.clone()], &p[g[3].1.clone()], &p[g[4].1.clone()], &p[g[5].1.clone()]);
+    let (pos, ls, rot, op, dc, rest) =
+        (&p[g[0].1.clone()], &p[g[1].1.clone()], &p[g[2].1.clone()], &p[g[3].1.clone()], &p[g[4].1.clone()], &p[g[5].1.clone()]);
     let w_rot = cam.rotation.as_dmat3();
     let (fx, fy, cx, cy) = (cam.fx as f64, cam.fy as f64, cam.cx as f64, cam.cy as f64);
     let center = -(w_rot.transpose() * cam.translation.as_dvec3());

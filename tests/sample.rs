@@ -1,11 +1,11 @@
 //! The procedural sample: determinism, and the NeRF camera convention end to end.
 
+use glam::Vec3;
 use gscodec::decoder::render::render;
 use gscodec::decoder::{Camera, RenderOptions};
 use gscodec::io::image::to_rgb8;
 use gscodec::io::{load_dataset, read_ply, LoadOptions, Split};
 use gscodec::sample::{write_sample, SampleOptions};
-use glam::Vec3;
 use std::path::Path;
 
 fn tiny() -> std::path::PathBuf {

@@ -10,7 +10,8 @@ use std::path::{Path, PathBuf};
 
 fn data(rel: &str) -> Option<PathBuf> {
     // `GSCODEC_DATA` overrides the location (e.g. when the checkout is not beside `shared/`).
-    let root = std::env::var_os("GSCODEC_DATA").map(PathBuf::from).unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let root =
+        std::env::var_os("GSCODEC_DATA").map(PathBuf::from).unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
     let p = root.join(rel);
     if p.exists() {
         Some(p)
@@ -101,7 +102,10 @@ fn spz_round_trip_within_quantisation() {
             // log-scale bytes step 1/16
             assert!(max_abs_diff(d.log_scales.iter().flatten().copied(), s.log_scales.iter().flatten().copied()) <= 0.5 / 16.0 + 1e-5);
             // alpha byte: sigmoid within half a step of 1/255
-            assert!(max_abs_diff(d.opacity_logits.iter().map(|&o| sigmoid(o)), s.opacity_logits.iter().map(|&o| sigmoid(o))) <= 0.5 / 255.0 + 1e-5);
+            assert!(
+                max_abs_diff(d.opacity_logits.iter().map(|&o| sigmoid(o)), s.opacity_logits.iter().map(|&o| sigmoid(o)))
+                    <= 0.5 / 255.0 + 1e-5
+            );
             // colour: dc step 1/(0.15*255)
             assert!(max_abs_diff(d.sh_dc.iter().flatten().copied(), s.sh_dc.iter().flatten().copied()) <= 0.5 / (0.15 * 255.0) + 1e-4);
             // SH: band 1 bucket 8/128 (half = 1/32 plus rounding), higher bands 16/128

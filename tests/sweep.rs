@@ -115,14 +115,7 @@ fn finished_points_are_skipped() {
     for l in [0.1, 0.01] {
         write_point(&out, &fake("l1ssim", l, 1.0));
     }
-    let res = gscodec()
-        .arg("sweep")
-        .arg(&input)
-        .arg("-o")
-        .arg(&out)
-        .args(["--lambdas", "0.1,0.01", "--loss", "l1ssim"])
-        .output()
-        .unwrap();
+    let res = gscodec().arg("sweep").arg(&input).arg("-o").arg(&out).args(["--lambdas", "0.1,0.01", "--loss", "l1ssim"]).output().unwrap();
     assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
     assert!(String::from_utf8_lossy(&res.stderr).contains("2 finished point(s) kept, 0 to run"));
     assert_eq!(std::fs::read_to_string(out.join("rd.csv")).unwrap().lines().count(), 3);

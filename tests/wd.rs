@@ -163,8 +163,7 @@ fn downscaled_arrays_get_smaller_sigma_and_zero_levels_are_skipped() {
     let r = Reference::new(&feats, &Sigma::Constant(4.0), 64, 64);
     assert_eq!(feats.len(), 5);
     assert_eq!(r.active_levels(), 5);
-    let levels: Vec<Vec<usize>> =
-        r.arrays.iter().map(|a| (0..=5).filter(|&i| a.plan.weights[i].is_some()).collect()).collect();
+    let levels: Vec<Vec<usize>> = r.arrays.iter().map(|a| (0..=5).filter(|&i| a.plan.weights[i].is_some()).collect()).collect();
     assert_eq!(levels, vec![vec![2], vec![2], vec![1], vec![0], vec![0]]);
     // The skipped computation equals the full naive one with the reduced ℓ per array.
     let other = random_image::<f64>(&mut rng, 64, 64);
@@ -455,7 +454,13 @@ fn constant_images_and_flat_regions_give_finite_gradients() {
     let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid), Box::new(net)];
     for space in spaces {
         let mut d = WdDistortion::new(space);
-        for (a, b) in [(flat(0.5), flat(0.5)), (flat(0.2), flat(0.7)), (flat(0.5), textured.clone()), (half.clone(), textured.clone()), (textured.clone(), half.clone())] {
+        for (a, b) in [
+            (flat(0.5), flat(0.5)),
+            (flat(0.2), flat(0.7)),
+            (flat(0.5), textured.clone()),
+            (half.clone(), textured.clone()),
+            (textured.clone(), half.clone()),
+        ] {
             let (v, g) = d.value_and_grad(&a, &b, None);
             assert!(v.is_finite() && v >= 0.0);
             assert!(g.iter().all(|x| x.is_finite()), "non-finite gradient");
@@ -492,7 +497,6 @@ fn cached_equals_uncached_exactly() {
         assert_eq!(d.cached_views(), 0);
     }
 }
-
 
 #[test]
 fn loss_options_parse_and_fail_cleanly() {

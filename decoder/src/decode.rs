@@ -65,16 +65,20 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
         constant_channels: Vec::new(),
     };
     for s in &c.sections {
-        let name = Group::ALL
-            .into_iter()
-            .find(|g| g.params_kind() == s.kind || g.data_kind() == s.kind)
-            .map(|g| g.name())
-            .unwrap_or(match s.kind {
+        let name = Group::ALL.into_iter().find(|g| g.params_kind() == s.kind || g.data_kind() == s.kind).map(|g| g.name()).unwrap_or(
+            match s.kind {
                 INFO_KIND => "info",
                 layout::PADDING_KIND => "padding",
                 _ => "unknown",
-            });
-        info.sections.push(SectionInfo { kind: s.kind, chunk: s.chunk, optional: s.flags & bitstream::SECTION_OPTIONAL != 0, bytes: s.data.len(), name });
+            },
+        );
+        info.sections.push(SectionInfo {
+            kind: s.kind,
+            chunk: s.chunk,
+            optional: s.flags & bitstream::SECTION_OPTIONAL != 0,
+            bytes: s.data.len(),
+            name,
+        });
         if s.kind == INFO_KIND && s.data.len() == 5 {
             let mut r = ByteReader::new(s.data);
             info.input_gaussians = r.u32("info").ok();

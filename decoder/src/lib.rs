@@ -11,9 +11,9 @@
 //! * `capi` (feature `capi`) — the C ABI declared in `include/gscodec.h`.
 
 pub mod bitstream;
+pub mod camera;
 #[cfg(feature = "capi")]
 pub mod capi;
-pub mod camera;
 mod decode;
 pub mod entropy;
 pub mod math;

@@ -78,7 +78,14 @@ impl Splats {
         let mut out = Splats::new(self.sh_degree);
         for i in 0..self.len() {
             if keep(i) {
-                out.push(self.positions[i], self.log_scales[i], self.rotations[i], self.opacity_logits[i], self.sh_dc[i], &self.sh_rest[i * k3..(i + 1) * k3]);
+                out.push(
+                    self.positions[i],
+                    self.log_scales[i],
+                    self.rotations[i],
+                    self.opacity_logits[i],
+                    self.sh_dc[i],
+                    &self.sh_rest[i * k3..(i + 1) * k3],
+                );
             }
         }
         *self = out;
@@ -137,8 +144,6 @@ impl Splats {
     pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
         let mut it = self.positions.iter();
         let first = *it.next()?;
-        Some(it.fold((first, first), |(lo, hi), p| {
-            (std::array::from_fn(|a| lo[a].min(p[a])), std::array::from_fn(|a| hi[a].max(p[a])))
-        }))
+        Some(it.fold((first, first), |(lo, hi), p| (std::array::from_fn(|a| lo[a].min(p[a])), std::array::from_fn(|a| hi[a].max(p[a])))))
     }
 }

@@ -28,7 +28,10 @@ fn rust_dump(bytes: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
     out.extend_from_slice(&(s.len() as u32).to_le_bytes());
     out.extend_from_slice(&(s.sh_degree as i32).to_le_bytes());
-    let floats = s.positions.iter().flatten()
+    let floats = s
+        .positions
+        .iter()
+        .flatten()
         .chain(s.log_scales.iter().flatten())
         .chain(s.rotations.iter().flatten())
         .chain(s.opacity_logits.iter())

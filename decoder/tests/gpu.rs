@@ -58,7 +58,11 @@ fn random_scene(n: usize, degree: u8, seed: u64) -> Splats {
 fn psnr(a: &Image, b: &Image) -> f64 {
     assert_eq!((a.width, a.height), (b.width, b.height));
     let mse = a.data.iter().zip(&b.data).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / a.data.len() as f64;
-    if mse == 0.0 { f64::INFINITY } else { 10.0 * (1.0 / mse).log10() }
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (1.0 / mse).log10()
+    }
 }
 
 fn camera(w: u32, h: u32) -> Camera {
@@ -121,7 +125,14 @@ fn gpu_scan_is_an_exclusive_prefix_sum() {
         let data: Vec<u32> = (0..n).map(|_| (rng.next() * 10.0) as u32).collect();
         let got = r.debug_scan(&data).unwrap();
         let mut acc = 0;
-        let want: Vec<u32> = data.iter().map(|&v| { let o = acc; acc += v; o }).collect();
+        let want: Vec<u32> = data
+            .iter()
+            .map(|&v| {
+                let o = acc;
+                acc += v;
+                o
+            })
+            .collect();
         assert!(got == want, "scan of {n} elements differs");
     }
 }
@@ -166,6 +177,9 @@ fn gpu_frame_time_1080p() {
         let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
         let p = psnr(&cpu, &r.render(&s, &cam, &opts).unwrap());
         let pairs = gscodec_decoder::render::bin_tiles(&gscodec_decoder::render::preprocess(&s, &cam, 3), 1920, 1080).ids.len();
-        eprintln!("{n} Gaussians SH3 ({pairs} tile pairs) 1920x1080 on {}: GPU {gpu_ms:.0} ms/frame, CPU {cpu_ms:.0} ms/frame, PSNR {p:.1} dB", r.adapter_name());
+        eprintln!(
+            "{n} Gaussians SH3 ({pairs} tile pairs) 1920x1080 on {}: GPU {gpu_ms:.0} ms/frame, CPU {cpu_ms:.0} ms/frame, PSNR {p:.1} dB",
+            r.adapter_name()
+        );
     }
 }

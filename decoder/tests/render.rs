@@ -113,17 +113,17 @@ fn extreme_scene() -> Splats {
     let rest = [0.1f32; 9];
     let q = [1.0, 0.0, 0.0, 0.0];
     let cases: [([f32; 3], [f32; 3], [f32; 4], f32); 11] = [
-        ([0.0, 0.0, 0.0], [-20.0; 3], q, 2.0),                   // sub-pixel
-        ([0.2, 0.1, 0.5], [10.0; 3], q, -1.0),                   // view-filling, contains the camera
-        ([0.3, -0.2, 0.0], [0.0, -20.0, -20.0], q, 3.0),         // degenerate: a line
+        ([0.0, 0.0, 0.0], [-20.0; 3], q, 2.0),                              // sub-pixel
+        ([0.2, 0.1, 0.5], [10.0; 3], q, -1.0),                              // view-filling, contains the camera
+        ([0.3, -0.2, 0.0], [0.0, -20.0, -20.0], q, 3.0),                    // degenerate: a line
         ([-0.3, 0.2, 0.0], [-1.5, -1.5, -20.0], [0.3, 0.9, 0.1, 0.2], 3.0), // degenerate: a disc, tilted
-        ([0.0, 0.0, -4.0], [-2.0; 3], q, 2.0),                   // at the camera centre
-        ([0.0, 0.0, -3.995], [-2.0; 3], q, 2.0),                 // at the near plane
-        ([0.0, 0.0, -6.0], [-2.0; 3], q, 2.0),                   // behind the camera
-        ([0.1, 0.1, 0.2], [-2.0; 3], q, 100.0),                  // saturated opacity
-        ([-0.1, 0.1, 0.2], [-2.0; 3], q, -100.0),                // invisible
-        ([9.0, 0.0, 0.0], [-1.0; 3], q, 2.0),                    // far outside the frustum (clamp)
-        ([0.0, 0.0, 0.3], [-2.0; 3], [0.0, 0.0, 0.0, 0.0], 2.0), // zero quaternion -> identity
+        ([0.0, 0.0, -4.0], [-2.0; 3], q, 2.0),                              // at the camera centre
+        ([0.0, 0.0, -3.995], [-2.0; 3], q, 2.0),                            // at the near plane
+        ([0.0, 0.0, -6.0], [-2.0; 3], q, 2.0),                              // behind the camera
+        ([0.1, 0.1, 0.2], [-2.0; 3], q, 100.0),                             // saturated opacity
+        ([-0.1, 0.1, 0.2], [-2.0; 3], q, -100.0),                           // invisible
+        ([9.0, 0.0, 0.0], [-1.0; 3], q, 2.0),                               // far outside the frustum (clamp)
+        ([0.0, 0.0, 0.3], [-2.0; 3], [0.0, 0.0, 0.0, 0.0], 2.0),            // zero quaternion -> identity
     ];
     for (p, ls, r, o) in cases {
         s.push(p, ls, r, o, [0.4, -0.2, 0.1], &rest);

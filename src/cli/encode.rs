@@ -5,8 +5,8 @@ use std::time::Instant;
 
 use serde_json::json;
 
-use crate::views::{orbit_cameras, UpAxis};
 use crate::rate;
+use crate::views::{orbit_cameras, UpAxis};
 use crate::Error;
 use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
@@ -123,7 +123,14 @@ pub fn run(args: Args) -> crate::Result<()> {
 pub const TRAIN_LAMBDA_SCALE: f64 = 1e-3;
 
 /// Fine-tunes `scene` (or trains from the dataset at `args.input`) with the rate term.
-fn fine_tune(args: &Args, iters: usize, scene: &Splats, config: &rate::EncodeConfig, start: &Instant, series: &mut Vec<serde_json::Value>) -> crate::Result<(Splats, rate::Steps)> {
+fn fine_tune(
+    args: &Args,
+    iters: usize,
+    scene: &Splats,
+    config: &rate::EncodeConfig,
+    start: &Instant,
+    series: &mut Vec<serde_json::Value>,
+) -> crate::Result<(Splats, rate::Steps)> {
     use crate::train::{train, TrainConfig};
     let (dataset, init) = if args.input.is_dir() {
         (crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?, None)
@@ -131,7 +138,13 @@ fn fine_tune(args: &Args, iters: usize, scene: &Splats, config: &rate::EncodeCon
         let cams = orbit_cameras(scene, 24, 256, 256, UpAxis::NegY.vector());
         (crate::train::targets::render_targets(scene, &cams, [0.0; 3]), Some(scene.clone()))
     };
-    let cfg = TrainConfig { iters, densify: init.is_none(), sh_degree_max: if init.is_some() { scene.sh_degree } else { 3 }, eval_interval: (iters / 10).max(1), ..Default::default() };
+    let cfg = TrainConfig {
+        iters,
+        densify: init.is_none(),
+        sh_degree_max: if init.is_some() { scene.sh_degree } else { 3 },
+        eval_interval: (iters / 10).max(1),
+        ..Default::default()
+    };
     let term = rate::term::RateTerm::new(args.lambda * TRAIN_LAMBDA_SCALE, config.steps, config.min_opacity);
     let pb = super::progress::bar(iters as u64, "train", args.quiet);
     let (trained, _) = train(&dataset, init, &cfg, crate::loss::build_loss(&args.loss, iters, crate::loss::LossKind::Wdr)?, Some(Box::new(term)), &mut |p| {

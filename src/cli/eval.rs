@@ -110,15 +110,7 @@ pub fn run(args: Args) -> Result<()> {
         if args.per_view {
             println!("{:>6} {:>8} {:>7} {:>7} {:>7} {:>7}", "view", "psnr", "ssim", "ms_ssim", "flip", "wd");
             for (v, m) in views.iter().zip(&per_view) {
-                println!(
-                    "{:>6} {:>8.3} {:>7.4} {:>7} {:>7.4} {:>7}",
-                    v.index,
-                    m.psnr,
-                    m.ssim,
-                    opt(m.ms_ssim, 4),
-                    m.flip,
-                    opt(m.wd, 4)
-                );
+                println!("{:>6} {:>8.3} {:>7.4} {:>7} {:>7.4} {:>7}", v.index, m.psnr, m.ssim, opt(m.ms_ssim, 4), m.flip, opt(m.wd, 4));
             }
         }
         println!("psnr       {:.3} dB", mean.psnr);

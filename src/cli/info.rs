@@ -34,7 +34,11 @@ pub fn run(args: Args) -> crate::Result<()> {
         }
     }
     if args.json {
-        let sections: Vec<_> = info.sections.iter().map(|s| json!({"kind": s.kind, "chunk": s.chunk, "name": s.name, "optional": s.optional, "bytes": s.bytes})).collect();
+        let sections: Vec<_> = info
+            .sections
+            .iter()
+            .map(|s| json!({"kind": s.kind, "chunk": s.chunk, "name": s.name, "optional": s.optional, "bytes": s.bytes}))
+            .collect();
         let v = json!({
             "version": format!("{}.{}", h.version_major, h.version_minor),
             "gaussians": h.gaussians,

@@ -2,16 +2,16 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod convert;
 pub mod decode;
 pub mod encode;
-pub mod info;
-pub mod convert;
 pub mod eval;
+pub mod info;
 pub mod progress;
 pub mod render;
 pub mod sample;
-pub mod train;
 pub mod sweep;
+pub mod train;
 
 /// gscodec: rate-distortion trained compression of 3D Gaussian Splatting scenes.
 #[derive(Debug, Parser)]

@@ -65,7 +65,8 @@ pub enum Backend {
 
 /// Parses `r,g,b` with finite components in [0,1].
 pub fn parse_rgb(s: &str) -> std::result::Result<[f32; 3], String> {
-    let v: Vec<f32> = s.split(',').map(|t| t.trim().parse::<f32>()).collect::<std::result::Result<_, _>>().map_err(|_| format!("`{s}` is not r,g,b"))?;
+    let v: Vec<f32> =
+        s.split(',').map(|t| t.trim().parse::<f32>()).collect::<std::result::Result<_, _>>().map_err(|_| format!("`{s}` is not r,g,b"))?;
     match v.as_slice() {
         &[r, g, b] if v.iter().all(|x| (0.0..=1.0).contains(x)) => Ok([r, g, b]),
         _ => Err(format!("`{s}` must be three numbers in [0,1], e.g. 1,1,1")),

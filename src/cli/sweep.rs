@@ -122,12 +122,13 @@ pub fn run(args: Args) -> Result<()> {
 fn emit_jobs(file: &Path, exe: &Path, plan: &Plan, args: &Args) -> Result<()> {
     use crate::io::atomic::write_bytes_atomic;
     let lines = jobs::command_lines(exe, plan, &plan.points());
-    let collect = [exe.display().to_string(), "sweep".into(), plan.input.display().to_string(), "-o".into(), plan.out.display().to_string()]
-        .into_iter()
-        .chain(["--collect".into(), plan.out.display().to_string()])
-        .map(|w| jobs::shell_quote(&w))
-        .collect::<Vec<_>>()
-        .join(" ");
+    let collect =
+        [exe.display().to_string(), "sweep".into(), plan.input.display().to_string(), "-o".into(), plan.out.display().to_string()]
+            .into_iter()
+            .chain(["--collect".into(), plan.out.display().to_string()])
+            .map(|w| jobs::shell_quote(&w))
+            .collect::<Vec<_>>()
+            .join(" ");
     write_bytes_atomic(file, jobs::slurm_script(&lines, &plan.out, &collect).as_bytes())?;
     #[cfg(unix)]
     {

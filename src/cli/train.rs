@@ -76,7 +76,14 @@ pub fn run(args: Args) -> Result<()> {
         if p.test_psnr.is_some() {
             last_psnr = p.test_psnr;
             if log_lines {
-                eprintln!("iteration {}/{}: loss {:.4}, {} Gaussians, held-out PSNR {:.2} dB", p.iteration, p.iters, p.loss, p.gaussians, p.test_psnr.unwrap_or(0.0));
+                eprintln!(
+                    "iteration {}/{}: loss {:.4}, {} Gaussians, held-out PSNR {:.2} dB",
+                    p.iteration,
+                    p.iters,
+                    p.loss,
+                    p.gaussians,
+                    p.test_psnr.unwrap_or(0.0)
+                );
             }
         }
         pb.set_position(p.iteration as u64);

@@ -11,8 +11,8 @@
 use super::image::{downscale, load_image};
 use super::{Dataset, Frame, LoadOptions};
 use crate::{Error, Result};
-use gscodec_decoder::Camera;
 use glam::{Mat3, Quat, Vec3};
+use gscodec_decoder::Camera;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -74,7 +74,11 @@ pub fn find_sparse(dir: &Path) -> Option<PathBuf> {
 pub fn read_model(sparse: &Path) -> Result<ColmapModel> {
     let pick = |stem: &str| {
         let bin = sparse.join(format!("{stem}.bin"));
-        if bin.is_file() { (bin, true) } else { (sparse.join(format!("{stem}.txt")), false) }
+        if bin.is_file() {
+            (bin, true)
+        } else {
+            (sparse.join(format!("{stem}.txt")), false)
+        }
     };
     let (p, bin) = pick("cameras");
     let cameras = if bin { read_cameras_bin(&p) } else { read_cameras_txt(&p) }?;
@@ -86,7 +90,13 @@ pub fn read_model(sparse: &Path) -> Result<ColmapModel> {
         }
     }
     let (p, bin) = pick("points3D");
-    let points = if !p.exists() { Vec::new() } else if bin { read_points_bin(&p)? } else { read_points_txt(&p)? };
+    let points = if !p.exists() {
+        Vec::new()
+    } else if bin {
+        read_points_bin(&p)?
+    } else {
+        read_points_txt(&p)?
+    };
     Ok(ColmapModel { cameras, images, points })
 }
 
@@ -211,7 +221,11 @@ impl<'a> Bin<'a> {
 }
 
 fn check_finite(path: &Path, what: &str, v: &[f64]) -> Result<()> {
-    if v.iter().all(|x| x.is_finite()) { Ok(()) } else { Err(Error::input(path, format!("{what}: non-finite value in {v:?}"))) }
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(Error::input(path, format!("{what}: non-finite value in {v:?}")))
+    }
 }
 
 fn read_cameras_bin(path: &Path) -> Result<HashMap<u32, ColmapCamera>> {
@@ -221,7 +235,8 @@ fn read_cameras_bin(path: &Path) -> Result<HashMap<u32, ColmapCamera>> {
     for _ in 0..n {
         let id = b.i32()? as u32;
         let model_id = b.i32()?;
-        let &(_, name, np) = MODELS.iter().find(|m| m.0 == model_id).ok_or_else(|| b.bad(format!("camera {id}: unknown model id {model_id}")))?;
+        let &(_, name, np) =
+            MODELS.iter().find(|m| m.0 == model_id).ok_or_else(|| b.bad(format!("camera {id}: unknown model id {model_id}")))?;
         let (width, height) = (b.u64()?, b.u64()?);
         let params = (0..np).map(|_| b.f64()).collect::<Result<Vec<_>>>()?;
         check_finite(path, &format!("camera {id}"), &params)?;
@@ -295,7 +310,8 @@ fn read_cameras_txt(path: &Path) -> Result<HashMap<u32, ColmapCamera>> {
         let Some(first) = t.next() else { continue };
         let id: u32 = parse(path, ln, Some(first))?;
         let model: String = parse(path, ln, t.next())?;
-        let np = MODELS.iter().find(|m| m.1 == model).ok_or_else(|| Error::input(path, format!("line {ln}: unknown camera model `{model}`")))?.2;
+        let np =
+            MODELS.iter().find(|m| m.1 == model).ok_or_else(|| Error::input(path, format!("line {ln}: unknown camera model `{model}`")))?.2;
         let (width, height) = (parse(path, ln, t.next())?, parse(path, ln, t.next())?);
         let params = (0..np).map(|_| parse(path, ln, t.next())).collect::<Result<Vec<f64>>>()?;
         check_finite(path, &format!("line {ln}"), &params)?;

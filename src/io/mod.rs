@@ -84,5 +84,9 @@ pub fn camera_spread(centres: impl Iterator<Item = glam::Vec3>) -> f32 {
     let mut d: Vec<f32> = centres.iter().map(|c| c.distance(mean)).collect();
     d.sort_by(f32::total_cmp);
     let m = d[d.len() / 2];
-    if m.is_finite() && m > 0.0 { m } else { 1.0 }
+    if m.is_finite() && m > 0.0 {
+        m
+    } else {
+        1.0
+    }
 }

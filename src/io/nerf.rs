@@ -26,11 +26,8 @@ pub fn load_nerf(train: &Path, test: Option<&Path>, opts: &LoadOptions) -> Resul
         specs.extend(parse_transforms(test)?);
     }
     let total = specs.len();
-    let loaded: Vec<Option<Frame>> = specs
-        .into_par_iter()
-        .enumerate()
-        .map(|(index, spec)| spec.load(index, opts))
-        .collect::<Result<_>>()?;
+    let loaded: Vec<Option<Frame>> =
+        specs.into_par_iter().enumerate().map(|(index, spec)| spec.load(index, opts)).collect::<Result<_>>()?;
     let missing = loaded.iter().filter(|f| f.is_none()).count();
     if missing == total {
         return Err(Error::input(train, format!("none of the {total} frames' image files exist")));
@@ -105,7 +102,8 @@ pub(crate) fn parse_transforms(path: &Path) -> Result<Vec<FrameSpec>> {
                 return Err(badf("no focal length (`camera_angle_x` or `fl_x`)".into()));
             }
             let file = f.get("file_path").and_then(Value::as_str).ok_or_else(|| badf("no `file_path` string".into()))?;
-            let c2w = parse_matrix(f.get("transform_matrix")).ok_or_else(|| badf("`transform_matrix` must be a 4x4 (or 3x4) array of finite numbers".into()))?;
+            let c2w = parse_matrix(f.get("transform_matrix"))
+                .ok_or_else(|| badf("`transform_matrix` must be a 4x4 (or 3x4) array of finite numbers".into()))?;
             Ok(FrameSpec { json: path.to_path_buf(), image: find_image(&dir.join(file)), c2w, intr })
         })
         .collect()
@@ -146,7 +144,8 @@ impl FrameSpec {
         let Some(path) = &self.image else { return Ok(None) };
         let full = load_image(path, NERF_BACKGROUND)?;
         let image = downscale(&full, opts.downscale);
-        let camera = self.camera(full.width, full.height, opts.downscale).map_err(|m| Error::input(&self.json, format!("frame {index}: {m}")))?;
+        let camera =
+            self.camera(full.width, full.height, opts.downscale).map_err(|m| Error::input(&self.json, format!("frame {index}: {m}")))?;
         let camera = gscodec_decoder::Camera { width: image.width, height: image.height, ..camera };
         let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
         Ok(Some(Frame { index, name, camera, image }))

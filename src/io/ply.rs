@@ -141,7 +141,11 @@ impl ScalarType {
         macro_rules! num {
             ($t:ty, $n:expr) => {{
                 let a: [u8; $n] = b[..$n].try_into().unwrap();
-                if big { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }
+                if big {
+                    <$t>::from_be_bytes(a)
+                } else {
+                    <$t>::from_le_bytes(a)
+                }
             }};
         }
         match self {
@@ -255,7 +259,8 @@ fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
 // Property layout: where each vertex property goes in a flat per-Gaussian record.
 
 /// Record slots: 0..3 position, 3..6 f_dc, 6 opacity, 7..10 scale, 10..14 rot, 14.. f_rest (file order).
-const FIXED: [&str; 14] = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"];
+const FIXED: [&str; 14] =
+    ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"];
 
 struct Layout {
     degree: u8,
@@ -339,14 +344,21 @@ fn read_binary(body: &[u8], h: &Header, l: &Layout) -> std::result::Result<Vec<f
     let mut offset = 0usize;
     for e in &h.elements[..h.vertex] {
         let size: usize = e.props.as_ref().unwrap().iter().map(|(_, t)| t.size()).sum();
-        offset = e.count.checked_mul(size).and_then(|b| b.checked_add(offset)).filter(|&o| o <= body.len()).ok_or_else(|| {
-            format!("truncated: element `{}` needs more bytes than the file has", e.name)
-        })?;
+        offset = e
+            .count
+            .checked_mul(size)
+            .and_then(|b| b.checked_add(offset))
+            .filter(|&o| o <= body.len())
+            .ok_or_else(|| format!("truncated: element `{}` needs more bytes than the file has", e.name))?;
     }
     let n = h.elements[h.vertex].count;
     let avail = body.len() - offset;
     let need = n.checked_mul(l.stride).filter(|&b| b <= avail).ok_or_else(|| {
-        format!("truncated: header declares {n} vertices of {} bytes ({} bytes) but the body has {avail}", l.stride, n as u128 * l.stride as u128)
+        format!(
+            "truncated: header declares {n} vertices of {} bytes ({} bytes) but the body has {avail}",
+            l.stride,
+            n as u128 * l.stride as u128
+        )
     })?;
     let rest_after = avail - need;
     let later = &h.elements[h.vertex + 1..];

@@ -167,7 +167,10 @@ pub fn decode_spz(bytes: &[u8]) -> Result<Splats, String> {
         if num_streams != expected_streams && num_streams != 6 {
             return Err(format!("{num_streams} streams, expected {expected_streams}"));
         }
-        let toc_end = toc.checked_add(num_streams * 16).filter(|&e| e <= bytes.len() && toc >= 32).ok_or("table of contents lies outside the file")?;
+        let toc_end = toc
+            .checked_add(num_streams * 16)
+            .filter(|&e| e <= bytes.len() && toc >= 32)
+            .ok_or("table of contents lies outside the file")?;
         let mut at = toc_end as u64;
         let mut streams = Vec::with_capacity(6);
         for (s, &want) in sizes.iter().enumerate().take(num_streams) {
@@ -175,7 +178,10 @@ pub fn decode_spz(bytes: &[u8]) -> Result<Splats, String> {
             if uncomp != want {
                 return Err(format!("stream {s} holds {uncomp} bytes, {want} expected for {} Gaussians", h.num_points));
             }
-            let end = at.checked_add(comp).filter(|&e| e <= bytes.len() as u64).ok_or_else(|| format!("stream {s} runs past the end of the file"))?;
+            let end = at
+                .checked_add(comp)
+                .filter(|&e| e <= bytes.len() as u64)
+                .ok_or_else(|| format!("stream {s} runs past the end of the file"))?;
             let src = &bytes[at as usize..end as usize];
             let data = if want == 0 && comp == 0 {
                 Vec::new()
@@ -329,12 +335,7 @@ fn pack(splats: &Splats, fractional_bits: u8, version: u32) -> [Vec<u8>; 6] {
             .collect()
     };
     let k = splats.rest_coeffs();
-    let sh = splats
-        .sh_rest
-        .iter()
-        .enumerate()
-        .map(|(j, &v)| quantize_sh(v, if (j / 3) % k.max(1) < 3 { 5 } else { 4 }))
-        .collect();
+    let sh = splats.sh_rest.iter().enumerate().map(|(j, &v)| quantize_sh(v, if (j / 3) % k.max(1) < 3 { 5 } else { 4 })).collect();
     [pos, alpha, color, scale, rot, sh]
 }
 
@@ -418,7 +419,12 @@ mod tests {
 
     #[test]
     fn rejects_garbage_without_panicking() {
-        for bytes in [&b""[..], b"NGSP", b"\x1f\x8b\x08\x00garbage", &[0x4e, 0x47, 0x53, 0x50, 4, 0, 0, 0, 255, 255, 255, 255, 3, 12, 0, 6, 32, 0, 0, 0]] {
+        for bytes in [
+            &b""[..],
+            b"NGSP",
+            b"\x1f\x8b\x08\x00garbage",
+            &[0x4e, 0x47, 0x53, 0x50, 4, 0, 0, 0, 255, 255, 255, 255, 3, 12, 0, 6, 32, 0, 0, 0],
+        ] {
             assert!(decode_spz(bytes).is_err());
         }
         // A valid header announcing 2^32-1 points with a tiny body must fail cleanly, not allocate.

@@ -8,9 +8,7 @@ use gscodec_decoder::Image;
 use rayon::prelude::*;
 
 /// Floating-point scalar the WD code runs in (`f32` or `f64`).
-pub trait Real:
-    num_traits::Float + num_traits::FromPrimitive + Default + Send + Sync + std::fmt::Debug + std::iter::Sum + 'static
-{
+pub trait Real: num_traits::Float + num_traits::FromPrimitive + Default + Send + Sync + std::fmt::Debug + std::iter::Sum + 'static {
     /// Converts an `f64` constant.
     fn c(x: f64) -> Self;
     /// Converts to `f64`.

@@ -218,8 +218,7 @@ pub fn distortion<T: Real>(reference: &Reference<T>, rendered: &[Tensor<T>]) -> 
 /// WD and its gradient with respect to every rendered feature array.
 pub fn distortion_and_grad<T: Real>(reference: &Reference<T>, rendered: &[Tensor<T>]) -> (f64, Vec<Tensor<T>>) {
     check(reference, rendered);
-    let parts: Vec<(f64, Tensor<T>)> =
-        reference.arrays.iter().zip(rendered).map(|(r, x)| array_value_and_grad(r, x)).collect();
+    let parts: Vec<(f64, Tensor<T>)> = reference.arrays.iter().zip(rendered).map(|(r, x)| array_value_and_grad(r, x)).collect();
     let value = parts.iter().map(|p| p.0).sum();
     (value, parts.into_iter().map(|p| p.1).collect())
 }
@@ -301,28 +300,24 @@ fn array_value_and_grad<T: Real>(r: &ArrayReference<T>, x: &Tensor<T>) -> (f64, 
             let (mr, sr) = (r.mean[k].as_ref().unwrap(), r.sd[k].as_ref().unwrap());
             let n = h * w;
             let scale = two / T::c((x.c * n) as f64);
-            gm.data
-                .par_chunks_mut(n)
-                .zip(gp.data.par_chunks_mut(n))
-                .enumerate()
-                .for_each(|(c, (gm, gp))| {
-                    for i in 0..n {
-                        let wi = wk.data[i];
-                        if wi <= T::zero() {
-                            continue;
-                        }
-                        let j = c * n + i;
-                        let (mj, vj) = (m.data[j], v.data[j]);
-                        let vc = vj.max(T::zero());
-                        let s = vc.sqrt();
-                        let g_s = scale * wi * (s - sr.data[j]);
-                        let g_vc = g_s * (T::c(0.5) / s).min(limit);
-                        // Clamp at 0: pass the gradient where inactive, or where it is negative.
-                        let g_v = if vj >= T::zero() || g_vc < T::zero() { g_vc } else { T::zero() };
-                        gm[i] = gm[i] + scale * wi * (mj - mr.data[j]) - two * mj * g_v;
-                        gp[i] = gp[i] + g_v;
+            gm.data.par_chunks_mut(n).zip(gp.data.par_chunks_mut(n)).enumerate().for_each(|(c, (gm, gp))| {
+                for i in 0..n {
+                    let wi = wk.data[i];
+                    if wi <= T::zero() {
+                        continue;
                     }
-                });
+                    let j = c * n + i;
+                    let (mj, vj) = (m.data[j], v.data[j]);
+                    let vc = vj.max(T::zero());
+                    let s = vc.sqrt();
+                    let g_s = scale * wi * (s - sr.data[j]);
+                    let g_vc = g_s * (T::c(0.5) / s).min(limit);
+                    // Clamp at 0: pass the gradient where inactive, or where it is negative.
+                    let g_v = if vj >= T::zero() || g_vc < T::zero() { g_vc } else { T::zero() };
+                    gm[i] = gm[i] + scale * wi * (mj - mr.data[j]) - two * mj * g_v;
+                    gp[i] = gp[i] + g_v;
+                }
+            });
         }
         gx = Some(gm.blur());
         gq = Some(gp.blur());

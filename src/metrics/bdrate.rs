@@ -304,10 +304,7 @@ mod tests {
     #[test]
     fn bad_curves_are_reported() {
         let a = pts(&X265.0, &X265.1);
-        assert!(matches!(
-            bd_rate(&a[..3], &a, Interpolation::Cubic),
-            Err(BdError::TooFewPoints { got: 3, need: 4, .. })
-        ));
+        assert!(matches!(bd_rate(&a[..3], &a, Interpolation::Cubic), Err(BdError::TooFewPoints { got: 3, need: 4, .. })));
         let zero = pts(&[0.0, 10.0], &[1.0, 2.0]);
         assert!(matches!(bd_rate(&zero, &a, Interpolation::Pchip), Err(BdError::InvalidPoint { .. })));
         let dup = pts(&[1.0, 10.0, 20.0], &[1.0, 2.0, 2.0]);

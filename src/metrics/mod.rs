@@ -32,5 +32,9 @@ pub fn mse(a: &Image, b: &Image) -> f64 {
 /// PSNR in dB for a peak of 1.0 (capped at 100 dB for identical images).
 pub fn psnr(a: &Image, b: &Image) -> f64 {
     let m = mse(a, b);
-    if m <= 1e-10 { 100.0 } else { -10.0 * m.log10() }
+    if m <= 1e-10 {
+        100.0
+    } else {
+        -10.0 * m.log10()
+    }
 }

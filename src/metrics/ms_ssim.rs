@@ -55,11 +55,7 @@ fn ms_ssim_plane(mut x: Vec<f64>, mut y: Vec<f64>, mut w: usize, mut h: usize) -
     for (scale, weight) in WEIGHTS.iter().enumerate() {
         let (l, cs) = luminance_cs_maps(&x, &y, w, h);
         let last = scale + 1 == WEIGHTS.len();
-        let term = if last {
-            valid_mean(l.iter().zip(&cs).map(|(l, cs)| l * cs), w, h)
-        } else {
-            valid_mean(cs.into_iter(), w, h)
-        };
+        let term = if last { valid_mean(l.iter().zip(&cs).map(|(l, cs)| l * cs), w, h) } else { valid_mean(cs.into_iter(), w, h) };
         value *= term.max(0.0).powf(*weight);
         if !last {
             let (nw, nh);
@@ -92,7 +88,11 @@ fn avg_pool2(plane: &[f64], w: usize, h: usize) -> (Vec<f64>, usize, usize) {
     let (pw, ph) = (w % 2, h % 2);
     let (ow, oh) = ((w + 2 * pw) / 2, (h + 2 * ph) / 2);
     let at = |x: isize, y: isize| {
-        if x < 0 || y < 0 || x >= w as isize || y >= h as isize { 0.0 } else { plane[y as usize * w + x as usize] }
+        if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
+            0.0
+        } else {
+            plane[y as usize * w + x as usize]
+        }
     };
     let mut out = Vec::with_capacity(ow * oh);
     for oy in 0..oh {

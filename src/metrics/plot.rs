@@ -173,7 +173,15 @@ impl Axis {
 fn nice_step(raw: f64) -> f64 {
     let p = 10f64.powf(raw.log10().floor());
     let f = raw / p;
-    p * if f <= 1.0 { 1.0 } else if f <= 2.0 { 2.0 } else if f <= 5.0 { 5.0 } else { 10.0 }
+    p * if f <= 1.0 {
+        1.0
+    } else if f <= 2.0 {
+        2.0
+    } else if f <= 5.0 {
+        5.0
+    } else {
+        10.0
+    }
 }
 
 /// Compact label for a log-axis tick: 500, 2k, 10M, 0.01.
@@ -223,19 +231,9 @@ fn draw_panel(s: &mut String, panel: &Panel, ox: f64, oy: f64, pw: f64, ph: f64)
         let _ = writeln!(s, r##"<line x1="{:.1}" y1="{y:.1}" x2="{x0:.1}" y2="{y:.1}" stroke="#333"/>"##, x0 - 4.0);
         let _ = writeln!(s, r#"<text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"#, x0 - 7.0, y + 4.0, escape(&label));
     }
-    let _ = writeln!(
-        s,
-        r##"<rect x="{x0:.1}" y="{y1:.1}" width="{:.1}" height="{:.1}" fill="none" stroke="#333"/>"##,
-        x1 - x0,
-        y0 - y1
-    );
-    let _ = writeln!(
-        s,
-        r#"<text x="{:.1}" y="{:.1}" text-anchor="middle">{}</text>"#,
-        (x0 + x1) / 2.0,
-        oy + ph - 10.0,
-        escape(&panel.x_label)
-    );
+    let _ = writeln!(s, r##"<rect x="{x0:.1}" y="{y1:.1}" width="{:.1}" height="{:.1}" fill="none" stroke="#333"/>"##, x1 - x0, y0 - y1);
+    let _ =
+        writeln!(s, r#"<text x="{:.1}" y="{:.1}" text-anchor="middle">{}</text>"#, (x0 + x1) / 2.0, oy + ph - 10.0, escape(&panel.x_label));
     let (lx, ly) = (ox + 16.0, (y0 + y1) / 2.0);
     let _ = writeln!(
         s,
@@ -244,12 +242,8 @@ fn draw_panel(s: &mut String, panel: &Panel, ox: f64, oy: f64, pw: f64, ph: f64)
     );
 
     if points().next().is_none() {
-        let _ = writeln!(
-            s,
-            r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" fill="#888">no data</text>"##,
-            (x0 + x1) / 2.0,
-            (y0 + y1) / 2.0
-        );
+        let _ =
+            writeln!(s, r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" fill="#888">no data</text>"##, (x0 + x1) / 2.0, (y0 + y1) / 2.0);
     }
     for (i, se) in panel.series.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
@@ -280,7 +274,8 @@ fn draw_panel(s: &mut String, panel: &Panel, ox: f64, oy: f64, pw: f64, ph: f64)
                 }
             }
         }
-        let corners = [(x0 + 8.0, y1 + 8.0), (x1 - 8.0 - width, y1 + 8.0), (x1 - 8.0 - width, y0 - 8.0 - height), (x0 + 8.0, y0 - 8.0 - height)];
+        let corners =
+            [(x0 + 8.0, y1 + 8.0), (x1 - 8.0 - width, y1 + 8.0), (x1 - 8.0 - width, y0 - 8.0 - height), (x0 + 8.0, y0 - 8.0 - height)];
         let covered = |&(bx, by): &(f64, f64)| {
             samples.iter().filter(|(x, y)| *x >= bx - 4.0 && *x <= bx + width + 4.0 && *y >= by - 4.0 && *y <= by + height + 4.0).count()
         };

@@ -3,10 +3,10 @@
 //! quaternion normalisation, the sigmoid and the SH colour (with its clamp at 0).
 
 use super::RasterState;
-use gscodec_decoder::render::{cull_thresholds, gather_tile};
-use gscodec_decoder::math::{self, MAX_ALPHA, MIN_ALPHA, SH_C1, SH_C2, SH_C3, TILE};
-use gscodec_decoder::Splats;
 use glam::{Mat3, Vec3};
+use gscodec_decoder::math::{self, MAX_ALPHA, MIN_ALPHA, SH_C1, SH_C2, SH_C3, TILE};
+use gscodec_decoder::render::{cull_thresholds, gather_tile};
+use gscodec_decoder::Splats;
 use rayon::prelude::*;
 
 /// Gradients of a scalar loss with respect to every Gaussian parameter.
@@ -318,7 +318,9 @@ fn sh_basis_backward(degree: u8, dir: Vec3, g: &[f32; 16]) -> Vec3 {
             - c[4] * 2.0 * x * y * g[13]
             - c[5] * 2.0 * y * z * g[14]
             - c[6] * 6.0 * x * y * g[15];
-        d.z += c[1] * x * y * g[10] + c[2] * 8.0 * y * z * g[11] + c[3] * (6.0 * zz - 3.0 * xx - 3.0 * yy) * g[12]
+        d.z += c[1] * x * y * g[10]
+            + c[2] * 8.0 * y * z * g[11]
+            + c[3] * (6.0 * zz - 3.0 * xx - 3.0 * yy) * g[12]
             + c[4] * 8.0 * x * z * g[13]
             + c[5] * (xx - yy) * g[14];
     }

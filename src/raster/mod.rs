@@ -93,11 +93,6 @@ pub fn forward_timed(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Im
         });
     let t3 = Instant::now();
     let degree = opts.max_sh_degree.min(splats.sh_degree);
-    let timings = ForwardTimings {
-        project: (t1 - t0).as_secs_f64(),
-        sort: (t2 - t1).as_secs_f64(),
-        rasterize: (t3 - t2).as_secs_f64(),
-    };
+    let timings = ForwardTimings { project: (t1 - t0).as_secs_f64(), sort: (t2 - t1).as_secs_f64(), rasterize: (t3 - t2).as_secs_f64() };
     (img, RasterState { camera: *cam, options: *opts, degree, projected, bins, final_t, n_visited }, timings)
 }
-

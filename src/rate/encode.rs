@@ -5,7 +5,9 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use gscodec_decoder::bitstream::layout::{chunk_count, Group, CHUNK, INFO_KIND, PADDING_KIND};
-use gscodec_decoder::bitstream::{self, ByteWriter, Header, Section, MAX_GAUSSIANS_PER_BYTE, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MINOR};
+use gscodec_decoder::bitstream::{
+    self, ByteWriter, Header, Section, MAX_GAUSSIANS_PER_BYTE, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MINOR,
+};
 use gscodec_decoder::entropy::{ChannelTable, SymbolEncoder};
 
 use super::quantise::Quantised;

@@ -9,8 +9,8 @@ pub mod encode;
 pub mod model;
 pub mod quantise;
 pub mod rd;
-pub mod term;
 pub mod tables;
+pub mod term;
 
 use gscodec_decoder::{SceneError, Splats};
 
@@ -45,7 +45,11 @@ impl EncodeConfig {
     /// λ = 0 is the finest setting; a huge λ prunes everything (an empty, valid file).
     pub fn for_lambda(lambda: f64) -> EncodeConfig {
         let m = (1.0 + lambda.max(0.0)).sqrt() as f32;
-        EncodeConfig { steps: Steps::default().scaled(m), min_opacity: ((1.0 + lambda.max(0.0)) / 255.0).min(2.0) as f32, ..EncodeConfig::default() }
+        EncodeConfig {
+            steps: Steps::default().scaled(m),
+            min_opacity: ((1.0 + lambda.max(0.0)) / 255.0).min(2.0) as f32,
+            ..EncodeConfig::default()
+        }
     }
 }
 

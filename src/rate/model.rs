@@ -122,7 +122,13 @@ mod tests {
     #[test]
     fn training_lowers_bits_towards_the_entropy() {
         // Laplace-like integers with scale ≈ 2.
-        let values: Vec<f32> = (0..4000).map(|i| { let u = ((i * 7919) % 4000) as f64 / 4000.0 + 1.0 / 8000.0; let x = if u < 0.5 { 2.0 * (2.0 * u).ln() } else { -2.0 * (2.0 - 2.0 * u).ln() }; x.round() as f32 }).collect();
+        let values: Vec<f32> = (0..4000)
+            .map(|i| {
+                let u = ((i * 7919) % 4000) as f64 / 4000.0 + 1.0 / 8000.0;
+                let x = if u < 0.5 { 2.0 * (2.0 * u).ln() } else { -2.0 * (2.0 - 2.0 * u).ln() };
+                x.round() as f32
+            })
+            .collect();
         let mut m = LearnedChannel { mu: 3.0, log_b: 2.0 };
         let before = m.train(&values, 1.0, 1);
         let after = m.train(&values, 1.0, 200);

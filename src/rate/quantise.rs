@@ -27,7 +27,16 @@ pub struct Steps {
 
 impl Default for Steps {
     fn default() -> Self {
-        Steps { position_bits: None, position_rel: 0.15, scale: 0.04, rotation: 0.006, opacity: 0.08, sh_dc: 0.01, sh_rest: [0.03, 0.04, 0.05], rest_deadzone: 0.0 }
+        Steps {
+            position_bits: None,
+            position_rel: 0.15,
+            scale: 0.04,
+            rotation: 0.006,
+            opacity: 0.08,
+            sh_dc: 0.01,
+            sh_rest: [0.03, 0.04, 0.05],
+            rest_deadzone: 0.0,
+        }
     }
 }
 
@@ -145,7 +154,8 @@ pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
         let chans = (0..w).map(|j| per(&|i| q_dz(splats.sh_rest[(i * k + first) * 3 + j], s, steps.rest_deadzone))).collect();
         groups.push((Group::for_band(b), vec![s; w], chans));
     }
-    let mut out = Quantised { sh_degree: splats.sh_degree, grid: (lo, step, bits), morton: keyed.iter().map(|&(m, _)| m).collect(), groups };
+    let mut out =
+        Quantised { sh_degree: splats.sh_degree, grid: (lo, step, bits), morton: keyed.iter().map(|&(m, _)| m).collect(), groups };
     // Leave out SH bands whose coefficients all quantise to zero.
     while out.sh_degree > 0 {
         let g = Group::for_band(out.sh_degree);

@@ -53,7 +53,8 @@ impl<'a> Evaluator<'a> {
     pub fn eval_report(&self, config: &EncodeConfig) -> Result<(usize, f64, super::EncodeReport), SceneError> {
         let (bytes, report, q) = encode(self.scene, config)?;
         let dec = dequantise(&q);
-        let mse = self.cams.iter().zip(&self.refs).map(|(c, r)| crate::metrics::mse(r, &render(&dec, c, &self.opts))).sum::<f64>() / self.cams.len() as f64;
+        let mse = self.cams.iter().zip(&self.refs).map(|(c, r)| crate::metrics::mse(r, &render(&dec, c, &self.opts))).sum::<f64>()
+            / self.cams.len() as f64;
         Ok((bytes.len(), mse * 255.0 * 255.0, report))
     }
 }
@@ -145,7 +146,8 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
     }
     let base = best.1;
     let (b0, d0, r0) = ev.eval_report(&base)?;
-    let group_bytes = |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
+    let group_bytes =
+        |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
     // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
     //    (half-octave moves around the first choice), then quarter-octave moves.
     let mut chosen = base;

@@ -59,7 +59,12 @@ pub fn choose_with(values: &[i32], model: Option<&dyn Fn(i32, usize) -> Vec<f64>
             let table = FreqTable::from_weights(&weights);
             let mut w = ByteWriter::new();
             ChannelTable::write_coded(&mut w, lo, &weights);
-            let bits: f64 = counts.iter().enumerate().filter(|(_, &c)| c > 0).map(|(s, &c)| c as f64 * (table.bits(s) + if s == n { 32.0 } else { 0.0 })).sum();
+            let bits: f64 = counts
+                .iter()
+                .enumerate()
+                .filter(|(_, &c)| c > 0)
+                .map(|(s, &c)| c as f64 * (table.bits(s) + if s == n { 32.0 } else { 0.0 }))
+                .sum();
             let cand = ChosenTable { table: ChannelTable::Coded { lo, table }, bytes: w.buf, bits };
             if best.as_ref().is_none_or(|b| cand.total_bits() < b.total_bits()) {
                 best = Some(cand);

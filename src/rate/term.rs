@@ -84,7 +84,8 @@ impl RateTerm {
         let nc = Self::channel_count(params);
         let k3 = params.rest_coeffs() * 3;
         if self.models.len() != nc {
-            self.models = (0..nc).map(|c| LearnedChannel::fit_init(&(0..n).map(|i| self.value(params, c, i).0).collect::<Vec<_>>())).collect();
+            self.models =
+                (0..nc).map(|c| LearnedChannel::fit_init(&(0..n).map(|i| self.value(params, c, i).0).collect::<Vec<_>>())).collect();
         }
         let logit_min = (self.min_opacity / (1.0 - self.min_opacity).max(1e-6)).max(1e-9).ln();
         let mut total = 0.0;
@@ -139,7 +140,14 @@ mod tests {
         let mut s = Splats::new(1);
         for i in 0..50 {
             let x = i as f32 * 0.37;
-            s.push([x.sin(), x.cos(), 0.0], [-3.0 + x.sin(), -3.2, -2.9 + 0.1 * x.cos()], [1.0, 0.0, 0.0, 0.0], 1.0 + x.sin(), [0.2 * x.cos(), 0.1, -0.1], &[0.05 * x.sin(); 9]);
+            s.push(
+                [x.sin(), x.cos(), 0.0],
+                [-3.0 + x.sin(), -3.2, -2.9 + 0.1 * x.cos()],
+                [1.0, 0.0, 0.0, 0.0],
+                1.0 + x.sin(),
+                [0.2 * x.cos(), 0.1, -0.1],
+                &[0.05 * x.sin(); 9],
+            );
         }
         s
     }

@@ -10,7 +10,11 @@ use super::{Plan, Point};
 /// Quotes a word for a POSIX shell (single quotes unless it is plainly safe).
 pub fn shell_quote(word: &str) -> String {
     let safe = !word.is_empty() && word.chars().all(|c| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c));
-    if safe { word.to_string() } else { format!("'{}'", word.replace('\'', r"'\''")) }
+    if safe {
+        word.to_string()
+    } else {
+        format!("'{}'", word.replace('\'', r"'\''"))
+    }
 }
 
 /// One shell command line per point: `exe sweep … --points-only --quiet`.
@@ -18,11 +22,7 @@ pub fn command_lines(exe: &Path, plan: &Plan, points: &[Point]) -> Vec<String> {
     points
         .iter()
         .map(|p| {
-            std::iter::once(exe.display().to_string())
-                .chain(plan.point_command(p))
-                .map(|w| shell_quote(&w))
-                .collect::<Vec<_>>()
-                .join(" ")
+            std::iter::once(exe.display().to_string()).chain(plan.point_command(p)).map(|w| shell_quote(&w)).collect::<Vec<_>>().join(" ")
         })
         .collect()
 }
@@ -73,13 +73,8 @@ mod tests {
 
     #[test]
     fn script_has_one_task_per_point() {
-        let plan = Plan {
-            input: "/d/lego 200".into(),
-            out: "/o".into(),
-            lambdas: vec![0.1, 0.01],
-            losses: vec!["wdr".into()],
-            iters: None,
-        };
+        let plan =
+            Plan { input: "/d/lego 200".into(), out: "/o".into(), lambdas: vec![0.1, 0.01], losses: vec!["wdr".into()], iters: None };
         let lines = command_lines(Path::new("/bin/gscodec"), &plan, &plan.points());
         assert_eq!(lines[1], "/bin/gscodec sweep '/d/lego 200' -o /o --lambdas 0.01 --loss wdr --points-only --quiet");
         let s = slurm_script(&lines, Path::new("/o"), "gscodec sweep X -o /o --collect /o");

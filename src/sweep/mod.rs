@@ -74,10 +74,7 @@ pub struct Plan {
 impl Plan {
     /// Every point, loss-major, λ in the given order.
     pub fn points(&self) -> Vec<Point> {
-        self.losses
-            .iter()
-            .flat_map(|loss| self.lambdas.iter().map(|&lambda| Point { lambda, loss: loss.clone() }))
-            .collect()
+        self.losses.iter().flat_map(|loss| self.lambdas.iter().map(|&lambda| Point { lambda, loss: loss.clone() })).collect()
     }
 
     /// Directory holding a point's files.
@@ -143,10 +140,7 @@ impl Plan {
 /// Runs `exe` with `args`, appending its stdout/stderr to `log`; returns stdout and wall seconds.
 fn run_child(exe: &Path, args: &[String], log: &Path, what: &str) -> Result<(String, f64)> {
     let start = Instant::now();
-    let out = Command::new(exe)
-        .args(args)
-        .output()
-        .map_err(|e| Error::failure(exe, format!("cannot run {what}: {e}")))?;
+    let out = Command::new(exe).args(args).output().map_err(|e| Error::failure(exe, format!("cannot run {what}: {e}")))?;
     let secs = start.elapsed().as_secs_f64();
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     let mut text = format!("$ gscodec {}\n", args.join(" "));
@@ -246,9 +240,9 @@ pub fn point_result(p: &Point, bytes: u64, eval: &Value, encode_s: f64, decode_s
 /// `test_` / `heldout_` prefix or inside a `test` / `heldout` object). Entries without a time or
 /// without any error value are skipped.
 pub fn timeline_from_report(report: &Value) -> Vec<TimelinePoint> {
-    let arr = report.as_array().or_else(|| {
-        ["timeline", "series", "history", "evals", "points"].iter().find_map(|k| report.get(*k).and_then(Value::as_array))
-    });
+    let arr = report
+        .as_array()
+        .or_else(|| ["timeline", "series", "history", "evals", "points"].iter().find_map(|k| report.get(*k).and_then(Value::as_array)));
     let Some(arr) = arr else { return Vec::new() };
     let num = |o: &Value, keys: &[&str]| keys.iter().find_map(|k| o.get(*k).and_then(Value::as_f64));
     let metric = |o: &Value, name: &str| {
@@ -281,10 +275,10 @@ mod tests {
         assert_eq!(t[1], TimelinePoint { time_s: 3.0, psnr: Some(24.0), wd: Some(0.3) });
         let b: Value = serde_json::json!([{"wall_s": 1.0, "test": {"psnr": 21.5}}, {"elapsed_s": 2.0, "test_wd": 0.1}]);
         let t = timeline_from_report(&b);
-        assert_eq!(t, vec![
-            TimelinePoint { time_s: 1.0, psnr: Some(21.5), wd: None },
-            TimelinePoint { time_s: 2.0, psnr: None, wd: Some(0.1) }
-        ]);
+        assert_eq!(
+            t,
+            vec![TimelinePoint { time_s: 1.0, psnr: Some(21.5), wd: None }, TimelinePoint { time_s: 2.0, psnr: None, wd: Some(0.1) }]
+        );
         assert!(timeline_from_report(&serde_json::json!({"final": 1})).is_empty());
     }
 

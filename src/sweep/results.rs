@@ -197,10 +197,7 @@ pub struct BdEntry {
 
 /// The RD curve of one loss on one metric: (bytes, value) of the points having that metric.
 fn curve(rows: &[PointResult], loss: &str, metric: Metric) -> Vec<RdPoint> {
-    rows.iter()
-        .filter(|r| r.loss == loss)
-        .filter_map(|r| metric.of(r).map(|q| RdPoint { rate: r.bytes as f64, quality: q }))
-        .collect()
+    rows.iter().filter(|r| r.loss == loss).filter_map(|r| metric.of(r).map(|q| RdPoint { rate: r.bytes as f64, quality: q })).collect()
 }
 
 /// PCHIP BD-rate of every non-anchor loss against [`ANCHOR_LOSS`] on every metric.
@@ -229,12 +226,9 @@ pub fn bd_report(entries: &[BdEntry]) -> String {
     for e in entries {
         match (e.bd_rate, &e.note) {
             (Some(v), _) => s.push_str(&format!("BD-rate {} vs {ANCHOR_LOSS} on {}: {v:+.2}%\n", e.loss, e.metric)),
-            (None, note) => s.push_str(&format!(
-                "BD-rate {} vs {ANCHOR_LOSS} on {}: n/a ({})\n",
-                e.loss,
-                e.metric,
-                note.as_deref().unwrap_or("")
-            )),
+            (None, note) => {
+                s.push_str(&format!("BD-rate {} vs {ANCHOR_LOSS} on {}: n/a ({})\n", e.loss, e.metric, note.as_deref().unwrap_or("")))
+            }
         }
     }
     s

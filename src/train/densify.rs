@@ -4,8 +4,8 @@
 
 use super::adam::{zeros_like, Adam};
 use super::rng::Rng;
-use gscodec_decoder::{math, Splats};
 use glam::Vec3;
+use gscodec_decoder::{math, Splats};
 
 /// Per-Gaussian statistics gathered between densification steps.
 #[derive(Debug, Clone, Default)]
@@ -67,7 +67,13 @@ pub fn retain(params: &mut Splats, adam: &mut Adam, keep: &[bool]) {
 }
 
 /// One densify-and-prune step; returns `(cloned, split, pruned)`.
-pub fn densify_and_prune(params: &mut Splats, adam: &mut Adam, stats: &DensifyStats, p: &DensifyParams, rng: &mut Rng) -> (usize, usize, usize) {
+pub fn densify_and_prune(
+    params: &mut Splats,
+    adam: &mut Adam,
+    stats: &DensifyStats,
+    p: &DensifyParams,
+    rng: &mut Rng,
+) -> (usize, usize, usize) {
     let n = params.len();
     let grads: Vec<f32> = (0..n).map(|i| if stats.count[i] > 0 { stats.grad_accum[i] / stats.count[i] as f32 } else { 0.0 }).collect();
     let room = p.max_gaussians.saturating_sub(n);

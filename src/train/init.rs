@@ -3,8 +3,8 @@
 
 use super::rng::Rng;
 use crate::io::Dataset;
-use gscodec_decoder::{math::SH_C0, Splats};
 use glam::{Mat3, Vec3};
+use gscodec_decoder::{math::SH_C0, Splats};
 use std::collections::HashMap;
 
 /// The reference trainer's "camera extent": 1.1 × the largest distance of a camera centre from
@@ -68,7 +68,8 @@ pub fn from_points(points: &[[f32; 3]], colors: &[[f32; 3]], sh_degree: u8) -> S
 pub fn random(ds: &Dataset, n: usize, sh_degree: u8, rng: &mut Rng) -> Splats {
     let half = 0.3 * camera_extent(ds);
     let c = look_at_point(ds);
-    let pts: Vec<[f32; 3]> = (0..n).map(|_| (c + Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * (2.0 * half) - half).to_array()).collect();
+    let pts: Vec<[f32; 3]> =
+        (0..n).map(|_| (c + Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * (2.0 * half) - half).to_array()).collect();
     let cols: Vec<[f32; 3]> = (0..n).map(|_| [rng.uniform(), rng.uniform(), rng.uniform()]).collect();
     from_points(&pts, &cols, sh_degree)
 }

@@ -322,7 +322,13 @@ pub fn train(
         let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
         let test_psnr = if eval_now { evaluate(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
         if it % log_every == 0 || eval_now || it == cfg.iters {
-            points.push(ReportPoint { iteration: it, seconds: train_seconds, loss: loss_sum / loss_n as f64, gaussians: params.len(), test_psnr });
+            points.push(ReportPoint {
+                iteration: it,
+                seconds: train_seconds,
+                loss: loss_sum / loss_n as f64,
+                gaussians: params.len(),
+                test_psnr,
+            });
             (loss_sum, loss_n) = (0.0, 0);
         }
         progress(&Progress { iteration: it, iters: cfg.iters, loss: l, gaussians: params.len(), test_psnr });

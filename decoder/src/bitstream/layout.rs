@@ -20,7 +20,8 @@ pub enum Group {
 }
 
 impl Group {
-    pub const ALL: [Group; 8] = [Group::Position, Group::Scale, Group::Rotation, Group::Opacity, Group::ShDc, Group::Sh1, Group::Sh2, Group::Sh3];
+    pub const ALL: [Group; 8] =
+        [Group::Position, Group::Scale, Group::Rotation, Group::Opacity, Group::ShDc, Group::Sh1, Group::Sh2, Group::Sh3];
 
     /// Section kind of this group's parameter (tables + steps) section.
     pub fn params_kind(self) -> u16 {

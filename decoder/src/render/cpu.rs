@@ -78,10 +78,8 @@ pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
     let (tiles_x, tiles_y) = (width.div_ceil(TILE), height.div_ceil(TILE));
     let n_tiles = (tiles_x * tiles_y) as usize;
     // Counting pass, then scatter: memory is exactly the number of tile overlaps.
-    let rects: Vec<[u32; 4]> = proj
-        .par_iter()
-        .map(|p| if p.radius > 0.0 { math::tile_rect(p.mean, p.radius, width, height) } else { [0; 4] })
-        .collect();
+    let rects: Vec<[u32; 4]> =
+        proj.par_iter().map(|p| if p.radius > 0.0 { math::tile_rect(p.mean, p.radius, width, height) } else { [0; 4] }).collect();
     // A Gaussian is listed in a tile only if it can reach alpha >= 1/255 at one of its pixels.
     let reaches = |p: &Projected, tx: u32, ty: u32| {
         let (x0, y0) = (tx * TILE, ty * TILE);
@@ -154,7 +152,14 @@ pub fn gather_tile(proj: &[Projected], cull: &[f32], ids: &[u32], out: &mut Vec<
     out.clear();
     out.extend(ids.iter().map(|&g| {
         let p = &proj[g as usize];
-        TileGaussian { mx: p.mean[0] - 0.5, my: p.mean[1] - 0.5, conic: p.conic, opacity: p.opacity, cull: cull[g as usize], color: p.color }
+        TileGaussian {
+            mx: p.mean[0] - 0.5,
+            my: p.mean[1] - 0.5,
+            conic: p.conic,
+            opacity: p.opacity,
+            cull: cull[g as usize],
+            color: p.color,
+        }
     }));
 }
 

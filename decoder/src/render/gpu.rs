@@ -222,7 +222,11 @@ impl GpuRenderer {
     fn bind(&self, pipeline: &wgpu::ComputePipeline, buffers: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
         let entries: Vec<wgpu::BindGroupEntry> =
             buffers.iter().map(|&(binding, b)| wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }).collect();
-        self.device.create_bind_group(&wgpu::BindGroupDescriptor { label: None, layout: &pipeline.get_bind_group_layout(0), entries: &entries })
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
     }
 
     fn dispatch(enc: &mut wgpu::CommandEncoder, pipeline: &wgpu::ComputePipeline, bg: &wgpu::BindGroup, groups: (u32, u32)) {
@@ -248,7 +252,14 @@ impl GpuRenderer {
 
     /// Records a stable sort of `pairs` (tile, depth, id) triples in `a` by (tile, depth), using
     /// `b` as scratch; the result ends up in `a`.
-    fn record_radix_sort(&self, enc: &mut wgpu::CommandEncoder, a: &mut [wgpu::Buffer; 3], b: &mut [wgpu::Buffer; 3], pairs: u32, tile_bits: u32) {
+    fn record_radix_sort(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        a: &mut [wgpu::Buffer; 3],
+        b: &mut [wgpu::Buffer; 3],
+        pairs: u32,
+        tile_bits: u32,
+    ) {
         let blocks = pairs.div_ceil(SORT_BLOCK);
         let hist = self.storage("radix counts", blocks as u64 * 16 * 4);
         let passes = (0..8).map(|p| (0u32, 4 * p)).chain((0..tile_bits.div_ceil(4)).map(|p| (1u32, 4 * p)));

@@ -71,11 +71,7 @@ impl<T: Real> Vgg16<T> {
             if t.shape().len() != shape_len {
                 return Err(format!("tensor `{name}` has shape {:?}", t.shape()));
             }
-            let vals = t
-                .data()
-                .chunks_exact(4)
-                .map(|b| T::c(f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64))
-                .collect::<Vec<T>>();
+            let vals = t.data().chunks_exact(4).map(|b| T::c(f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64)).collect::<Vec<T>>();
             if vals.iter().any(|v| !v.is_finite()) {
                 return Err(format!("tensor `{name}` holds NaN or infinite values"));
             }
@@ -161,7 +157,18 @@ fn conv_forward<T: Real>(conv: &Conv<T>, x: &Tensor<T>) -> Tensor<T> {
             let mut o = vec![T::zero(); conv.cout * n];
             // SAFETY: all three matrices are dense row-major views of the vectors above.
             unsafe {
-                T::gemm(conv.cout, k, n, conv.weight.as_ptr(), (k as isize, 1), cols.as_ptr(), (n as isize, 1), false, o.as_mut_ptr(), (n as isize, 1));
+                T::gemm(
+                    conv.cout,
+                    k,
+                    n,
+                    conv.weight.as_ptr(),
+                    (k as isize, 1),
+                    cols.as_ptr(),
+                    (n as isize, 1),
+                    false,
+                    o.as_mut_ptr(),
+                    (n as isize, 1),
+                );
             }
             o
         })
@@ -194,7 +201,18 @@ fn conv_backward<T: Real>(conv: &Conv<T>, y: &Tensor<T>, gy: &Tensor<T>) -> Tens
             let mut gcols = vec![T::zero(); k * n];
             // gcols[k×n] = Wᵀ[k×cout] · gpre[cout × (p0..p1)] (row stride np).
             unsafe {
-                T::gemm(k, conv.cout, n, conv.weight.as_ptr(), (1, k as isize), gpre.as_ptr().add(p0), (np as isize, 1), false, gcols.as_mut_ptr(), (n as isize, 1));
+                T::gemm(
+                    k,
+                    conv.cout,
+                    n,
+                    conv.weight.as_ptr(),
+                    (1, k as isize),
+                    gpre.as_ptr().add(p0),
+                    (np as isize, 1),
+                    false,
+                    gcols.as_mut_ptr(),
+                    (n as isize, 1),
+                );
             }
             gcols
         })
