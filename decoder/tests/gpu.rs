@@ -2,8 +2,10 @@
 //! lavapipe (`apt-get install mesa-vulkan-drivers`); prints a skip message when none exists.
 #![cfg(feature = "gpu")]
 
+mod common;
+
+use common::{random_scene, Rng};
 use glam::Vec3;
-use gscodec_decoder::math::sh_rest_coeffs;
 use gscodec_decoder::render::gpu::{GpuError, GpuRenderer};
 use gscodec_decoder::render::render;
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
@@ -27,34 +29,6 @@ fn renderer() -> Option<&'static GpuRenderer> {
     .as_ref()
 }
 
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f32 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        ((self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32) / (1u64 << 24) as f32
-    }
-    fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.next()
-    }
-}
-
-fn random_scene(n: usize, degree: u8, seed: u64) -> Splats {
-    let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-    let mut s = Splats::new(degree);
-    let k = sh_rest_coeffs(degree) * 3;
-    for _ in 0..n {
-        let pos = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
-        let ls = [rng.range(-4.5, -1.5), rng.range(-4.5, -1.5), rng.range(-4.5, -1.5)];
-        let rot = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
-        let dc = [rng.range(-1.5, 1.5), rng.range(-1.5, 1.5), rng.range(-1.5, 1.5)];
-        let rest: Vec<f32> = (0..k).map(|_| rng.range(-0.3, 0.3)).collect();
-        s.push(pos, ls, rot, rng.range(-3.0, 4.0), dc, &rest);
-    }
-    s
-}
-
 fn psnr(a: &Image, b: &Image) -> f64 {
     assert_eq!((a.width, a.height), (b.width, b.height));
     let mse = a.data.iter().zip(&b.data).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / a.data.len() as f64;
@@ -72,7 +46,7 @@ fn camera(w: u32, h: u32) -> Camera {
 #[test]
 fn gpu_matches_cpu_on_random_sh3_scene() {
     let Some(r) = renderer() else { return };
-    let s = random_scene(3000, 3, 7);
+    let s = random_scene(3000, 3, 7, -4.5);
     // Odd size: partial tiles on the right and bottom edges.
     let cam = camera(157, 101);
     for opts in [RenderOptions::default(), RenderOptions { background: [1.0, 0.5, 0.0], max_sh_degree: 1 }] {
@@ -91,7 +65,7 @@ fn gpu_sorts_many_overlaps_and_equal_depths() {
     let Some(r) = renderer() else { return };
     // Many Gaussians at exactly the same depth and overlapping tiles: ties must break by index
     // (stable sort), as on the CPU.
-    let mut s = random_scene(2500, 0, 3);
+    let mut s = random_scene(2500, 0, 3, -4.5);
     for i in (1..s.len()).step_by(2) {
         s.positions[i] = s.positions[i - 1];
     }
@@ -110,7 +84,7 @@ fn gpu_empty_and_fully_culled_scenes_give_the_background() {
     let img = r.render(&Splats::new(3), &cam, &opts).unwrap();
     assert_eq!(img, Image::filled(40, 30, opts.background));
     // Everything behind the camera.
-    let mut s = random_scene(50, 2, 1);
+    let mut s = random_scene(50, 2, 1, -4.5);
     for p in &mut s.positions {
         *p = [p[0], p[1], p[2] - 10.0];
     }
@@ -160,7 +134,7 @@ fn gpu_frame_time_1080p() {
     let cam = camera(1920, 1080);
     let opts = RenderOptions::default();
     for n in [100_000usize, 1_000_000] {
-        let mut s = random_scene(n, 3, 11);
+        let mut s = random_scene(n, 3, 11, -4.5);
         // Trained scenes have many small Gaussians: shrink them (more for the denser scene) so the
         // number of (tile, Gaussian) pairs stays realistic (a few per Gaussian).
         let shrink = 1.5 + (n as f32 / 100_000.0).log10() * 0.5;

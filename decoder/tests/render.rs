@@ -1,39 +1,13 @@
 //! CPU renderer: analytic cases and the f32 tile renderer against the f64 brute-force reference,
 //! including the extreme Gaussians of DESIGN §8.
 
+mod common;
+
+use common::random_scene;
 use glam::{Mat3, Vec3};
-use gscodec_decoder::math::{sh_rest_coeffs, SH_C0};
+use gscodec_decoder::math::SH_C0;
 use gscodec_decoder::render::{reference::render_f64, render};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
-
-/// Small deterministic PRNG (xorshift64*), uniform in [0,1).
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f32 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        ((self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32) / (1u64 << 24) as f32
-    }
-    fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.next()
-    }
-}
-
-fn random_scene(n: usize, degree: u8, seed: u64) -> Splats {
-    let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-    let mut s = Splats::new(degree);
-    let k = sh_rest_coeffs(degree) * 3;
-    for _ in 0..n {
-        let pos = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
-        let ls = [rng.range(-4.0, -1.5), rng.range(-4.0, -1.5), rng.range(-4.0, -1.5)];
-        let rot = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
-        let dc = [rng.range(-1.5, 1.5), rng.range(-1.5, 1.5), rng.range(-1.5, 1.5)];
-        let rest: Vec<f32> = (0..k).map(|_| rng.range(-0.3, 0.3)).collect();
-        s.push(pos, ls, rot, rng.range(-3.0, 4.0), dc, &rest);
-    }
-    s
-}
 
 fn front_camera(w: u32, h: u32) -> Camera {
     Camera::look_at(Vec3::new(0.3, -0.4, -3.5), Vec3::ZERO, Vec3::new(0.0, -1.0, 0.0), w, h, 0.9)
@@ -85,7 +59,7 @@ fn background_shows_through_by_transmittance() {
 
 #[test]
 fn f32_matches_f64_reference_on_random_sh3_scene() {
-    let s = random_scene(600, 3, 7);
+    let s = random_scene(600, 3, 7, -4.0);
     let cam = front_camera(80, 60);
     let opts = RenderOptions { background: [0.1, 0.2, 0.3], ..Default::default() };
     let (a, b) = (render(&s, &cam, &opts), render_f64(&s, &cam, &opts));
@@ -99,7 +73,7 @@ fn f32_matches_f64_reference_on_random_sh3_scene() {
 
 #[test]
 fn max_sh_degree_option_ignores_higher_bands() {
-    let s = random_scene(200, 3, 11);
+    let s = random_scene(200, 3, 11, -4.0);
     let cam = front_camera(48, 48);
     let low = RenderOptions { max_sh_degree: 1, ..Default::default() };
     let a = render(&s, &cam, &low);
@@ -166,7 +140,7 @@ fn empty_scene_renders_background() {
 
 #[test]
 fn render_is_deterministic_across_thread_counts() {
-    let s = random_scene(2000, 2, 3);
+    let s = random_scene(2000, 2, 3, -4.0);
     let cam = front_camera(96, 96);
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     let four = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
