@@ -216,7 +216,7 @@ pub fn prune_footprint(splats: &Splats, min_footprint: f32) -> Splats {
     out
 }
 
-/// The scene a decoder will restore from `q` (same formulas as the decoder, SPEC §7).
+/// The scene a decoder will restore from `q` (same formulas as the decoder, SPEC §8).
 pub fn dequantise(q: &Quantised) -> Splats {
     let mut s = Splats::new(q.sh_degree);
     let (origin, step, bits) = q.grid;

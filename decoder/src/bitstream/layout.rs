@@ -1,5 +1,5 @@
 //! What the sections of a `.gsc` file hold: attribute groups, their channels, chunking, the
-//! Morton ordering of positions and the dequantisation formulas (SPEC §4, §7).
+//! Morton ordering of positions and the dequantisation formulas (SPEC §6, §8).
 
 /// Gaussians are coded in chunks of this many; each (group, chunk) is an independent stream.
 pub const CHUNK: usize = 1 << 16;

@@ -25,7 +25,7 @@ pub const VERSION_MAJOR: u8 = 1;
 pub const VERSION_MINOR: u8 = 0;
 /// Section flag: a reader that does not know this section kind may skip it.
 pub const SECTION_OPTIONAL: u32 = 1;
-/// Hard limits (see SPEC §8).
+/// Hard limits (see SPEC §9).
 pub const MAX_SECTIONS: usize = 4096;
 pub const MAX_GAUSSIANS: u32 = 1 << 26;
 /// A file may hold at most this many Gaussians per byte of file (1 bit per Gaussian).

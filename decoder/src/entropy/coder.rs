@@ -1,6 +1,6 @@
 //! Symbol streams: constriction's queue range coder (`u32` words, `u64` state, 16-bit
 //! probabilities) with our integer tables as its models. The decoder reads untrusted words
-//! through a bounds-checked backend; no call can panic on garbage (SPEC §6).
+//! through a bounds-checked backend; no call can panic on garbage (SPEC §5, §9).
 
 use std::cell::Cell;
 use std::num::NonZeroU32;

@@ -2,7 +2,7 @@
 //!
 //! Every probability the decoder uses comes from a [`FreqTable`]: 16-bit fixed-point
 //! frequencies rebuilt from integer weights read from the bitstream by integer arithmetic
-//! only (SPEC §5). Values outside a channel's table range are sent through an escape symbol
+//! only (SPEC §4.2). Values outside a channel's table range are sent through an escape symbol
 //! followed by 32 raw bits.
 
 mod coder;
@@ -25,7 +25,7 @@ pub struct FreqTable {
 }
 
 impl FreqTable {
-    /// Rebuilds frequencies from integer weights (SPEC §5.2): with `n` symbols, `R = 2^16 - n`
+    /// Rebuilds frequencies from integer weights (SPEC §4.2): with `n` symbols, `R = 2^16 - n`
     /// and `T = Σw` (all weights 1 when `T = 0`), `f_s = 1 + ⌊w_s·R/T⌋`; what is left of `2^16`
     /// goes to the first symbol of largest weight.
     pub fn from_weights(weights: &[u32]) -> FreqTable {
