@@ -62,18 +62,28 @@ pub fn run(args: Args) -> crate::Result<()> {
     let mut scene = if input_is_dir { Splats::new(3) } else { crate::io::read_ply(&args.input)? };
     scene.validate().map_err(|e| Error::input(&args.input, e))?;
     let mut series = Vec::new();
-    let (config, _) = rate::rd::search(&scene, args.lambda, |p| {
-        series.push(json!({"iteration": p.step, "trial": p.change, "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": 8.0 * p.bytes as f64, "d": p.d, "heldout_psnr": p.psnr}));
-    })
-    .map_err(|e| Error::input(&args.input, e))?;
-    let mut config = config;
+    // A .ply: the RD search's PSNR is against the input scene's own renders, the error the user
+    // cares about, so its trials go into the time series. A dataset: there is nothing to search
+    // before training; training starts from the fixed ladder for λ.
+    let mut config = if input_is_dir {
+        rate::EncodeConfig::for_lambda(args.lambda)
+    } else {
+        rate::rd::search(&scene, args.lambda, |p| {
+            series.push(json!({"iteration": p.step, "trial": p.change, "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": 8.0 * p.bytes as f64, "d": p.d, "heldout_psnr": p.psnr}));
+        })
+        .map_err(|e| Error::input(&args.input, e))?
+        .0
+    };
     let original = scene.clone();
+    let mut heldout = None;
     if iters > 0 {
-        let (trained, steps) = fine_tune(&args, iters, &scene, &config, &start, &mut series)?;
+        let (trained, steps, dataset) = fine_tune(&args, iters, &scene, &config, &start, &mut series)?;
         scene = trained;
         if input_is_dir {
-            // The RD search above ran on an empty scene: run it now on the trained one.
+            // RD choices on the trained scene (their PSNR is against the trained scene, not the
+            // images, so they stay out of the held-out series).
             config = rate::rd::search(&scene, args.lambda, |_| {}).map_err(|e| Error::input(&args.input, e))?.0;
+            heldout = Some(dataset);
         } else {
             config.steps = steps;
         }
@@ -93,6 +103,13 @@ pub fn run(args: Args) -> crate::Result<()> {
     }
     if let Some(path) = &args.report {
         let decoded = rate::quantise::dequantise(&q);
+        if let Some(ds) = &heldout {
+            // The final point of the series: the coded scene on the held-out images.
+            let test = ds.split(crate::io::Split::Test);
+            if let Some((psnr, _)) = crate::train::evaluate(&decoded, &test, ds.background) {
+                series.push(json!({"iteration": iters, "trial": "coded", "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": 8.0 * bytes.len() as f64, "d": null, "heldout_psnr": psnr}));
+            }
+        }
         // Against the input scene (for a dataset: against the trained scene before coding).
         let psnr = orbit_psnr(if input_is_dir { &scene } else { &original }, &decoded);
         let estimated = report.estimated_bits();
@@ -130,7 +147,7 @@ fn fine_tune(
     config: &rate::EncodeConfig,
     start: &Instant,
     series: &mut Vec<serde_json::Value>,
-) -> crate::Result<(Splats, rate::Steps)> {
+) -> crate::Result<(Splats, rate::Steps, crate::io::Dataset)> {
     use crate::train::{train, TrainConfig};
     let (dataset, init) = if args.input.is_dir() {
         (crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?, None)
@@ -158,5 +175,5 @@ fn fine_tune(
         other => other,
     })?;
     pb.finish_and_clear();
-    Ok((trained, config.steps))
+    Ok((trained, config.steps, dataset))
 }
