@@ -3,7 +3,7 @@
 use crate::io::{read_scene, write_scene};
 use std::path::PathBuf;
 
-/// Convert a scene between formats, chosen by the files' extensions (.ply).
+/// Convert a scene between formats, chosen by the files' extensions (.ply, .gsc, .spz, .splat).
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Input scene.

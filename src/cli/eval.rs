@@ -16,7 +16,7 @@ use std::time::Instant;
 #[derive(Debug, clap::Args)]
 #[command(group = clap::ArgGroup::new("against").required(true).args(["data", "reference"]))]
 pub struct Args {
-    /// Scene file (.ply).
+    /// Scene file (.gsc, .ply, .spz, .splat).
     pub scene: PathBuf,
     /// Dataset directory (transforms*.json or COLMAP).
     pub data: Option<PathBuf>,

@@ -11,11 +11,11 @@ use gscodec_decoder::render::render;
 use gscodec_decoder::{Camera, RenderOptions, Splats};
 use std::path::{Path, PathBuf};
 
-/// Render a scene (.ply, .spz, .splat) into DIR, one image per camera, named by frame index.
+/// Render a scene (.gsc, .ply, .spz, .splat) into DIR, one image per camera, named by frame index.
 #[derive(Debug, clap::Args)]
 #[command(group = clap::ArgGroup::new("views").required(true).args(["cameras", "orbit"]))]
 pub struct Args {
-    /// Scene file (.ply, .spz, .splat).
+    /// Scene file (.gsc, .ply, .spz, .splat).
     pub scene: PathBuf,
     /// Output directory.
     #[arg(short, long)]
