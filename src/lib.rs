@@ -9,6 +9,7 @@ pub mod loss;
 pub mod metrics;
 pub mod raster;
 pub mod rate;
+pub mod rng;
 pub mod sample;
 pub mod sweep;
 pub mod train;

@@ -11,6 +11,7 @@
 use crate::io::atomic::write_dir_atomic;
 use crate::io::image::write_png;
 use crate::io::{camera_spread, nerf, ply};
+use crate::rng::Rng;
 use crate::{Error, Result};
 use glam::Vec3;
 use gscodec_decoder::camera::DEFAULT_ZNEAR;
@@ -42,35 +43,17 @@ impl Default for SampleOptions {
     }
 }
 
-/// SplitMix64: tiny, seedable and identical everywhere.
-#[derive(Debug, Clone)]
-pub struct Rng(u64);
+/// The sample's random stream: the crate's SplitMix64 with the seed mixing the committed
+/// `samples/tiny` was generated with.
+fn sample_rng(seed: u64) -> Rng {
+    Rng::from_state(seed ^ 0x5851_f42d_4c95_7f2d)
+}
 
-impl Rng {
-    pub fn new(seed: u64) -> Rng {
-        Rng(seed ^ 0x5851_f42d_4c95_7f2d)
-    }
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1) with 24 random bits (exact in f32).
-    pub fn uniform(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    /// Uniform in [lo, hi).
-    pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.uniform()
-    }
-    /// A random unit quaternion (w, x, y, z), not normalised exactly (the renderer normalises).
-    fn quat(&mut self) -> [f32; 4] {
-        let q = [self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0)];
-        let n = q.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-3);
-        q.map(|v| v / n)
-    }
+/// A random unit quaternion (w, x, y, z), not normalised exactly (the renderer normalises).
+fn random_quat(rng: &mut Rng) -> [f32; 4] {
+    let q = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+    let n = q.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-3);
+    q.map(|v| v / n)
 }
 
 fn dc(rgb: [f32; 3]) -> [f32; 3] {
@@ -79,7 +62,7 @@ fn dc(rgb: [f32; 3]) -> [f32; 3] {
 
 /// The procedural scene: `n` Gaussians, SH degree 3.
 pub fn scene(n: usize, seed: u64) -> Splats {
-    let mut rng = Rng::new(seed);
+    let mut rng = sample_rng(seed);
     let mut s = Splats::new(3);
     let k3 = sh_rest_coeffs(3) * 3;
     let zero = vec![0.0f32; k3];
@@ -124,14 +107,14 @@ pub fn scene(n: usize, seed: u64) -> Splats {
         } else {
             zero.clone()
         };
-        s.push(p.into(), scales, rng.quat(), rng.range(0.5, 3.0), dc(col), &rest);
+        s.push(p.into(), scales, random_quat(&mut rng), rng.range(0.5, 3.0), dc(col), &rest);
     }
     // Needles: long thin Gaussians standing up from the floor at random tilts.
     for _ in 0..n_needles {
         let base = [rng.range(-1.2, 1.2), rng.range(-1.2, 1.2), rng.range(-0.4, 0.4)];
         let col = [rng.range(0.05, 0.35), rng.range(0.3, 0.6), rng.range(0.5, 0.9)];
         let len = rng.range(0.08, 0.25);
-        s.push(base, [len.ln(), rng.range(0.003, 0.008).ln(), rng.range(0.003, 0.008).ln()], rng.quat(), 2.0, dc(col), &zero);
+        s.push(base, [len.ln(), rng.range(0.003, 0.008).ln(), rng.range(0.003, 0.008).ln()], random_quat(&mut rng), 2.0, dc(col), &zero);
     }
     s
 }
@@ -139,7 +122,7 @@ pub fn scene(n: usize, seed: u64) -> Splats {
 /// Camera-to-world matrices (OpenGL axes, like NeRF's `transform_matrix`) of `views` cameras on
 /// the sphere of [`RADIUS`], looking at the origin with +z up.
 pub fn nerf_poses(views: usize, seed: u64) -> Vec<[[f32; 4]; 4]> {
-    let mut rng = Rng::new(seed.wrapping_add(1));
+    let mut rng = sample_rng(seed.wrapping_add(1));
     (0..views)
         .map(|i| {
             let azim = std::f32::consts::TAU * (i as f32 + rng.range(-0.3, 0.3)) / views.max(1) as f32;

@@ -31,7 +31,7 @@ fn run(ds: &Dataset, c: &TrainConfig, rd: Option<Box<dyn RdTerm>>) -> (Splats, g
 fn short_run_improves_held_out_psnr() {
     let ds = dataset(1.0);
     let c = cfg(400);
-    let mut rng = gscodec::train::rng::Rng::new(c.seed);
+    let mut rng = gscodec::rng::Rng::new(c.seed);
     let init = gscodec::train::init::initial_splats(&ds, c.init_points, 3, &mut rng);
     let (before, _) = evaluate(&init, &ds.split(Split::Test), ds.background).unwrap();
     let (trained, report) = run(&ds, &c, None);

@@ -3,7 +3,7 @@
 //! ones, and reset opacities periodically.
 
 use super::adam::{zeros_like, Adam};
-use super::rng::Rng;
+use crate::rng::Rng;
 use glam::Vec3;
 use gscodec_decoder::{math, Splats};
 

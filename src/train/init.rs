@@ -1,8 +1,8 @@
 //! Initial Gaussians: from a point cloud (COLMAP points) or random inside the scene bounds, and the
 //! scene extent that sets the position learning rate and the densification thresholds.
 
-use super::rng::Rng;
 use crate::io::Dataset;
+use crate::rng::Rng;
 use glam::{Mat3, Vec3};
 use gscodec_decoder::{math::SH_C0, Splats};
 use std::collections::HashMap;

@@ -5,18 +5,18 @@
 pub mod adam;
 pub mod densify;
 pub mod init;
-pub mod rng;
+
 pub mod targets;
 
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::ImageLoss;
 use crate::raster;
+use crate::rng::Rng;
 use crate::{Error, Result};
 use adam::{first_non_finite, Adam, Group};
 use densify::{DensifyParams, DensifyStats};
 use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
-use rng::Rng;
 use serde::Serialize;
 use std::time::Instant;
 

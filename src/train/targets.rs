@@ -18,7 +18,7 @@ pub fn render_targets(scene: &Splats, cameras: &[Camera], background: [f32; 3]) 
 
 /// A small deterministic test scene: `n` coloured Gaussians in the unit ball (SH degree 1).
 pub fn toy_scene(n: usize, seed: u64) -> Splats {
-    let mut rng = super::rng::Rng::new(seed);
+    let mut rng = crate::rng::Rng::new(seed);
     let mut s = Splats::new(1);
     while s.len() < n {
         let p = [rng.uniform(), rng.uniform(), rng.uniform()].map(|v| 2.0 * v - 1.0);

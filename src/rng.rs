@@ -1,5 +1,6 @@
-//! A small deterministic random number generator (SplitMix64) for initialisation, view order and
-//! densification noise; no dependency, identical on every platform.
+//! The one small deterministic random number generator (SplitMix64) of the encoder: procedural
+//! samples, initialisation, view order and densification noise. No dependency, identical on every
+//! platform.
 
 #[derive(Debug, Clone)]
 pub struct Rng(u64);
@@ -7,6 +8,11 @@ pub struct Rng(u64);
 impl Rng {
     pub fn new(seed: u64) -> Self {
         Rng(seed ^ 0x9E37_79B9_7F4A_7C15)
+    }
+
+    /// A generator whose internal state is exactly `state` (for streams fixed by committed data).
+    pub fn from_state(state: u64) -> Self {
+        Rng(state)
     }
 
     pub fn next_u64(&mut self) -> u64 {
@@ -20,6 +26,11 @@ impl Rng {
     /// Uniform in `[0, 1)`.
     pub fn uniform(&mut self) -> f32 {
         (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// Uniform in `[lo, hi)`.
+    pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.uniform()
     }
 
     /// Uniform integer in `0..n` (`n > 0`).
