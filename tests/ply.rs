@@ -1,7 +1,7 @@
 //! `.ply` round trips and format variants.
 
 use gscodec::decoder::Splats;
-use gscodec::io::ply::{ply_bytes, read_ply, read_ply_bytes, write_ply};
+use gscodec::io::ply::{read_ply, read_ply_bytes, write_ply};
 use std::path::Path;
 
 mod common;
@@ -97,7 +97,7 @@ fn write_read_is_bit_exact_for_every_degree() {
         let back = read_ply(&path).unwrap();
         assert!(bits(&back) == bits(&s), "degree {degree}");
         // Re-writing gives the same bytes.
-        assert_eq!(ply_bytes(&back), std::fs::read(&path).unwrap());
+        assert_eq!(back.to_ply(), std::fs::read(&path).unwrap());
     }
 }
 
@@ -105,7 +105,7 @@ fn write_read_is_bit_exact_for_every_degree() {
 fn ascii_and_big_endian_equal_binary() {
     for degree in [0, 1, 3] {
         let s = scene(degree, 50);
-        let bin = read_ply_bytes(&ply_bytes(&s), Path::new("bin.ply")).unwrap();
+        let bin = read_ply_bytes(&s.to_ply(), Path::new("bin.ply")).unwrap();
         let ascii = read_ply_bytes(&variant(&s, true), Path::new("ascii.ply")).unwrap();
         let be = read_ply_bytes(&variant(&s, false), Path::new("be.ply")).unwrap();
         assert!(bits(&bin) == bits(&s));
@@ -119,7 +119,7 @@ fn channel_major_f_rest_maps_to_coefficient_major() {
     // One degree-1 Gaussian with f_rest_i = i: coefficient k of channel c is f_rest_{c*3+k}.
     let mut s = Splats::new(1);
     s.push([0.0; 3], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[0.0; 9]);
-    let mut bytes = ply_bytes(&s);
+    let mut bytes = s.to_ply();
     let body = bytes.len() - 4 * (9 + 9 + 8);
     for i in 0..9 {
         let at = body + 4 * (9 + i);
@@ -178,7 +178,7 @@ fn integer_and_double_properties_are_converted() {
 
 #[test]
 fn bad_files_are_input_errors() {
-    let good = ply_bytes(&scene(1, 4));
+    let good = scene(1, 4).to_ply();
     let header_len = good.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
     let set_f32 = |b: &mut Vec<u8>, at: usize, v: f32| b[at..at + 4].copy_from_slice(&v.to_le_bytes());
     let stride = (good.len() - header_len) / 4;

@@ -4,7 +4,6 @@
 
 use std::path::{Path, PathBuf};
 
-use gscodec::io::ply::ply_bytes;
 use gscodec::rate::{self, EncodeConfig};
 use gscodec_decoder::{decode, DecodeOptions, Splats};
 use sha2::{Digest, Sha256};
@@ -50,7 +49,7 @@ fn regenerate() {
     for (name, scene) in [("empty", Splats::new(0)), ("hand", hand_scene()), ("tiny", tiny)] {
         let (bytes, _, _) = rate::encode(&scene, &EncodeConfig::default()).unwrap();
         std::fs::write(dir().join(format!("{name}.gsc")), &bytes).unwrap();
-        let ply = ply_bytes(&decode(&bytes, &DecodeOptions::default()).unwrap());
+        let ply = decode(&bytes, &DecodeOptions::default()).unwrap().to_ply();
         std::fs::write(dir().join(format!("{name}.ply")), &ply).unwrap();
         sums += &format!("{}  {name}.ply\n", hex(&Sha256::digest(&ply)));
     }
@@ -63,7 +62,7 @@ fn vectors_decode_to_their_expected_output() {
     for name in NAMES {
         let bytes = std::fs::read(dir().join(format!("{name}.gsc"))).unwrap();
         for threads in [1, 4] {
-            let ply = ply_bytes(&decode(&bytes, &DecodeOptions { threads, ..Default::default() }).unwrap());
+            let ply = decode(&bytes, &DecodeOptions { threads, ..Default::default() }).unwrap().to_ply();
             let expected = sums.lines().find(|l| l.ends_with(&format!("  {name}.ply"))).unwrap();
             assert_eq!(&expected[..64], hex(&Sha256::digest(&ply)), "{name}");
             assert_eq!(ply, std::fs::read(dir().join(format!("{name}.ply"))).unwrap(), "{name}");
@@ -99,6 +98,7 @@ fn mutated_vectors_never_panic() {
             }
             let _ = decode(&b, &opts);
             let _ = gscodec_decoder::inspect(&b);
+            let _ = gscodec_decoder::decode_prefix(&b, &opts);
         }
     }
 }

@@ -47,9 +47,10 @@ pub struct FileInfo {
     pub constant_channels: Vec<String>,
 }
 
-/// Reads the fixed header only (magic, version, counts); no checksums beyond the header checks.
+/// Reads the fixed header only (magic, version, counts): the first 16 bytes are enough. No
+/// checksums and no check of the Gaussian count against the file size ([`decode`] does both).
 pub fn peek_header(bytes: &[u8]) -> Result<Header, DecodeError> {
-    bitstream::parse_header(bytes).map(|(h, _)| h)
+    bitstream::parse_header_fields(bytes).map(|(h, _)| h)
 }
 
 /// Parses and checks a file without decoding its streams.
@@ -98,12 +99,8 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
 /// Decodes a `.gsc` file. Never panics; any malformed input gives a [`DecodeError`].
 /// The result is bit-identical across runs and thread counts.
 pub fn decode(bytes: &[u8], options: &DecodeOptions) -> Result<Splats, DecodeError> {
-    if options.threads > 0 {
-        if let Ok(pool) = rayon::ThreadPoolBuilder::new().num_threads(options.threads.min(256)).build() {
-            return pool.install(|| decode_in_pool(bytes, options));
-        }
-    }
-    decode_in_pool(bytes, options)
+    let c = bitstream::parse(bytes)?;
+    in_pool(options, || decode_container(&c, c.header.sh_degree.min(options.max_sh_degree)))
 }
 
 /// Parsed parameter section of one group.
@@ -156,15 +153,6 @@ fn read_all_params(c: &Container<'_>, degree: u8) -> Result<Vec<(Group, GroupPar
         .collect()
 }
 
-/// Values per Gaussian a group decodes to.
-fn width(g: Group) -> usize {
-    match g {
-        Group::Rotation => 4,
-        Group::Position => 3,
-        _ => g.channels(),
-    }
-}
-
 fn finite(v: f32) -> Result<f32, DecodeError> {
     if v.is_finite() {
         Ok(v)
@@ -173,73 +161,163 @@ fn finite(v: f32) -> Result<f32, DecodeError> {
     }
 }
 
-fn decode_chunk(g: Group, p: &GroupParams, data: &[u8], count: usize) -> Result<Vec<f32>, DecodeError> {
-    let mut d = SymbolDecoder::new(data)?;
-    let mut out = Vec::with_capacity(count * width(g));
-    match g {
-        Group::Position => {
-            let (origin, step, bits) = p.grid.expect("position has a grid");
-            let max_len = 3 * u32::from(bits);
-            let limit = 1u64 << max_len; // bits <= 21, so at most 2^63
-            let mut m: u64 = 0;
-            for _ in 0..count {
-                let len = d.value(&p.tables[0])?;
-                if len < 0 || len as u32 > max_len {
-                    return Err(DecodeError::Corrupt("position delta too long"));
-                }
-                let len = len as u32;
-                let delta = if len <= 1 {
-                    u64::from(len)
-                } else {
-                    let mut rest = 0u64;
-                    let mut left = len - 1;
-                    while left > 0 {
-                        let take = left.min(32);
-                        rest = (rest << take) | u64::from(d.raw_bits(take)?);
-                        left -= take;
-                    }
-                    (1u64 << (len - 1)) | rest
-                };
-                m = m.checked_add(delta).filter(|&m| m < limit).ok_or(DecodeError::Corrupt("position outside the grid"))?;
-                let q = layout::morton_decode(m, bits);
-                for a in 0..3 {
-                    out.push(finite(layout::dequantise_position(origin[a], step[a], q[a]))?);
-                }
-            }
+/// The next stream of a data section: `varint length`, then `length` bytes.
+fn next_stream<'a>(r: &mut ByteReader<'a>) -> Result<SymbolDecoder<'a>, DecodeError> {
+    let len = r.varint("stream length")? as usize;
+    SymbolDecoder::new(r.take(len, "stream")?)
+}
+
+/// All channels of a (non-position) group chunk, Gaussian-major (`count × channels`), each value
+/// `f32(v) · scale[channel]`. Each coded channel has its own stream; decoding them side by side
+/// lets the independent coder states overlap in the CPU.
+fn decode_channels(p: &GroupParams, r: &mut ByteReader<'_>, count: usize, scale: &[f32]) -> Result<Vec<f32>, DecodeError> {
+    let c = p.tables.len();
+    let mut vals = vec![0f32; count * c];
+    let mut coded = Vec::new();
+    for (j, t) in p.tables.iter().enumerate() {
+        match t {
+            ChannelTable::Constant(v) => vals.iter_mut().skip(j).step_by(c).for_each(|x| *x = *v as f32 * scale[j]),
+            ChannelTable::Coded { lo, table } => coded.push((j, *lo, table, scale[j], next_stream(r)?)),
         }
+    }
+    for row in vals.chunks_exact_mut(c) {
+        for (j, lo, table, s, d) in coded.iter_mut() {
+            row[*j] = d.coded_value(*lo, table) as f32 * *s;
+        }
+    }
+    coded.into_iter().try_for_each(|(.., d)| d.finish())?;
+    if !vals.iter().fold(true, |ok, x| ok & x.is_finite()) {
+        return Err(DecodeError::Corrupt("dequantised value is not finite"));
+    }
+    Ok(vals)
+}
+
+fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, count: usize) -> Result<Vec<f32>, DecodeError> {
+    let (origin, step, bits) = p.grid.expect("position has a grid");
+    let mut d = next_stream(r)?;
+    let mut out = Vec::with_capacity(count * 3);
+    let max_len = 3 * u32::from(bits);
+    let limit = 1u64 << max_len; // bits <= 21, so at most 2^63
+    let mut m: u64 = 0;
+    for _ in 0..count {
+        let len = d.value(&p.tables[0]);
+        if len < 0 || len as u32 > max_len {
+            return Err(DecodeError::Corrupt("position delta too long"));
+        }
+        let len = len as u32;
+        let delta = if len <= 1 {
+            u64::from(len)
+        } else {
+            let mut rest = 0u64;
+            let mut left = len - 1;
+            while left > 0 {
+                let take = left.min(32);
+                rest = (rest << take) | u64::from(d.raw_bits(take));
+                left -= take;
+            }
+            (1u64 << (len - 1)) | rest
+        };
+        m = m.checked_add(delta).filter(|&m| m < limit).ok_or(DecodeError::Corrupt("position outside the grid"))?;
+        let q = layout::morton_decode(m, bits);
+        for a in 0..3 {
+            out.push(finite(layout::dequantise_position(origin[a], step[a], q[a]))?);
+        }
+    }
+    d.finish()?;
+    Ok(out)
+}
+
+fn decode_chunk(g: Group, p: &GroupParams, data: &[u8], count: usize) -> Result<Vec<f32>, DecodeError> {
+    let mut r = ByteReader::new(data);
+    let out = match g {
+        Group::Position => decode_positions(p, &mut r, count)?,
         Group::Rotation => {
-            for _ in 0..count {
-                let largest = d.value(&p.tables[0])?;
-                if !(0..4).contains(&largest) {
+            // The index channel is read unscaled: f32 holds 0..=3 (and any escaped value) exactly enough.
+            let vals = decode_channels(p, &mut r, count, &[1.0, p.steps[1], p.steps[2], p.steps[3]])?;
+            let mut out = Vec::with_capacity(count * 4);
+            for v in vals.chunks_exact(4) {
+                if !matches!(v[0], 0.0 | 1.0 | 2.0 | 3.0) {
                     return Err(DecodeError::Corrupt("rotation index outside 0..4"));
                 }
-                let mut c = [0.0f32; 3];
-                for (j, cj) in c.iter_mut().enumerate() {
-                    *cj = finite(d.value(&p.tables[j + 1])? as f32 * p.steps[j + 1])?;
-                }
-                out.extend_from_slice(&layout::rotation_from_smallest_three(largest as usize, c));
+                out.extend_from_slice(&layout::rotation_from_smallest_three(v[0] as usize, [v[1], v[2], v[3]]));
             }
+            out
         }
-        _ => {
-            for _ in 0..count {
-                for (t, &s) in p.tables.iter().zip(&p.steps) {
-                    out.push(finite(d.value(t)? as f32 * s)?);
-                }
-            }
-        }
+        _ => decode_channels(p, &mut r, count, &p.steps)?,
+    };
+    if r.remaining() != 0 {
+        return Err(DecodeError::Corrupt("trailing bytes in a data section"));
     }
     Ok(out)
 }
 
-fn decode_in_pool(bytes: &[u8], options: &DecodeOptions) -> Result<Splats, DecodeError> {
-    let c = bitstream::parse(bytes)?;
+/// Decodes a `.gsc` file from any reader (a file, a socket, a decompressor), reading it to the end.
+///
+/// ```
+/// # let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../bitstream-spec/vectors/hand.gsc");
+/// let file = std::fs::File::open(path).unwrap();
+/// let scene = gscodec_decoder::decode_reader(file, &Default::default()).unwrap();
+/// assert_eq!(scene.len(), 3);
+/// ```
+pub fn decode_reader(mut reader: impl std::io::Read, options: &DecodeOptions) -> Result<Splats, DecodeError> {
+    let mut bytes = Vec::new();
+    reader.read_to_end(&mut bytes).map_err(|e| DecodeError::Io(e.to_string()))?;
+    decode(&bytes, options)
+}
+
+/// Decodes what has arrived of a file written in the recommended section order (SPEC §3, §7.1):
+/// `Ok(None)` until the base (positions, scales, rotations, opacities, DC colours) is complete,
+/// then the scene with the highest SH degree (up to `options.max_sh_degree`) whose sections have
+/// all arrived. Call it again as more bytes come in; given the whole file it equals [`decode`].
+/// Every section used is CRC-checked; corrupt data is an error, not `None`.
+///
+/// ```
+/// # let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../bitstream-spec/vectors/tiny.gsc")).unwrap();
+/// use gscodec_decoder::{decode_prefix, DecodeOptions};
+/// let options = DecodeOptions::default();
+/// let mut shown = None;
+/// for arrived in (0..=bytes.len()).step_by(4096).chain([bytes.len()]) {
+///     if let Some(scene) = decode_prefix(&bytes[..arrived], &options).unwrap() {
+///         shown = Some(scene.sh_degree); // hand the scene to the renderer
+///     }
+/// }
+/// assert_eq!(shown, Some(3));
+/// ```
+pub fn decode_prefix(bytes: &[u8], options: &DecodeOptions) -> Result<Option<Splats>, DecodeError> {
+    if bitstream::MAGIC.starts_with(bytes) {
+        return Ok(None); // not even the magic has arrived
+    }
+    let c = match bitstream::parse_prefix(bytes) {
+        Ok(c) => c,
+        Err(DecodeError::Truncated(_)) => return Ok(None),
+        Err(e) => return Err(e),
+    };
+    let arrived = |g: Group| !c.pending.iter().any(|&(kind, _)| kind == g.params_kind() || kind == g.data_kind());
+    if !Group::present(0).all(arrived) {
+        return Ok(None);
+    }
+    let wanted = c.header.sh_degree.min(options.max_sh_degree);
+    let degree = (1..=wanted).take_while(|&b| arrived(Group::for_band(b))).last().unwrap_or(0);
+    in_pool(options, || decode_container(&c, degree)).map(Some)
+}
+
+/// Runs `f` on a pool of `options.threads` threads (0 = rayon's global pool).
+fn in_pool<T: Send>(options: &DecodeOptions, f: impl FnOnce() -> T + Send) -> T {
+    if options.threads > 0 {
+        if let Ok(pool) = rayon::ThreadPoolBuilder::new().num_threads(options.threads.min(256)).build() {
+            return pool.install(f);
+        }
+    }
+    f()
+}
+
+fn decode_container(c: &Container<'_>, degree: u8) -> Result<Splats, DecodeError> {
     let n = c.header.gaussians as usize;
-    let degree = c.header.sh_degree.min(options.max_sh_degree);
     let mut splats = Splats::new(degree);
     if n == 0 {
         return Ok(splats);
     }
-    let params = read_all_params(&c, degree)?;
+    let params = read_all_params(c, degree)?;
     let chunks = chunk_count(n);
     if chunks > usize::from(u16::MAX) + 1 {
         return Err(DecodeError::Limit("too many chunks"));

@@ -1,5 +1,7 @@
 //! The scene: Gaussians as structure-of-arrays.
 
+use rayon::prelude::*;
+
 use crate::math::sh_rest_coeffs;
 
 /// A problem with the contents of a scene.
@@ -145,5 +147,44 @@ impl Splats {
         let mut it = self.positions.iter();
         let first = *it.next()?;
         Some(it.fold((first, first), |(lo, hi), p| (std::array::from_fn(|a| lo[a].min(p[a])), std::array::from_fn(|a| hi[a].max(p[a])))))
+    }
+
+    /// The scene as a binary little-endian INRIA `.ply` file (normals written as zero, like the
+    /// reference trainer): what `gscodec decode` writes.
+    pub fn to_ply(&self) -> Vec<u8> {
+        let k = self.rest_coeffs();
+        let n = self.len();
+        let mut names: Vec<String> =
+            ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"].iter().map(|s| s.to_string()).collect();
+        names.extend((0..3 * k).map(|i| format!("f_rest_{i}")));
+        names.extend(["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"].iter().map(|s| s.to_string()));
+        let mut header = format!("ply\nformat binary_little_endian 1.0\nelement vertex {n}\n");
+        for name in &names {
+            header.push_str(&format!("property float {name}\n"));
+        }
+        header.push_str("end_header\n");
+        let stride = names.len() * 4;
+        let mut out = header.into_bytes();
+        let start = out.len();
+        out.resize(start + n * stride, 0);
+        out[start..].par_chunks_mut(stride).enumerate().for_each(|(i, rec)| {
+            let mut vals = Vec::with_capacity(names.len());
+            vals.extend_from_slice(&self.positions[i]);
+            vals.extend_from_slice(&[0.0; 3]);
+            vals.extend_from_slice(&self.sh_dc[i]);
+            let rest = &self.sh_rest[i * k * 3..(i + 1) * k * 3];
+            for c in 0..3 {
+                for kk in 0..k {
+                    vals.push(rest[kk * 3 + c]);
+                }
+            }
+            vals.push(self.opacity_logits[i]);
+            vals.extend_from_slice(&self.log_scales[i]);
+            vals.extend_from_slice(&self.rotations[i]);
+            for (dst, v) in rec.chunks_exact_mut(4).zip(vals) {
+                dst.copy_from_slice(&v.to_le_bytes());
+            }
+        });
+        out
     }
 }

@@ -49,44 +49,7 @@ pub fn read_ply_bytes(bytes: &[u8], path: &Path) -> Result<Splats> {
 /// # Errors
 /// [`Error::failure`] when the file cannot be written.
 pub fn write_ply(path: &Path, splats: &Splats) -> Result<()> {
-    write_bytes_atomic(path, &ply_bytes(splats))
-}
-
-/// The bytes [`write_ply`] writes.
-pub fn ply_bytes(splats: &Splats) -> Vec<u8> {
-    let k = splats.rest_coeffs();
-    let n = splats.len();
-    let mut names: Vec<String> = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"].iter().map(|s| s.to_string()).collect();
-    names.extend((0..3 * k).map(|i| format!("f_rest_{i}")));
-    names.extend(["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"].iter().map(|s| s.to_string()));
-    let mut header = format!("ply\nformat binary_little_endian 1.0\nelement vertex {n}\n");
-    for name in &names {
-        header.push_str(&format!("property float {name}\n"));
-    }
-    header.push_str("end_header\n");
-    let stride = names.len() * 4;
-    let mut out = header.into_bytes();
-    let start = out.len();
-    out.resize(start + n * stride, 0);
-    out[start..].par_chunks_mut(stride).enumerate().for_each(|(i, rec)| {
-        let mut vals = Vec::with_capacity(names.len());
-        vals.extend_from_slice(&splats.positions[i]);
-        vals.extend_from_slice(&[0.0; 3]);
-        vals.extend_from_slice(&splats.sh_dc[i]);
-        let rest = &splats.sh_rest[i * k * 3..(i + 1) * k * 3];
-        for c in 0..3 {
-            for kk in 0..k {
-                vals.push(rest[kk * 3 + c]);
-            }
-        }
-        vals.push(splats.opacity_logits[i]);
-        vals.extend_from_slice(&splats.log_scales[i]);
-        vals.extend_from_slice(&splats.rotations[i]);
-        for (dst, v) in rec.chunks_exact_mut(4).zip(vals) {
-            dst.copy_from_slice(&v.to_le_bytes());
-        }
-    });
-    out
+    write_bytes_atomic(path, &splats.to_ply())
 }
 
 // ---------------------------------------------------------------------------------------------

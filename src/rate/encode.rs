@@ -1,4 +1,4 @@
-//! Writing a quantised scene: tables per group, one range-coded stream per (group, chunk),
+//! Writing a quantised scene: tables per group, one ANS stream per coded channel and chunk,
 //! the container via `gscodec_decoder::bitstream` (the one definition of the format).
 
 use rayon::prelude::*;
@@ -109,10 +109,18 @@ fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
     plans
 }
 
+/// Appends one stream to a data section: `varint length`, then its bytes (SPEC §6).
+fn push_stream(section: &mut ByteWriter, e: SymbolEncoder) {
+    let bytes = e.finish();
+    section.varint(bytes.len() as u32);
+    section.bytes(&bytes);
+}
+
 fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<u8> {
     let range = ch * CHUNK..((ch + 1) * CHUNK).min(q.len());
-    let mut e = SymbolEncoder::new();
+    let mut section = ByteWriter::new();
     if p.group == Group::Position {
+        let mut e = SymbolEncoder::new();
         for &d in &deltas[range] {
             let len = bit_len(d);
             e.value(&p.tables[0].table, len as i32);
@@ -126,15 +134,18 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<
                 }
             }
         }
+        push_stream(&mut section, e);
     } else {
         let chans = &q.groups.iter().find(|x| x.0 == p.group).expect("group").2;
-        for i in range {
-            for (t, c) in p.tables.iter().zip(chans) {
-                e.value(&t.table, c[i]);
+        for (t, c) in p.tables.iter().zip(chans) {
+            if matches!(t.table, ChannelTable::Coded { .. }) {
+                let mut e = SymbolEncoder::new();
+                c[range.clone()].iter().for_each(|&v| e.value(&t.table, v));
+                push_stream(&mut section, e);
             }
         }
     }
-    e.finish()
+    section.buf
 }
 
 /// Encodes a quantised scene. `input` = (Gaussians, SH degree) of the encoder's input, for `info`.

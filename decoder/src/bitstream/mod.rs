@@ -21,7 +21,7 @@ pub use bytes::{ByteReader, ByteWriter};
 /// First four bytes of every `.gsc` file.
 pub const MAGIC: [u8; 4] = [0x8A, b'G', b'S', b'C'];
 /// Format version written by this crate. A reader accepts any minor of its major.
-pub const VERSION_MAJOR: u8 = 1;
+pub const VERSION_MAJOR: u8 = 2;
 pub const VERSION_MINOR: u8 = 0;
 /// Section flag: a reader that does not know this section kind may skip it.
 pub const SECTION_OPTIONAL: u32 = 1;
@@ -54,6 +54,8 @@ pub enum DecodeError {
     MissingSection(String),
     #[error("{0} bytes of trailing data after the last section")]
     TrailingData(usize),
+    #[error("cannot read the input: {0}")]
+    Io(String),
 }
 
 /// The fixed header fields.
@@ -79,6 +81,9 @@ pub struct Section<'a> {
 pub struct Container<'a> {
     pub header: Header,
     pub sections: Vec<Section<'a>>,
+    /// `(kind, chunk)` of the sections listed in the table whose payloads lie beyond the end of
+    /// a prefix ([`parse_prefix`]); always empty for [`parse`].
+    pub pending: Vec<(u16, u16)>,
 }
 
 impl<'a> Container<'a> {
@@ -88,8 +93,23 @@ impl<'a> Container<'a> {
     }
 }
 
-/// Parses only the fixed header (cheap; no CRC of sections).
+/// Parses only the fixed header (cheap; no CRC of sections) and checks the Gaussian count
+/// against the length of `bytes`, the whole file (SPEC §2 allocation bound).
 pub fn parse_header(bytes: &[u8]) -> Result<(Header, usize), DecodeError> {
+    let (header, count) = parse_header_fields(bytes)?;
+    check_allocation_bound(&header, bytes.len() as u64)?;
+    Ok((header, count))
+}
+
+fn check_allocation_bound(header: &Header, file_bytes: u64) -> Result<(), DecodeError> {
+    if u64::from(header.gaussians) > MAX_GAUSSIANS_PER_BYTE * file_bytes {
+        return Err(DecodeError::Limit("Gaussian count too large for the file size"));
+    }
+    Ok(())
+}
+
+/// The fixed header's fields and checks, without the allocation bound (which needs the file length).
+pub fn parse_header_fields(bytes: &[u8]) -> Result<(Header, usize), DecodeError> {
     let mut r = ByteReader::new(bytes);
     if r.take(4, "magic").map_err(|_| DecodeError::BadMagic)? != MAGIC {
         return Err(DecodeError::BadMagic);
@@ -116,15 +136,23 @@ pub fn parse_header(bytes: &[u8]) -> Result<(Header, usize), DecodeError> {
     if gaussians > MAX_GAUSSIANS {
         return Err(DecodeError::Limit("more than 2^26 Gaussians"));
     }
-    if u64::from(gaussians) > MAX_GAUSSIANS_PER_BYTE * bytes.len() as u64 {
-        return Err(DecodeError::Limit("Gaussian count too large for the file size"));
-    }
     Ok((Header { version_major: major, version_minor: minor, gaussians, sh_degree }, count))
 }
 
 /// Parses and checks the whole container: header CRC, section bounds and every section's CRC.
 pub fn parse(bytes: &[u8]) -> Result<Container<'_>, DecodeError> {
-    let (header, count) = parse_header(bytes)?;
+    parse_sections(bytes, false)
+}
+
+/// Parses the start of a file that is still arriving: the header and section table must be
+/// complete (else `Truncated`); sections whose payloads are complete are checked and returned,
+/// the others are listed in [`Container::pending`].
+pub fn parse_prefix(bytes: &[u8]) -> Result<Container<'_>, DecodeError> {
+    parse_sections(bytes, true)
+}
+
+fn parse_sections(bytes: &[u8], prefix: bool) -> Result<Container<'_>, DecodeError> {
+    let (header, count) = if prefix { parse_header_fields(bytes)? } else { parse_header(bytes)? };
     let table_end = FIXED_HEADER + TABLE_ENTRY * count;
     if bytes.len() < table_end + 4 {
         return Err(DecodeError::Truncated("section table"));
@@ -143,9 +171,23 @@ pub fn parse(bytes: &[u8]) -> Result<Container<'_>, DecodeError> {
     if crc32fast::hash(&bytes[..table_end]) != header_crc {
         return Err(DecodeError::Checksum("header".into()));
     }
+    if prefix {
+        // The bound holds for the whole file the table declares, and decoding waits until it
+        // holds for what has arrived: output never outgrows the input actually read.
+        let declared = (table_end + 4) as u64 + entries.iter().map(|e| e.3 as u64).sum::<u64>();
+        check_allocation_bound(&header, declared)?;
+        if check_allocation_bound(&header, bytes.len() as u64).is_err() {
+            return Err(DecodeError::Truncated("file (allocation bound)"));
+        }
+    }
     let mut body = ByteReader::new(&bytes[table_end + 4..]);
     let mut sections = Vec::with_capacity(count);
+    let mut pending = Vec::new();
     for (kind, chunk, flags, length, crc) in entries {
+        if prefix && (!pending.is_empty() || body.remaining() < length) {
+            pending.push((kind, chunk));
+            continue;
+        }
         let data = body.take(length, "section payload")?;
         if crc32fast::hash(data) != crc {
             return Err(DecodeError::Checksum(format!("section {kind}/{chunk}")));
@@ -158,10 +200,10 @@ pub fn parse(bytes: &[u8]) -> Result<Container<'_>, DecodeError> {
         }
         sections.push(Section { kind, chunk, flags, data });
     }
-    if body.remaining() != 0 {
+    if body.remaining() != 0 && !prefix {
         return Err(DecodeError::TrailingData(body.remaining()));
     }
-    Ok(Container { header, sections })
+    Ok(Container { header, sections, pending })
 }
 
 /// Serialises a container. Sections are written in the given order.

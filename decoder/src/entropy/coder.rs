@@ -1,40 +1,33 @@
-//! Symbol streams: constriction's queue range coder (`u32` words, `u64` state, 16-bit
-//! probabilities) with our integer tables as its models. The decoder reads untrusted words
-//! through a bounds-checked backend; no call can panic on garbage (SPEC §5, §9).
+//! Symbol streams: constriction's stack ANS coder (`u32` words, `u64` state, 16-bit
+//! probabilities) with our integer tables as its models (SPEC §5). Each stream is stored with
+//! its words in the order the decoder reads them, so a stream decodes front to back. Decoding
+//! untrusted words cannot panic: garbage decodes to garbage symbols, and [`SymbolDecoder::finish`]
+//! rejects a stream that does not end exactly where its encoder started.
 
-use std::cell::Cell;
 use std::num::NonZeroU32;
-use std::rc::Rc;
 
 use constriction::backends::ReadWords;
 use constriction::stream::model::{DecoderModel, EncoderModel, EntropyModel};
-use constriction::stream::queue::{DefaultRangeEncoder, RangeDecoder};
+use constriction::stream::stack::{AnsCoder, DefaultAnsCoder};
 use constriction::stream::{Decode, Encode};
-use constriction::Queue;
+use constriction::{CoderError, Stack};
 
 use super::{ChannelTable, FreqTable, PRECISION};
 use crate::bitstream::bytes::{unzigzag, zigzag};
 use crate::bitstream::DecodeError;
-
-/// Reads past the end of a stream give zero words; more than this many such reads is corruption.
-pub const MAX_OVERRUN_WORDS: usize = 2;
 
 impl EntropyModel<PRECISION> for &FreqTable {
     type Symbol = usize;
     type Probability = u32;
 }
 
-impl EncoderModel<PRECISION> for &FreqTable {
-    fn left_cumulative_and_probability(&self, symbol: impl core::borrow::Borrow<usize>) -> Option<(u32, NonZeroU32)> {
-        let s = *symbol.borrow();
-        (s < self.len()).then(|| (self.left(s), NonZeroU32::new(self.freq(s)).expect("frequencies are non-zero")))
-    }
-}
-
 impl DecoderModel<PRECISION> for &FreqTable {
+    #[inline(always)]
     fn quantile_function(&self, quantile: u32) -> (usize, u32, NonZeroU32) {
         let s = self.lookup(quantile);
-        (s, self.left(s), NonZeroU32::new(self.freq(s)).expect("frequencies are non-zero"))
+        let (left, right) = (self.left(s), self.left(s + 1));
+        // Tables are strictly increasing (`FreqTable::from_weights`), so `right > left`.
+        (s, left, NonZeroU32::new(right - left).unwrap_or(NonZeroU32::MIN))
     }
 }
 
@@ -47,15 +40,8 @@ impl EntropyModel<PRECISION> for RawBits {
     type Probability = u32;
 }
 
-impl EncoderModel<PRECISION> for RawBits {
-    fn left_cumulative_and_probability(&self, symbol: impl core::borrow::Borrow<u32>) -> Option<(u32, NonZeroU32)> {
-        let s = *symbol.borrow();
-        let shift = PRECISION as u32 - self.0;
-        (s < 1 << self.0).then(|| (s << shift, NonZeroU32::new(1 << shift).expect("non-zero")))
-    }
-}
-
 impl DecoderModel<PRECISION> for RawBits {
+    #[inline(always)]
     fn quantile_function(&self, quantile: u32) -> (u32, u32, NonZeroU32) {
         let shift = PRECISION as u32 - self.0;
         let s = quantile >> shift;
@@ -63,117 +49,134 @@ impl DecoderModel<PRECISION> for RawBits {
     }
 }
 
-/// Little-endian `u32` words from a byte slice; counts reads past the end.
+/// One coded interval `(left cumulative, frequency)`: what the encoder needs of any symbol.
+#[derive(Clone, Copy)]
+struct Interval(u32, NonZeroU32);
+
+impl EntropyModel<PRECISION> for Interval {
+    type Symbol = ();
+    type Probability = u32;
+}
+
+impl EncoderModel<PRECISION> for Interval {
+    fn left_cumulative_and_probability(&self, _: impl core::borrow::Borrow<()>) -> Option<(u32, NonZeroU32)> {
+        Some((self.0, self.1))
+    }
+}
+
+/// Little-endian `u32` words from a byte slice, front to back.
 #[derive(Debug)]
 struct WordReader<'a> {
     data: &'a [u8],
     pos: usize,
-    overrun: Rc<Cell<usize>>,
 }
 
-impl ReadWords<u32, Queue> for WordReader<'_> {
+impl ReadWords<u32, Stack> for WordReader<'_> {
     type ReadError = std::convert::Infallible;
 
+    #[inline(always)]
     fn read(&mut self) -> Result<Option<u32>, Self::ReadError> {
         match self.data.get(self.pos..self.pos + 4) {
             Some(b) => {
                 self.pos += 4;
                 Ok(Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]])))
             }
-            None => {
-                self.overrun.set(self.overrun.get() + 1);
-                Ok(None)
-            }
+            None => Ok(None),
         }
+    }
+}
+
+/// The value of a decode result whose error types are uninhabited.
+#[inline(always)]
+fn infallible<T>(r: Result<T, CoderError<std::convert::Infallible, std::convert::Infallible>>) -> T {
+    match r {
+        Ok(v) => v,
+        Err(CoderError::Frontend(e) | CoderError::Backend(e)) => match e {},
     }
 }
 
 /// Decodes symbols from one independent stream.
 pub struct SymbolDecoder<'a> {
-    inner: RangeDecoder<u32, u64, WordReader<'a>>,
-    overrun: Rc<Cell<usize>>,
+    inner: AnsCoder<u32, u64, WordReader<'a>>,
 }
 
 impl<'a> SymbolDecoder<'a> {
-    /// `data` must be a whole number of 32-bit little-endian words.
+    /// `data` must be a whole number of 32-bit little-endian words, the first one non-zero.
     pub fn new(data: &'a [u8]) -> Result<Self, DecodeError> {
         if data.len() % 4 != 0 {
             return Err(DecodeError::Corrupt("stream length is not a multiple of 4"));
         }
-        let overrun = Rc::new(Cell::new(0));
-        let Ok(inner) = RangeDecoder::with_backend(WordReader { data, pos: 0, overrun: overrun.clone() });
-        Ok(SymbolDecoder { inner, overrun })
-    }
-
-    fn check(&self) -> Result<(), DecodeError> {
-        if self.overrun.get() > MAX_OVERRUN_WORDS {
-            return Err(DecodeError::Corrupt("symbol stream ends early"));
-        }
-        Ok(())
+        AnsCoder::from_compressed(WordReader { data, pos: 0 })
+            .map(|inner| SymbolDecoder { inner })
+            .map_err(|_| DecodeError::Corrupt("stream starts with a zero word"))
     }
 
     /// One symbol of `table`.
-    pub fn symbol(&mut self, table: &FreqTable) -> Result<usize, DecodeError> {
-        let s = self.inner.decode_symbol(table).map_err(|_| DecodeError::Corrupt("invalid symbol stream"))?;
-        self.check()?;
-        Ok(s)
-    }
-
-    /// `k` raw bits, 1..=16.
-    fn raw_piece(&mut self, k: u32) -> Result<u32, DecodeError> {
-        let s = self.inner.decode_symbol(RawBits(k)).map_err(|_| DecodeError::Corrupt("invalid symbol stream"))?;
-        self.check()?;
-        Ok(s)
+    #[inline(always)]
+    pub fn symbol(&mut self, table: &FreqTable) -> usize {
+        infallible(self.inner.decode_symbol(table))
     }
 
     /// `bits` (0..=32) raw bits in pieces of at most 16, most significant piece first.
-    pub fn raw_bits(&mut self, bits: u32) -> Result<u32, DecodeError> {
+    pub fn raw_bits(&mut self, bits: u32) -> u32 {
         let mut v: u64 = 0;
         let mut left = bits;
         while left > 0 {
             let take = left.min(16);
-            let piece = self.raw_piece(take)?;
+            let piece = infallible(self.inner.decode_symbol(RawBits(take)));
             v = (v << take) | u64::from(piece);
             left -= take;
         }
-        Ok(v as u32)
+        v as u32
     }
 
-    /// One value of a channel (handles constants and escapes).
-    pub fn value(&mut self, channel: &ChannelTable) -> Result<i32, DecodeError> {
-        match channel {
-            ChannelTable::Constant(v) => Ok(*v),
-            ChannelTable::Coded { lo, table } => {
-                let s = self.symbol(table)?;
-                if s + 1 == table.len() {
-                    Ok(unzigzag(self.raw_bits(32)?))
-                } else {
-                    // lo + n does not overflow: checked when the table was read.
-                    Ok(lo + s as i32)
-                }
-            }
+    /// One value of a coded channel: `lo + s`, or after the escape symbol 32 raw bits.
+    #[inline(always)]
+    pub fn coded_value(&mut self, lo: i32, table: &FreqTable) -> i32 {
+        let s = self.symbol(table);
+        if s + 1 == table.len() {
+            unzigzag(self.raw_bits(32))
+        } else {
+            // lo + n does not overflow: checked when the table was read.
+            lo + s as i32
         }
     }
-}
 
-/// Encodes symbols into one independent stream.
-pub struct SymbolEncoder {
-    inner: DefaultRangeEncoder,
-}
-
-impl Default for SymbolEncoder {
-    fn default() -> Self {
-        Self::new()
+    /// One value of a channel (constants read nothing).
+    #[inline(always)]
+    pub fn value(&mut self, channel: &ChannelTable) -> i32 {
+        match channel {
+            ChannelTable::Constant(v) => *v,
+            ChannelTable::Coded { lo, table } => self.coded_value(*lo, table),
+        }
     }
+
+    /// Checks that the stream ended where its encoder began: every word read and the state back
+    /// to zero. Anything else means the stream was not produced for the values decoded from it.
+    pub fn finish(self) -> Result<(), DecodeError> {
+        let (reader, state) = self.inner.into_raw_parts();
+        if reader.pos != reader.data.len() || state != 0 {
+            return Err(DecodeError::Corrupt("symbol stream does not end where its values do"));
+        }
+        Ok(())
+    }
+}
+
+/// Encodes symbols into one independent stream. ANS codes last-in first-out, so symbols are
+/// collected in decode order and coded in reverse by [`SymbolEncoder::finish`].
+#[derive(Default)]
+pub struct SymbolEncoder {
+    intervals: Vec<Interval>,
 }
 
 impl SymbolEncoder {
     pub fn new() -> Self {
-        SymbolEncoder { inner: DefaultRangeEncoder::new() }
+        SymbolEncoder::default()
     }
 
     pub fn symbol(&mut self, table: &FreqTable, s: usize) {
-        self.inner.encode_symbol(s, table).expect("symbol in table");
+        assert!(s < table.len(), "symbol outside its table");
+        self.intervals.push(Interval(table.left(s), NonZeroU32::new(table.freq(s)).expect("frequencies are non-zero")));
     }
 
     pub fn raw_bits(&mut self, value: u32, bits: u32) {
@@ -182,11 +185,12 @@ impl SymbolEncoder {
             let take = left.min(16);
             left -= take;
             let piece = ((u64::from(value) >> left) & ((1 << take) - 1)) as u32;
-            self.inner.encode_symbol(piece, RawBits(take)).expect("raw bits");
+            let shift = PRECISION as u32 - take;
+            self.intervals.push(Interval(piece << shift, NonZeroU32::new(1 << shift).expect("non-zero")));
         }
     }
 
-    /// One value of a channel; out-of-range values are escaped. Returns nothing for constants
+    /// One value of a channel; out-of-range values are escaped. Codes nothing for constants
     /// (the caller guarantees the value equals the constant).
     pub fn value(&mut self, channel: &ChannelTable, v: i32) {
         match channel {
@@ -218,10 +222,15 @@ impl SymbolEncoder {
         }
     }
 
-    /// Seals the stream and returns its bytes (little-endian words).
+    /// Codes the collected symbols and returns the stream's bytes: little-endian words in the
+    /// order the decoder reads them.
     pub fn finish(self) -> Vec<u8> {
-        let words = self.inner.into_compressed().expect("vec backend");
-        words.iter().flat_map(|w| w.to_le_bytes()).collect()
+        let mut ans = DefaultAnsCoder::new();
+        for &i in self.intervals.iter().rev() {
+            ans.encode_symbol((), i).expect("intervals are valid");
+        }
+        let words = ans.into_compressed().expect("vec backend");
+        words.iter().rev().flat_map(|w| w.to_le_bytes()).collect()
     }
 }
 
@@ -241,9 +250,40 @@ mod tests {
         let bytes = e.finish();
         let mut d = SymbolDecoder::new(&bytes).unwrap();
         for (i, &v) in values.iter().enumerate() {
-            assert_eq!(d.value(&ch).unwrap(), v);
-            assert_eq!(d.raw_bits(10).unwrap(), i as u32 % 1000);
+            assert_eq!(d.value(&ch), v);
+            assert_eq!(d.raw_bits(10), i as u32 % 1000);
         }
+        d.finish().unwrap();
+    }
+
+    #[test]
+    fn empty_and_all_zero_symbol_streams() {
+        // Coding only the first symbol (left cumulative 0) from the empty state stays at state 0:
+        // the stream is empty and still decodes.
+        let t = FreqTable::from_weights(&[9, 1]);
+        let mut e = SymbolEncoder::new();
+        (0..100).for_each(|_| e.symbol(&t, 0));
+        let bytes = e.finish();
+        assert!(bytes.is_empty());
+        let mut d = SymbolDecoder::new(&bytes).unwrap();
+        assert!((0..100).all(|_| d.symbol(&t) == 0));
+        d.finish().unwrap();
+    }
+
+    #[test]
+    fn finish_rejects_streams_that_do_not_match_their_values() {
+        let t = FreqTable::from_weights(&[1, 2, 3, 4]);
+        let mut e = SymbolEncoder::new();
+        (0..1000).for_each(|i| e.symbol(&t, i % 4));
+        let bytes = e.finish();
+        // Too few values read, and a stream with one word dropped.
+        let mut d = SymbolDecoder::new(&bytes).unwrap();
+        (0..999).for_each(|_| _ = d.symbol(&t));
+        assert!(d.finish().is_err());
+        let mut d = SymbolDecoder::new(&bytes[..bytes.len() - 4]).unwrap();
+        (0..1000).for_each(|_| _ = d.symbol(&t));
+        assert!(d.finish().is_err());
+        assert!(SymbolDecoder::new(&[0, 0, 0, 0, 1, 0, 0, 0]).is_err(), "leading zero word");
     }
 
     #[test]
@@ -257,11 +297,12 @@ mod tests {
                     (seed >> 56) as u8
                 })
                 .collect();
-            let mut d = SymbolDecoder::new(&bytes).unwrap();
-            for _ in 0..1000 {
-                if d.symbol(&t).is_err() {
-                    break;
+            if let Ok(mut d) = SymbolDecoder::new(&bytes) {
+                for _ in 0..1000 {
+                    _ = d.symbol(&t);
+                    _ = d.raw_bits(32);
                 }
+                _ = d.finish();
             }
         }
     }

@@ -1,4 +1,4 @@
-//! Integer probability tables and symbol coding with constriction's range coder.
+//! Integer probability tables and symbol coding with constriction's ANS coder.
 //!
 //! Every probability the decoder uses comes from a [`FreqTable`]: 16-bit fixed-point
 //! frequencies rebuilt from integer weights read from the bitstream by integer arithmetic
@@ -17,11 +17,17 @@ pub const TOTAL: u32 = 1 << PRECISION;
 /// Largest number of in-range symbols a table may have (the escape symbol comes on top).
 pub const MAX_SYMBOLS: usize = 4096;
 
+/// Quantiles per bucket of the decoder's symbol lookup is `2^BUCKET_SHIFT`.
+const BUCKET_SHIFT: u32 = 4;
+
 /// A cumulative frequency table over symbols `0..len()`; every symbol has a non-zero frequency.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FreqTable {
     /// `cdf[0] = 0`, `cdf[len] = TOTAL`, strictly increasing.
     cdf: Vec<u32>,
+    /// `bucket[b]` = the symbol holding quantile `b << BUCKET_SHIFT`: where the decoder's
+    /// search for a quantile in bucket `b` starts (a derived cache of `cdf`).
+    bucket: Vec<u16>,
 }
 
 impl FreqTable {
@@ -56,7 +62,13 @@ impl FreqTable {
             acc += f;
             cdf.push(acc);
         }
-        FreqTable { cdf }
+        // Bucket b starts in the symbol s with cdf[s] <= 16·b < cdf[s+1].
+        let mut bucket = vec![0u16; (TOTAL >> BUCKET_SHIFT) as usize];
+        let first_bucket = |c: u32| (c.div_ceil(1 << BUCKET_SHIFT)) as usize;
+        for (s, w) in cdf.windows(2).enumerate() {
+            bucket[first_bucket(w[0])..first_bucket(w[1])].fill(s as u16); // s < n <= 4097
+        }
+        FreqTable { cdf, bucket }
     }
 
     /// Number of symbols (including the escape symbol where there is one).
@@ -82,9 +94,15 @@ impl FreqTable {
         self.cdf[s]
     }
 
-    /// The symbol whose interval holds `q < 2^16`.
+    /// The symbol whose interval holds `q < 2^16`: a bucket lookup, then a short forward scan
+    /// over the symbols that share the bucket.
+    #[inline(always)]
     fn lookup(&self, q: u32) -> usize {
-        self.cdf.partition_point(|&c| c <= q) - 1
+        let mut s = usize::from(self.bucket[(q >> BUCKET_SHIFT) as usize]);
+        while self.cdf[s + 1] <= q {
+            s += 1;
+        }
+        s
     }
 }
 
