@@ -1,11 +1,16 @@
 //! `.gsc` bytes to a scene: parameter sections, then every (group, chunk) stream in parallel.
 
+use std::ops::Range;
+
 use rayon::prelude::*;
 
 use crate::bitstream::layout::{self, chunk_count, Group, CHUNK, INFO_KIND, MAX_POSITION_BITS};
 use crate::bitstream::{self, ByteReader, Container, DecodeError, Header};
 use crate::entropy::{ChannelTable, SymbolDecoder};
 use crate::Splats;
+
+/// SH bands are decoded in jobs of about this many channels (a band has 9, 15 or 21).
+const JOB_CHANNELS: usize = 8;
 
 /// What to decode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -145,7 +150,9 @@ fn read_all_params(c: &Container<'_>, degree: u8) -> Result<Vec<(Group, GroupPar
     if c.header.gaussians == 0 {
         return Ok(Vec::new());
     }
-    Group::present(degree)
+    let groups: Vec<Group> = Group::present(degree).collect();
+    groups
+        .into_par_iter()
         .map(|g| {
             let s = c.section(g.params_kind(), 0).ok_or_else(|| DecodeError::MissingSection(format!("{} parameters", g.name())))?;
             Ok((g, read_params(g, s.data)?))
@@ -162,27 +169,41 @@ fn finite(v: f32) -> Result<f32, DecodeError> {
 }
 
 /// The next stream of a data section: `varint length`, then `length` bytes.
-fn next_stream<'a>(r: &mut ByteReader<'a>) -> Result<SymbolDecoder<'a>, DecodeError> {
+fn next_stream_bytes<'a>(r: &mut ByteReader<'a>) -> Result<&'a [u8], DecodeError> {
     let len = r.varint("stream length")? as usize;
-    SymbolDecoder::new(r.take(len, "stream")?)
+    r.take(len, "stream")
 }
 
-/// All channels of a (non-position) group chunk, Gaussian-major (`count × channels`), each value
-/// `f32(v) · scale[channel]`. Each coded channel has its own stream; decoding them side by side
-/// lets the independent coder states overlap in the CPU.
-fn decode_channels(p: &GroupParams, r: &mut ByteReader<'_>, count: usize, scale: &[f32]) -> Result<Vec<f32>, DecodeError> {
-    let c = p.tables.len();
-    let mut vals = vec![0f32; count * c];
-    let mut coded = Vec::new();
-    for (j, t) in p.tables.iter().enumerate() {
-        match t {
-            ChannelTable::Constant(v) => vals.iter_mut().skip(j).step_by(c).for_each(|x| *x = *v as f32 * scale[j]),
-            ChannelTable::Coded { lo, table } => coded.push((j, *lo, table, scale[j], next_stream(r)?)),
+/// Channels `channels` of a (non-position) group chunk, Gaussian-major (`count × channels.len()`),
+/// each value `f32(v) · scale[channel]`. Each coded channel has its own stream; decoding them side
+/// by side lets the independent coder states overlap in the CPU.
+fn decode_channels(
+    p: &GroupParams,
+    r: &mut ByteReader<'_>,
+    count: usize,
+    scale: &[f32],
+    channels: Range<usize>,
+) -> Result<Vec<f32>, DecodeError> {
+    // Every channel's stream is located (so the section's layout is checked), the wanted ones decoded.
+    let mut streams = Vec::with_capacity(p.tables.len());
+    for t in &p.tables {
+        streams.push(match t {
+            ChannelTable::Constant(_) => &[][..],
+            ChannelTable::Coded { .. } => next_stream_bytes(r)?,
+        });
+    }
+    let w = channels.len();
+    let mut vals = vec![0f32; count * w];
+    let mut coded = Vec::with_capacity(w);
+    for (col, j) in channels.enumerate() {
+        match &p.tables[j] {
+            ChannelTable::Constant(v) => vals.iter_mut().skip(col).step_by(w).for_each(|x| *x = *v as f32 * scale[j]),
+            ChannelTable::Coded { lo, table } => coded.push((col, *lo, table.lookup_table(), scale[j], SymbolDecoder::new(streams[j])?)),
         }
     }
-    for row in vals.chunks_exact_mut(c) {
-        for (j, lo, table, s, d) in coded.iter_mut() {
-            row[*j] = d.coded_value(*lo, table) as f32 * *s;
+    for row in vals.chunks_exact_mut(w) {
+        for (col, lo, table, s, d) in coded.iter_mut() {
+            row[*col] = d.coded_value(*lo, *table) as f32 * *s;
         }
     }
     coded.into_iter().try_for_each(|(.., d)| d.finish())?;
@@ -194,7 +215,7 @@ fn decode_channels(p: &GroupParams, r: &mut ByteReader<'_>, count: usize, scale:
 
 fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, count: usize) -> Result<Vec<f32>, DecodeError> {
     let (origin, step, bits) = p.grid.expect("position has a grid");
-    let mut d = next_stream(r)?;
+    let mut d = SymbolDecoder::new(next_stream_bytes(r)?)?;
     let mut out = Vec::with_capacity(count * 3);
     let max_len = 3 * u32::from(bits);
     let limit = 1u64 << max_len; // bits <= 21, so at most 2^63
@@ -227,13 +248,14 @@ fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, count: usize) -> Re
     Ok(out)
 }
 
-fn decode_chunk(g: Group, p: &GroupParams, data: &[u8], count: usize) -> Result<Vec<f32>, DecodeError> {
+/// Decodes channels `channels` of one data section (position and rotation: always all of them).
+fn decode_chunk(g: Group, p: &GroupParams, data: &[u8], count: usize, channels: Range<usize>) -> Result<Vec<f32>, DecodeError> {
     let mut r = ByteReader::new(data);
     let out = match g {
         Group::Position => decode_positions(p, &mut r, count)?,
         Group::Rotation => {
             // The index channel is read unscaled: f32 holds 0..=3 (and any escaped value) exactly enough.
-            let vals = decode_channels(p, &mut r, count, &[1.0, p.steps[1], p.steps[2], p.steps[3]])?;
+            let vals = decode_channels(p, &mut r, count, &[1.0, p.steps[1], p.steps[2], p.steps[3]], 0..4)?;
             let mut out = Vec::with_capacity(count * 4);
             for v in vals.chunks_exact(4) {
                 if !matches!(v[0], 0.0 | 1.0 | 2.0 | 3.0) {
@@ -243,7 +265,7 @@ fn decode_chunk(g: Group, p: &GroupParams, data: &[u8], count: usize) -> Result<
             }
             out
         }
-        _ => decode_channels(p, &mut r, count, &p.steps)?,
+        _ => decode_channels(p, &mut r, count, &p.steps, channels)?,
     };
     if r.remaining() != 0 {
         return Err(DecodeError::Corrupt("trailing bytes in a data section"));
@@ -322,37 +344,54 @@ fn decode_container(c: &Container<'_>, degree: u8) -> Result<Splats, DecodeError
     if chunks > usize::from(u16::MAX) + 1 {
         return Err(DecodeError::Limit("too many chunks"));
     }
-    let jobs: Vec<(usize, usize)> = (0..params.len()).flat_map(|gi| (0..chunks).map(move |ch| (gi, ch))).collect();
+    // One job per (group, chunk); SH bands are split further into channel ranges of about
+    // JOB_CHANNELS so that the work balances over the threads even for a one-chunk scene.
+    let mut jobs: Vec<(usize, usize, Range<usize>)> = Vec::new();
+    for (gi, (g, _)) in params.iter().enumerate() {
+        let c = g.channels();
+        let pieces = if g.sh_band() > 0 { c.div_ceil(JOB_CHANNELS) } else { 1 };
+        for ch in 0..chunks {
+            jobs.extend((0..pieces).map(|i| (gi, ch, i * c / pieces..(i + 1) * c / pieces)));
+        }
+    }
     let results: Vec<Vec<f32>> = jobs
         .par_iter()
-        .map(|&(gi, ch)| {
-            let (g, p) = &params[gi];
-            let data = c.section(g.data_kind(), ch as u16).map_or(&[][..], |s| s.data);
+        .map(|(gi, ch, channels)| {
+            let (g, p) = &params[*gi];
+            let data = c.section(g.data_kind(), *ch as u16).map_or(&[][..], |s| s.data);
             let count = CHUNK.min(n - ch * CHUNK);
-            decode_chunk(*g, p, data, count)
+            decode_chunk(*g, p, data, count, channels.clone())
         })
         .collect::<Result<_, _>>()?;
 
-    let k = splats.rest_coeffs();
-    splats.sh_rest = vec![0.0; n * k * 3];
-    for (&(gi, ch), vals) in jobs.iter().zip(&results) {
-        let g = params[gi].0;
-        let base = ch * CHUNK;
-        match g {
+    let row = splats.rest_coeffs() * 3;
+    splats.sh_rest = vec![0.0; n * row];
+    // SH channel j of band b is rest value (b²−1)·3 + j of its Gaussian: scatter the SH jobs'
+    // columns into the rows, in parallel over chunks and rows.
+    let mut sh_jobs: Vec<Vec<(usize, &[f32])>> = vec![Vec::new(); chunks];
+    for ((gi, ch, channels), vals) in jobs.iter().zip(&results) {
+        let b = params[*gi].0.sh_band() as usize;
+        if b > 0 {
+            sh_jobs[*ch].push(((b * b - 1) * 3 + channels.start, vals));
+        }
+    }
+    splats.sh_rest.par_chunks_mut(CHUNK * row.max(1)).zip(&sh_jobs).for_each(|(rows, pieces)| {
+        let count = rows.len() / row.max(1);
+        rows.par_chunks_mut(row.max(1)).enumerate().with_min_len(1024).for_each(|(i, dst)| {
+            for &(first, vals) in pieces {
+                let w = vals.len() / count;
+                dst[first..first + w].copy_from_slice(&vals[i * w..(i + 1) * w]);
+            }
+        });
+    });
+    for ((gi, _, _), vals) in jobs.iter().zip(&results) {
+        match params[*gi].0 {
             Group::Position => splats.positions.extend(vals.chunks_exact(3).map(|v| [v[0], v[1], v[2]])),
             Group::Scale => splats.log_scales.extend(vals.chunks_exact(3).map(|v| [v[0], v[1], v[2]])),
             Group::Rotation => splats.rotations.extend(vals.chunks_exact(4).map(|v| [v[0], v[1], v[2], v[3]])),
             Group::Opacity => splats.opacity_logits.extend_from_slice(vals),
             Group::ShDc => splats.sh_dc.extend(vals.chunks_exact(3).map(|v| [v[0], v[1], v[2]])),
-            Group::Sh1 | Group::Sh2 | Group::Sh3 => {
-                let b = g.sh_band() as usize;
-                let first = b * b - 1; // first rest coefficient of band b
-                let w = (2 * b + 1) * 3;
-                for (i, v) in vals.chunks_exact(w).enumerate() {
-                    let at = ((base + i) * k + first) * 3;
-                    splats.sh_rest[at..at + w].copy_from_slice(v);
-                }
-            }
+            Group::Sh1 | Group::Sh2 | Group::Sh3 => {} // scattered above
         }
     }
     Ok(splats)

@@ -12,22 +12,21 @@ use constriction::stream::stack::{AnsCoder, DefaultAnsCoder};
 use constriction::stream::{Decode, Encode};
 use constriction::{CoderError, Stack};
 
-use super::{ChannelTable, FreqTable, PRECISION};
+use super::{ChannelTable, FreqTable, Lookup, PRECISION};
 use crate::bitstream::bytes::{unzigzag, zigzag};
 use crate::bitstream::DecodeError;
 
-impl EntropyModel<PRECISION> for &FreqTable {
+impl EntropyModel<PRECISION> for Lookup<'_> {
     type Symbol = usize;
     type Probability = u32;
 }
 
-impl DecoderModel<PRECISION> for &FreqTable {
+impl DecoderModel<PRECISION> for Lookup<'_> {
     #[inline(always)]
     fn quantile_function(&self, quantile: u32) -> (usize, u32, NonZeroU32) {
-        let s = self.lookup(quantile);
-        let (left, right) = (self.left(s), self.left(s + 1));
-        // Tables are strictly increasing (`FreqTable::from_weights`), so `right > left`.
-        (s, left, NonZeroU32::new(right - left).unwrap_or(NonZeroU32::MIN))
+        let (s, left, freq) = self.find(quantile);
+        // Tables are strictly increasing (`FreqTable::from_weights`), so `freq > 0`.
+        (s, left, NonZeroU32::new(freq).unwrap_or(NonZeroU32::MIN))
     }
 }
 
@@ -64,11 +63,10 @@ impl EncoderModel<PRECISION> for Interval {
     }
 }
 
-/// Little-endian `u32` words from a byte slice, front to back.
+/// Little-endian `u32` words from a byte slice, front to back; `rest` is what is left to read.
 #[derive(Debug)]
 struct WordReader<'a> {
-    data: &'a [u8],
-    pos: usize,
+    rest: &'a [u8],
 }
 
 impl ReadWords<u32, Stack> for WordReader<'_> {
@@ -76,13 +74,10 @@ impl ReadWords<u32, Stack> for WordReader<'_> {
 
     #[inline(always)]
     fn read(&mut self) -> Result<Option<u32>, Self::ReadError> {
-        match self.data.get(self.pos..self.pos + 4) {
-            Some(b) => {
-                self.pos += 4;
-                Ok(Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]])))
-            }
-            None => Ok(None),
-        }
+        Ok(self.rest.split_first_chunk::<4>().map(|(word, rest)| {
+            self.rest = rest;
+            u32::from_le_bytes(*word)
+        }))
     }
 }
 
@@ -106,14 +101,14 @@ impl<'a> SymbolDecoder<'a> {
         if data.len() % 4 != 0 {
             return Err(DecodeError::Corrupt("stream length is not a multiple of 4"));
         }
-        AnsCoder::from_compressed(WordReader { data, pos: 0 })
+        AnsCoder::from_compressed(WordReader { rest: data })
             .map(|inner| SymbolDecoder { inner })
             .map_err(|_| DecodeError::Corrupt("stream starts with a zero word"))
     }
 
     /// One symbol of `table`.
     #[inline(always)]
-    pub fn symbol(&mut self, table: &FreqTable) -> usize {
+    pub fn symbol(&mut self, table: Lookup<'_>) -> usize {
         infallible(self.inner.decode_symbol(table))
     }
 
@@ -132,7 +127,7 @@ impl<'a> SymbolDecoder<'a> {
 
     /// One value of a coded channel: `lo + s`, or after the escape symbol 32 raw bits.
     #[inline(always)]
-    pub fn coded_value(&mut self, lo: i32, table: &FreqTable) -> i32 {
+    pub fn coded_value(&mut self, lo: i32, table: Lookup<'_>) -> i32 {
         let s = self.symbol(table);
         if s + 1 == table.len() {
             unzigzag(self.raw_bits(32))
@@ -147,7 +142,7 @@ impl<'a> SymbolDecoder<'a> {
     pub fn value(&mut self, channel: &ChannelTable) -> i32 {
         match channel {
             ChannelTable::Constant(v) => *v,
-            ChannelTable::Coded { lo, table } => self.coded_value(*lo, table),
+            ChannelTable::Coded { lo, table } => self.coded_value(*lo, table.lookup_table()),
         }
     }
 
@@ -155,7 +150,7 @@ impl<'a> SymbolDecoder<'a> {
     /// to zero. Anything else means the stream was not produced for the values decoded from it.
     pub fn finish(self) -> Result<(), DecodeError> {
         let (reader, state) = self.inner.into_raw_parts();
-        if reader.pos != reader.data.len() || state != 0 {
+        if !reader.rest.is_empty() || state != 0 {
             return Err(DecodeError::Corrupt("symbol stream does not end where its values do"));
         }
         Ok(())
@@ -266,7 +261,7 @@ mod tests {
         let bytes = e.finish();
         assert!(bytes.is_empty());
         let mut d = SymbolDecoder::new(&bytes).unwrap();
-        assert!((0..100).all(|_| d.symbol(&t) == 0));
+        assert!((0..100).all(|_| d.symbol(t.lookup_table()) == 0));
         d.finish().unwrap();
     }
 
@@ -278,10 +273,10 @@ mod tests {
         let bytes = e.finish();
         // Too few values read, and a stream with one word dropped.
         let mut d = SymbolDecoder::new(&bytes).unwrap();
-        (0..999).for_each(|_| _ = d.symbol(&t));
+        (0..999).for_each(|_| _ = d.symbol(t.lookup_table()));
         assert!(d.finish().is_err());
         let mut d = SymbolDecoder::new(&bytes[..bytes.len() - 4]).unwrap();
-        (0..1000).for_each(|_| _ = d.symbol(&t));
+        (0..1000).for_each(|_| _ = d.symbol(t.lookup_table()));
         assert!(d.finish().is_err());
         assert!(SymbolDecoder::new(&[0, 0, 0, 0, 1, 0, 0, 0]).is_err(), "leading zero word");
     }
@@ -299,7 +294,7 @@ mod tests {
                 .collect();
             if let Ok(mut d) = SymbolDecoder::new(&bytes) {
                 for _ in 0..1000 {
-                    _ = d.symbol(&t);
+                    _ = d.symbol(t.lookup_table());
                     _ = d.raw_bits(32);
                 }
                 _ = d.finish();

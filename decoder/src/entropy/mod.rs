@@ -17,17 +17,16 @@ pub const TOTAL: u32 = 1 << PRECISION;
 /// Largest number of in-range symbols a table may have (the escape symbol comes on top).
 pub const MAX_SYMBOLS: usize = 4096;
 
-/// Quantiles per bucket of the decoder's symbol lookup is `2^BUCKET_SHIFT`.
-const BUCKET_SHIFT: u32 = 4;
-
 /// A cumulative frequency table over symbols `0..len()`; every symbol has a non-zero frequency.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FreqTable {
     /// `cdf[0] = 0`, `cdf[len] = TOTAL`, strictly increasing.
     cdf: Vec<u32>,
-    /// `bucket[b]` = the symbol holding quantile `b << BUCKET_SHIFT`: where the decoder's
-    /// search for a quantile in bucket `b` starts (a derived cache of `cdf`).
+    /// `bucket[b]` = the symbol holding quantile `b << shift`: where the decoder's search for a
+    /// quantile in bucket `b` starts (a derived cache of `cdf`).
     bucket: Vec<u16>,
+    /// `2^(16 - shift)` buckets: about two per symbol, 64 to 4096.
+    shift: u32,
 }
 
 impl FreqTable {
@@ -62,13 +61,14 @@ impl FreqTable {
             acc += f;
             cdf.push(acc);
         }
-        // Bucket b starts in the symbol s with cdf[s] <= 16·b < cdf[s+1].
-        let mut bucket = vec![0u16; (TOTAL >> BUCKET_SHIFT) as usize];
-        let first_bucket = |c: u32| (c.div_ceil(1 << BUCKET_SHIFT)) as usize;
+        // Bucket b starts in the symbol s with cdf[s] <= b·2^shift < cdf[s+1].
+        let shift = PRECISION as u32 - (n.next_power_of_two().trailing_zeros() + 1).clamp(6, 12);
+        let mut bucket = vec![0u16; (TOTAL >> shift) as usize];
+        let first_bucket = |c: u32| (c.div_ceil(1 << shift)) as usize;
         for (s, w) in cdf.windows(2).enumerate() {
             bucket[first_bucket(w[0])..first_bucket(w[1])].fill(s as u16); // s < n <= 4097
         }
-        FreqTable { cdf, bucket }
+        FreqTable { cdf, bucket, shift }
     }
 
     /// Number of symbols (including the escape symbol where there is one).
@@ -94,15 +94,43 @@ impl FreqTable {
         self.cdf[s]
     }
 
-    /// The symbol whose interval holds `q < 2^16`: a bucket lookup, then a short forward scan
-    /// over the symbols that share the bucket.
+    /// The decoder's view of the table (slices, no indirection through the table).
+    pub fn lookup_table(&self) -> Lookup<'_> {
+        Lookup { cdf: &self.cdf, bucket: &self.bucket, shift: self.shift }
+    }
+}
+
+/// What the decoder needs of a [`FreqTable`] to turn a quantile into a symbol.
+#[derive(Debug, Clone, Copy)]
+pub struct Lookup<'a> {
+    cdf: &'a [u32],
+    bucket: &'a [u16],
+    shift: u32,
+}
+
+impl Lookup<'_> {
+    /// Number of symbols.
     #[inline(always)]
-    fn lookup(&self, q: u32) -> usize {
-        let mut s = usize::from(self.bucket[(q >> BUCKET_SHIFT) as usize]);
-        while self.cdf[s + 1] <= q {
+    pub fn len(self) -> usize {
+        self.cdf.len() - 1
+    }
+
+    pub fn is_empty(self) -> bool {
+        self.len() == 0
+    }
+
+    /// The symbol whose interval holds `q < 2^16` with its left cumulative frequency and
+    /// frequency: a bucket lookup, then a short forward scan over the symbols sharing the bucket.
+    #[inline(always)]
+    fn find(self, q: u32) -> (usize, u32, u32) {
+        let mut s = usize::from(self.bucket[(q >> self.shift) as usize]);
+        let mut right = self.cdf[s + 1];
+        while right <= q {
             s += 1;
+            right = self.cdf[s + 1];
         }
-        s
+        let left = self.cdf[s];
+        (s, left, right - left)
     }
 }
 
@@ -179,8 +207,9 @@ mod tests {
     fn lookup_inverts_the_cdf() {
         let t = FreqTable::from_weights(&[5, 0, 9, 1]);
         for q in 0..TOTAL {
-            let s = t.lookup(q);
+            let (s, left, freq) = t.lookup_table().find(q);
             assert!(t.left(s) <= q && q < t.left(s) + t.freq(s));
+            assert_eq!((left, freq), (t.left(s), t.freq(s)));
         }
     }
 }
