@@ -36,6 +36,19 @@ pub fn orbit_cameras(splats: &Splats, n: usize, width: u32, height: u32, up: Vec
     Camera::orbit(n, centre, ORBIT_RADIUS_FACTOR * extent, ORBIT_ELEVATION, up, width, height, ORBIT_FOV_X)
 }
 
+/// Cameras for fine-tuning a scene against renders of itself: three rings of `per_ring` views at
+/// [`ORBIT_ELEVATION`] and 15° below and above it, with azimuths half a step off those of
+/// [`orbit_cameras`]`(…, per_ring, …)`, so that no training view is one of the evaluation views.
+pub fn training_cameras(splats: &Splats, per_ring: usize, width: u32, height: u32, up: Vec3) -> Vec<Camera> {
+    let (centre, extent) = robust_frame(splats);
+    let ring = |elevation: f32| {
+        let twice = Camera::orbit(2 * per_ring, centre, ORBIT_RADIUS_FACTOR * extent, elevation, up, width, height, ORBIT_FOV_X);
+        twice.into_iter().skip(1).step_by(2) // azimuths (2i+1)·π/per_ring
+    };
+    let tilt = 15f32.to_radians();
+    [ORBIT_ELEVATION - tilt, ORBIT_ELEVATION, ORBIT_ELEVATION + tilt].into_iter().flat_map(ring).collect()
+}
+
 /// World up axes by name, for `--up`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum UpAxis {
@@ -62,6 +75,28 @@ impl UpAxis {
             UpAxis::NegY => -Vec3::Y,
             UpAxis::PosZ => Vec3::Z,
             UpAxis::NegZ => -Vec3::Z,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn training_cameras_avoid_the_evaluation_views() {
+        let mut s = Splats::new(0);
+        for i in 0..50 {
+            let x = i as f32 * 0.1;
+            s.push([x.sin(), x.cos(), x], [-2.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[]);
+        }
+        let eval = orbit_cameras(&s, 8, 64, 64, Vec3::NEG_Y);
+        let train = training_cameras(&s, 8, 64, 64, Vec3::NEG_Y);
+        assert_eq!(train.len(), 24);
+        let radius = (eval[0].center() - eval[4].center()).length() / 2.0;
+        for t in &train {
+            let nearest = eval.iter().map(|e| (e.center() - t.center()).length()).fold(f32::INFINITY, f32::min);
+            assert!(nearest > 0.1 * radius, "a training camera sits on an evaluation camera");
         }
     }
 }

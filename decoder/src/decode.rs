@@ -1,4 +1,4 @@
-//! `.gsc` bytes to a scene: parameter sections, then every (group, chunk) stream in parallel.
+//! `.gsc` bytes to a scene: parameter sections, then the (group, chunk, channel range) jobs in parallel.
 
 use std::ops::Range;
 

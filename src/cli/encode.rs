@@ -6,7 +6,7 @@ use std::time::Instant;
 use serde_json::json;
 
 use crate::rate;
-use crate::views::{orbit_cameras, UpAxis};
+use crate::views::{orbit_cameras, training_cameras, UpAxis};
 use crate::Error;
 use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
@@ -31,6 +31,10 @@ pub struct Args {
     /// Default: 0 for a .ply, 3000 for a dataset.
     #[arg(long)]
     pub iters: Option<usize>,
+    /// Keep the quantisation steps fixed during training instead of learning them (per group:
+    /// scale, opacity, SH DC, each SH band) under D + λ·R.
+    #[arg(long)]
+    pub fixed_steps: bool,
     /// Write a JSON report (sizes per attribute group, estimated vs actual, time series).
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -82,7 +86,7 @@ pub fn run(args: Args) -> crate::Result<()> {
         if input_is_dir {
             // RD choices on the trained scene (their PSNR is against the trained scene, not the
             // images, so they stay out of the held-out series).
-            config = rate::rd::search(&scene, args.lambda, |_| {}).map_err(|e| Error::input(&args.input, e))?.0;
+            config = rate::rd::search_from(&scene, args.lambda, steps, |_| {}).map_err(|e| Error::input(&args.input, e))?.0;
             heldout = Some(dataset);
         } else {
             config.steps = steps;
@@ -152,7 +156,8 @@ fn fine_tune(
     let (dataset, init) = if args.input.is_dir() {
         (crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?, None)
     } else {
-        let cams = orbit_cameras(scene, 24, 256, 256, UpAxis::NegY.vector());
+        // Training views avoid the 8 orbit views `orbit_psnr` evaluates on (held out).
+        let cams = training_cameras(scene, 8, 256, 256, UpAxis::NegY.vector());
         (crate::train::targets::render_targets(scene, &cams, [0.0; 3]), Some(scene.clone()))
     };
     let cfg = TrainConfig {
@@ -162,7 +167,9 @@ fn fine_tune(
         eval_interval: (iters / 10).max(1),
         ..Default::default()
     };
-    let term = rate::term::RateTerm::new(args.lambda * TRAIN_LAMBDA_SCALE, config.steps, config.min_opacity);
+    let mut term = rate::term::RateTerm::new(args.lambda * TRAIN_LAMBDA_SCALE, config.steps, config.min_opacity);
+    term.learn_steps = !args.fixed_steps;
+    let learned = term.steps_handle();
     let pb = super::progress::bar(iters as u64, "train", args.quiet);
     let (trained, _) = train(&dataset, init, &cfg, crate::loss::build_loss(&args.loss, iters, crate::loss::LossKind::Wdr)?, Some(Box::new(term)), &mut |p| {
         pb.set_position(p.iteration as u64);
@@ -175,5 +182,9 @@ fn fine_tune(
         other => other,
     })?;
     pb.finish_and_clear();
-    Ok((trained, config.steps, dataset))
+    let steps = *learned.lock().expect("steps lock");
+    series.push(json!({"iteration": iters, "trial": "learned steps", "wall_s": start.elapsed().as_secs_f64(), "steps": {
+        "scale": steps.scale, "opacity": steps.opacity, "sh_dc": steps.sh_dc, "sh_rest": steps.sh_rest,
+    }}));
+    Ok((trained, steps, dataset))
 }

@@ -23,6 +23,8 @@ pub struct BitsGrad {
     pub d_value: f64,
     pub d_mu: f64,
     pub d_log_b: f64,
+    /// d bits / d step (the bin width).
+    pub d_step: f64,
 }
 
 impl LearnedChannel {
@@ -55,12 +57,12 @@ impl LearnedChannel {
         let (fl, pl) = self.cdf_and_pdf(lo);
         let p = fh - fl;
         if p <= LIKELIHOOD_FLOOR {
-            return BitsGrad { bits: -LIKELIHOOD_FLOOR.log2(), d_value: 0.0, d_mu: 0.0, d_log_b: 0.0 };
+            return BitsGrad { bits: -LIKELIHOOD_FLOOR.log2(), d_value: 0.0, d_mu: 0.0, d_log_b: 0.0, d_step: 0.0 };
         }
         let k = -1.0 / (p * std::f64::consts::LN_2);
         let dp_dy = ph - pl;
         let dp_dlogb = -ph * (hi - self.mu) + pl * (lo - self.mu);
-        BitsGrad { bits: -p.log2(), d_value: k * dp_dy, d_mu: -k * dp_dy, d_log_b: k * dp_dlogb }
+        BitsGrad { bits: -p.log2(), d_value: k * dp_dy, d_mu: -k * dp_dy, d_log_b: k * dp_dlogb, d_step: k * 0.5 * (ph + pl) }
     }
 
     /// Trains the density on quantised `values` (bin centres) by `iters` steps of gradient
@@ -113,6 +115,8 @@ mod tests {
             let dy = fd(&|e| m.bits(y + e, 0.1).bits);
             let dmu = fd(&|e| LearnedChannel { mu: m.mu + e, ..m }.bits(y, 0.1).bits);
             let db = fd(&|e| LearnedChannel { log_b: m.log_b + e, ..m }.bits(y, 0.1).bits);
+            let ds = fd(&|e| m.bits(y, 0.1 + e).bits);
+            assert!((g.d_step - ds).abs() < 1e-4 * (1.0 + ds.abs()), "y={y}: {} vs {ds}", g.d_step);
             assert!((g.d_value - dy).abs() < 1e-4 * (1.0 + dy.abs()), "y={y}: {} vs {dy}", g.d_value);
             assert!((g.d_mu - dmu).abs() < 1e-4 * (1.0 + dmu.abs()));
             assert!((g.d_log_b - db).abs() < 1e-4 * (1.0 + db.abs()));

@@ -94,7 +94,18 @@ fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the pruning threshold, then the SH degree, then per group
 /// the multiplier of the fine step minimising `ΔD_g + λ·R_g`. `on_step` sees each trial.
-pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
+pub fn search(scene: &Splats, lambda: f64, on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
+    search_from(scene, lambda, Steps::default().scaled(0.7), on_step)
+}
+
+/// [`search`] with the per-group step multipliers applied to `fine` (e.g. steps learned in
+/// training) instead of the default fine steps; multiplier 1 keeps a step as it is.
+pub fn search_from(
+    scene: &Splats,
+    lambda: f64,
+    fine: Steps,
+    mut on_step: impl FnMut(&RdPoint),
+) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
     scene.validate()?;
     let ev = Evaluator::new(scene);
     let j = |bytes: usize, d: f64| d + lambda * bytes as f64 * 8.0 / 1e6;
@@ -104,7 +115,7 @@ pub fn search(scene: &Splats, lambda: f64, mut on_step: impl FnMut(&RdPoint)) ->
         on_step(&p);
         path.push(p);
     };
-    let fine = EncodeConfig { steps: Steps::default().scaled(0.7), learned_tables: false, ..EncodeConfig::default() };
+    let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
     // 1. Pruning threshold (at fine steps), including "everything" (an empty file).
     let mut best = (f64::INFINITY, fine);
     for t in PRUNE_THRESHOLDS {

@@ -2,6 +2,8 @@
 //! straight-through quantised parameters and adds `λ·R/R_NORM` with its gradient, where `R`
 //! is the learned entropy model's bit estimate of everything the file will hold.
 
+use std::sync::{Arc, Mutex};
+
 use gscodec_decoder::math::sigmoid;
 use gscodec_decoder::Splats;
 
@@ -14,38 +16,122 @@ pub const R_NORM: f64 = 1e6;
 /// escapes, table share); measured on the shared scenes at default steps (docs/codec.md).
 pub const FIXED_BITS_PER_GAUSSIAN: f64 = 30.0;
 
-/// Rate term with a learned factorized model per channel (scale 3, opacity 1, DC 3, rest K·3).
+/// Step groups learned in training: scale, opacity, SH DC, SH bands 1–3 (positions and rotations
+/// are not quantised in training: their quantisation error is far below a pixel).
+const STEP_GROUPS: usize = 6;
+/// Adam learning rate of the log steps (per iteration).
+const STEP_LR: f64 = 2e-3;
+/// A learned step stays within this factor of its starting value.
+const STEP_RANGE: f64 = 8.0;
+
+/// Rate term with a learned factorized model per channel (scale 3, opacity 1, DC 3, rest K·3)
+/// and, when `learn_steps`, quantisation steps learned per group.
+///
+/// Step learning: the rendered parameters are `q = s·round(v/s)`; with the straight-through
+/// estimator `∂q/∂ln s = s·(round(v/s) − v/s)`, so `∂D/∂ln s = Σ ∂D/∂q · s·(round(v/s) − v/s)`
+/// over the group's values, and `∂R/∂ln s` comes from the bin width of the learned density. The
+/// log steps take one Adam step per iteration on `D + λ·R/R_NORM`.
 #[derive(Debug, Clone)]
 pub struct RateTerm {
     pub lambda: f64,
     pub steps: Steps,
+    pub learn_steps: bool,
+    start_steps: Steps,
+    adam: [(f64, f64); STEP_GROUPS],
+    adam_t: i32,
+    learned: Arc<Mutex<Steps>>,
     /// Opacity at which Gaussians are pruned; the term charges each Gaussian its bits times a
     /// soft "kept" factor σ((logit − logit(min_opacity)) / 0.5), so pruning pays.
     pub min_opacity: f32,
     models: Vec<LearnedChannel>,
     /// Bits of the last evaluation (for reports).
     pub last_bits: f64,
+    /// ∂(D + λ·R/R_NORM)/∂ln s per step group at the last evaluation (scale, opacity, SH DC,
+    /// SH bands 1–3); zero unless `learn_steps`.
+    pub last_step_gradient: [f64; STEP_GROUPS],
 }
 
 impl RateTerm {
     pub fn new(lambda: f64, steps: Steps, min_opacity: f32) -> Self {
-        RateTerm { lambda, steps, min_opacity, models: Vec::new(), last_bits: 0.0 }
+        RateTerm {
+            lambda,
+            steps,
+            learn_steps: false,
+            start_steps: steps,
+            adam: [(0.0, 0.0); STEP_GROUPS],
+            adam_t: 0,
+            learned: Arc::new(Mutex::new(steps)),
+            min_opacity,
+            models: Vec::new(),
+            last_bits: 0.0,
+            last_step_gradient: [0.0; STEP_GROUPS],
+        }
+    }
+
+    /// The same term with step learning on.
+    pub fn learning_steps(self) -> Self {
+        RateTerm { learn_steps: true, ..self }
+    }
+
+    /// The steps as training leaves them, readable after the term has been moved into `train`.
+    pub fn steps_handle(&self) -> Arc<Mutex<Steps>> {
+        self.learned.clone()
+    }
+
+    fn group_step(steps: &Steps, k: usize) -> f32 {
+        match k {
+            0 => steps.scale,
+            1 => steps.opacity,
+            2 => steps.sh_dc,
+            _ => steps.sh_rest[k - 3],
+        }
+    }
+
+    fn group_step_mut(steps: &mut Steps, k: usize) -> &mut f32 {
+        match k {
+            0 => &mut steps.scale,
+            1 => &mut steps.opacity,
+            2 => &mut steps.sh_dc,
+            _ => &mut steps.sh_rest[k - 3],
+        }
+    }
+
+    /// One Adam step on the log steps from `d_log_step` (∂objective/∂ln s per group).
+    fn update_steps(&mut self, d_log_step: &[f64; STEP_GROUPS]) {
+        self.adam_t += 1;
+        let (b1, b2) = (0.9, 0.999);
+        for (k, &g) in d_log_step.iter().enumerate() {
+            if g == 0.0 {
+                continue; // a group with no values (e.g. SH bands of a degree-0 scene)
+            }
+            let (m, v) = &mut self.adam[k];
+            *m = b1 * *m + (1.0 - b1) * g;
+            *v = b2 * *v + (1.0 - b2) * g * g;
+            let mh = *m / (1.0 - b1.powi(self.adam_t));
+            let vh = *v / (1.0 - b2.powi(self.adam_t));
+            let start = f64::from(Self::group_step(&self.start_steps, k)).ln();
+            let s = Self::group_step_mut(&mut self.steps, k);
+            let log_s = (f64::from(*s).ln() - STEP_LR * mh / (vh.sqrt() + 1e-12)).clamp(start - STEP_RANGE.ln(), start + STEP_RANGE.ln());
+            *s = log_s.exp() as f32;
+        }
+        *self.learned.lock().expect("steps lock") = self.steps;
     }
 
     fn channel_count(s: &Splats) -> usize {
         7 + s.rest_coeffs() * 3
     }
 
-    /// (value, step) of channel `c` of Gaussian `i`.
-    fn value(&self, s: &Splats, c: usize, i: usize) -> (f32, f32) {
+    /// (value, step, step group) of channel `c` of Gaussian `i`.
+    fn value(&self, s: &Splats, c: usize, i: usize) -> (f32, f32, usize) {
         match c {
-            0..=2 => (s.log_scales[i][c], self.steps.scale),
-            3 => (s.opacity_logits[i], self.steps.opacity),
-            4..=6 => (s.sh_dc[i][c - 4], self.steps.sh_dc),
+            0..=2 => (s.log_scales[i][c], self.steps.scale, 0),
+            3 => (s.opacity_logits[i], self.steps.opacity, 1),
+            4..=6 => (s.sh_dc[i][c - 4], self.steps.sh_dc, 2),
             _ => {
                 let j = c - 7;
                 let band = ((j / 3 + 1) as f32).sqrt().floor() as usize; // coefficient k = j/3 is in band ⌊√(k+1)⌋
-                (s.rest_of(i)[j], self.steps.sh_rest[band.clamp(1, 3) - 1])
+                let band = band.clamp(1, 3);
+                (s.rest_of(i)[j], self.steps.sh_rest[band - 1], 2 + band)
             }
         }
     }
@@ -87,17 +173,31 @@ impl RateTerm {
             self.models =
                 (0..nc).map(|c| LearnedChannel::fit_init(&(0..n).map(|i| self.value(params, c, i).0).collect::<Vec<_>>())).collect();
         }
+        // ∂D/∂ln s from the distortion gradient w.r.t. the rendered (quantised) values, which
+        // `grad` holds before the rate gradient is added.
+        let mut d_log_step = [0.0f64; STEP_GROUPS];
+        if self.learn_steps {
+            for i in 0..n {
+                for c in 0..nc {
+                    let (v, step, k) = self.value(params, c, i);
+                    let x = v / step;
+                    d_log_step[k] += f64::from(*Self::grad_slot(grad, c, i, k3)) * f64::from((x.round() - x) * step);
+                }
+            }
+        }
         let logit_min = (self.min_opacity / (1.0 - self.min_opacity).max(1e-6)).max(1e-9).ln();
         let mut total = 0.0;
         let mut model_grads = vec![(0.0f64, 0.0f64); nc];
         for i in 0..n {
             let mut bits_i = FIXED_BITS_PER_GAUSSIAN;
             let mut d_values = vec![0.0f64; nc];
+            let mut d_step_i = [0.0f64; STEP_GROUPS];
             for c in 0..nc {
-                let (v, step) = self.value(params, c, i);
+                let (v, step, k) = self.value(params, c, i);
                 let g = self.models[c].bits(f64::from(v), f64::from(step));
                 bits_i += g.bits;
                 d_values[c] = g.d_value;
+                d_step_i[k] += g.d_step * f64::from(step);
                 model_grads[c].0 += g.d_mu;
                 model_grads[c].1 += g.d_log_b;
             }
@@ -106,6 +206,9 @@ impl RateTerm {
             let d_keep = keep * (1.0 - keep) / 0.5;
             total += keep * bits_i;
             let scale = self.lambda / R_NORM;
+            for (d, ds) in d_log_step.iter_mut().zip(d_step_i) {
+                *d += scale * keep * ds;
+            }
             for c in 0..nc {
                 *Self::grad_slot(grad, c, i, k3) += (scale * keep * d_values[c]) as f32;
             }
@@ -117,8 +220,20 @@ impl RateTerm {
             m.mu -= 0.1 * m.log_b.exp() * gm / nn;
             m.log_b -= 0.1 * gb / nn;
         }
+        self.last_step_gradient = d_log_step;
+        if self.learn_steps {
+            self.update_steps(&d_log_step);
+        }
         self.last_bits = total;
         self.lambda * total / R_NORM
+    }
+
+    /// `λ·R/R_NORM` with frozen models and steps (no gradient, no learning): for tests and reports.
+    pub fn rate(&self, params: &Splats) -> f64 {
+        let mut t = self.clone();
+        t.learn_steps = false;
+        let mut scratch = params.clone();
+        t.rate_and_grad(params, &mut scratch, 0)
     }
 }
 
@@ -202,6 +317,75 @@ mod tests {
             };
             let fd = (eval(&p) - eval(&m)) / (2.0 * f64::from(h));
             assert!((f64::from(analytic) - fd).abs() <= 0.02 * fd.abs() + 1e-3, "{name}: analytic {analytic} fd {fd}");
+        }
+    }
+
+    fn zeroed(s: &Splats) -> Splats {
+        let mut g = s.clone();
+        g.log_scales.iter_mut().flatten().for_each(|v| *v = 0.0);
+        g.opacity_logits.iter_mut().for_each(|v| *v = 0.0);
+        g.sh_dc.iter_mut().flatten().for_each(|v| *v = 0.0);
+        g.sh_rest.iter_mut().for_each(|v| *v = 0.0);
+        g
+    }
+
+    #[test]
+    fn step_gradient_of_the_rate_matches_finite_differences() {
+        let s = scene();
+        let mut fitted = RateTerm::new(1e6, Steps::default(), 0.02);
+        fitted.rate_and_grad(&s, &mut zeroed(&s), 0); // fits the models
+        let mut t = fitted.clone().learning_steps();
+        t.rate_and_grad(&s, &mut zeroed(&s), 0); // no distortion gradient: the rate part alone
+        let h = 1e-4f64;
+        for k in 0..4 {
+            let at = |e: f64| {
+                let mut f = fitted.clone();
+                let v = RateTerm::group_step_mut(&mut f.steps, k);
+                *v = (f64::from(*v) * e.exp()) as f32;
+                f.rate(&s)
+            };
+            let fd = (at(h) - at(-h)) / (2.0 * h);
+            let analytic = t.last_step_gradient[k];
+            assert!((analytic - fd).abs() <= 0.02 * fd.abs() + 1e-6, "group {k}: analytic {analytic} fd {fd}");
+            assert!(analytic < 0.0, "coarser steps must cost fewer bits (group {k}: {analytic})");
+        }
+    }
+
+    #[test]
+    fn learned_steps_grow_under_rate_and_shrink_under_distortion() {
+        let s = scene();
+        let start = Steps::default();
+        // Rate only (a huge λ, no distortion gradient): every step grows.
+        let mut t = RateTerm::new(1e6, start, 0.02).learning_steps();
+        let handle = t.steps_handle();
+        for it in 0..200 {
+            t.rate_and_grad(&s, &mut zeroed(&s), it);
+        }
+        let grown = *handle.lock().unwrap();
+        for k in 0..4 {
+            assert!(RateTerm::group_step(&grown, k) > 1.2 * RateTerm::group_step(&start, k), "group {k}: {grown:?}");
+        }
+        // Distortion only (λ = 0, D = Σ (q − v)² so ∂D/∂q = 2(q − v)): every step shrinks.
+        let mut t = RateTerm::new(0.0, start, 0.02).learning_steps();
+        for it in 0..200 {
+            let q = t.render_params(&s, it).unwrap();
+            let mut g = zeroed(&s);
+            g.log_scales
+                .iter_mut()
+                .flatten()
+                .zip(q.log_scales.iter().flatten().zip(s.log_scales.iter().flatten()))
+                .for_each(|(g, (q, v))| *g = 2.0 * (q - v));
+            g.opacity_logits.iter_mut().zip(q.opacity_logits.iter().zip(&s.opacity_logits)).for_each(|(g, (q, v))| *g = 2.0 * (q - v));
+            g.sh_dc
+                .iter_mut()
+                .flatten()
+                .zip(q.sh_dc.iter().flatten().zip(s.sh_dc.iter().flatten()))
+                .for_each(|(g, (q, v))| *g = 2.0 * (q - v));
+            g.sh_rest.iter_mut().zip(q.sh_rest.iter().zip(&s.sh_rest)).for_each(|(g, (q, v))| *g = 2.0 * (q - v));
+            t.rate_and_grad(&s, &mut g, it);
+        }
+        for k in 0..4 {
+            assert!(RateTerm::group_step(&t.steps, k) < 0.8 * RateTerm::group_step(&start, k), "group {k}: {:?}", t.steps);
         }
     }
 

@@ -62,7 +62,7 @@ impl FreqTable {
             cdf.push(acc);
         }
         // Bucket b starts in the symbol s with cdf[s] <= b·2^shift < cdf[s+1].
-        let shift = PRECISION as u32 - (n.next_power_of_two().trailing_zeros() + 1).clamp(6, 12);
+        let shift = PRECISION as u32 - (n.next_power_of_two().trailing_zeros() + 3).clamp(8, 12);
         let mut bucket = vec![0u16; (TOTAL >> shift) as usize];
         let first_bucket = |c: u32| (c.div_ceil(1 << shift)) as usize;
         for (s, w) in cdf.windows(2).enumerate() {
