@@ -1,6 +1,7 @@
 //! `.gsc` bytes to a scene: parameter sections, then the (group, chunk, channel range) jobs in parallel.
 
 use std::ops::Range;
+use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
@@ -17,7 +18,8 @@ const JOB_CHANNELS: usize = 8;
 pub struct DecodeOptions {
     /// SH bands above this degree are skipped (their streams are not even read).
     pub max_sh_degree: u8,
-    /// Worker threads (at most 256); 0 = rayon's global pool. The result is identical for every value.
+    /// Worker threads (at most 256); 0 = rayon's global pool. The result is identical for every
+    /// value. The pool for a thread count is built on first use and reused.
     pub threads: usize,
 }
 
@@ -323,14 +325,29 @@ pub fn decode_prefix(bytes: &[u8], options: &DecodeOptions) -> Result<Option<Spl
     in_pool(options, || decode_container(&c, degree)).map(Some)
 }
 
-/// Runs `f` on a pool of `options.threads` threads (0 = rayon's global pool).
+/// Runs `f` on a pool of `options.threads` threads (0 = rayon's global pool). A pool is built
+/// the first time a thread count is asked for and kept for later decodes.
 fn in_pool<T: Send>(options: &DecodeOptions, f: impl FnOnce() -> T + Send) -> T {
-    if options.threads > 0 {
-        if let Ok(pool) = rayon::ThreadPoolBuilder::new().num_threads(options.threads.min(256)).build() {
-            return pool.install(f);
-        }
+    static POOLS: Mutex<Vec<(usize, Arc<rayon::ThreadPool>)>> = Mutex::new(Vec::new());
+    let threads = options.threads.min(256);
+    if threads == 0 {
+        return f();
     }
-    f()
+    let pool = {
+        let mut pools = POOLS.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        match pools.iter().find(|(t, _)| *t == threads) {
+            Some((_, p)) => Some(p.clone()),
+            None => rayon::ThreadPoolBuilder::new().num_threads(threads).build().ok().map(|p| {
+                let p = Arc::new(p);
+                pools.push((threads, p.clone()));
+                p
+            }),
+        }
+    };
+    match pool {
+        Some(p) => p.install(f),
+        None => f(), // no threads could be started: decode on the global pool
+    }
 }
 
 fn decode_container(c: &Container<'_>, degree: u8) -> Result<Splats, DecodeError> {
@@ -365,34 +382,53 @@ fn decode_container(c: &Container<'_>, degree: u8) -> Result<Splats, DecodeError
         .collect::<Result<_, _>>()?;
 
     let row = splats.rest_coeffs() * 3;
-    splats.sh_rest = vec![0.0; n * row];
-    // SH channel j of band b is rest value (b²−1)·3 + j of its Gaussian: scatter the SH jobs'
-    // columns into the rows, in parallel over chunks and rows.
-    let mut sh_jobs: Vec<Vec<(usize, &[f32])>> = vec![Vec::new(); chunks];
-    for ((gi, ch, channels), vals) in jobs.iter().zip(&results) {
-        let b = params[*gi].0.sh_band() as usize;
-        if b > 0 {
-            sh_jobs[*ch].push(((b * b - 1) * 3 + channels.start, vals));
-        }
-    }
-    splats.sh_rest.par_chunks_mut(CHUNK * row.max(1)).zip(&sh_jobs).for_each(|(rows, pieces)| {
-        let count = rows.len() / row.max(1);
-        rows.par_chunks_mut(row.max(1)).enumerate().with_min_len(1024).for_each(|(i, dst)| {
-            for &(first, vals) in pieces {
-                let w = vals.len() / count;
-                dst[first..first + w].copy_from_slice(&vals[i * w..(i + 1) * w]);
+    // The jobs' results, in (group, chunk) order, as the scene's arrays: the base groups are
+    // concatenated, the SH jobs' columns scattered into the rest rows, all in parallel.
+    let group_values = |group: Group| -> Vec<&[f32]> {
+        jobs.iter().zip(&results).filter(|((gi, ..), _)| params[*gi].0 == group).map(|(_, v)| v.as_slice()).collect()
+    };
+    let concat = |group: Group| -> Vec<f32> { group_values(group).concat() };
+    let triples = |group: Group| -> Vec<[f32; 3]> { concat(group).chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect() };
+    let scatter_sh = || {
+        let mut rest = vec![0.0f32; n * row];
+        // SH channel j of band b is rest value (b²−1)·3 + j of its Gaussian.
+        let mut pieces: Vec<Vec<(usize, &[f32])>> = vec![Vec::new(); chunks];
+        for ((gi, ch, channels), vals) in jobs.iter().zip(&results) {
+            let b = params[*gi].0.sh_band() as usize;
+            if b > 0 {
+                pieces[*ch].push(((b * b - 1) * 3 + channels.start, vals));
             }
-        });
-    });
-    for ((gi, _, _), vals) in jobs.iter().zip(&results) {
-        match params[*gi].0 {
-            Group::Position => splats.positions.extend(vals.chunks_exact(3).map(|v| [v[0], v[1], v[2]])),
-            Group::Scale => splats.log_scales.extend(vals.chunks_exact(3).map(|v| [v[0], v[1], v[2]])),
-            Group::Rotation => splats.rotations.extend(vals.chunks_exact(4).map(|v| [v[0], v[1], v[2], v[3]])),
-            Group::Opacity => splats.opacity_logits.extend_from_slice(vals),
-            Group::ShDc => splats.sh_dc.extend(vals.chunks_exact(3).map(|v| [v[0], v[1], v[2]])),
-            Group::Sh1 | Group::Sh2 | Group::Sh3 => {} // scattered above
         }
-    }
+        rest.par_chunks_mut(CHUNK * row.max(1)).zip(&pieces).for_each(|(rows, pieces)| {
+            let count = rows.len() / row.max(1);
+            rows.par_chunks_mut(row.max(1)).enumerate().with_min_len(1024).for_each(|(i, dst)| {
+                for &(first, vals) in pieces {
+                    let w = vals.len() / count;
+                    dst[first..first + w].copy_from_slice(&vals[i * w..(i + 1) * w]);
+                }
+            });
+        });
+        rest
+    };
+    let ((positions, log_scales), ((rotations, opacity_logits), (sh_dc, sh_rest))) = rayon::join(
+        || rayon::join(|| triples(Group::Position), || triples(Group::Scale)),
+        || {
+            rayon::join(
+                || {
+                    rayon::join(
+                        || concat(Group::Rotation).chunks_exact(4).map(|v| [v[0], v[1], v[2], v[3]]).collect(),
+                        || concat(Group::Opacity),
+                    )
+                },
+                || rayon::join(|| triples(Group::ShDc), scatter_sh),
+            )
+        },
+    );
+    splats.positions = positions;
+    splats.log_scales = log_scales;
+    splats.rotations = rotations;
+    splats.opacity_logits = opacity_logits;
+    splats.sh_dc = sh_dc;
+    splats.sh_rest = sh_rest;
     Ok(splats)
 }
