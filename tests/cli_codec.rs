@@ -23,7 +23,7 @@ fn decode_and_info_of_a_vector() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["gaussians"], 3);
     assert_eq!(v["sh_degree"], 1);
-    assert_eq!(v["version"], "2.0");
+    assert_eq!(v["version"], "3.0");
     assert!(v["sections"].as_array().unwrap().len() >= 5);
 }
 

@@ -179,3 +179,29 @@ fn typed_errors_for_bad_files() {
     hostile[8..12].copy_from_slice(&u32::MAX.to_le_bytes());
     assert!(matches!(decode(&hostile, &DecodeOptions::default()), Err(DecodeError::Limit(_))));
 }
+
+#[test]
+fn context_coded_channels_round_trip_across_chunk_boundaries() {
+    // 70,000 Gaussians (two chunks) whose SH coefficients are zero in some regions and large in
+    // others: a Gaussian's value predicts its Morton neighbour's, so context tables pay.
+    let mut s = scene(70_000, 1, 1.0, 11);
+    let k3 = s.rest_coeffs() * 3;
+    for i in 0..s.len() {
+        let p = s.positions[i];
+        let active = (p[0] * 3.0).sin() * (p[1] * 2.0).cos() > 0.3;
+        for c in 0..k3 {
+            s.sh_rest[i * k3 + c] = if active { 0.3 * (p[2] * 5.0 + c as f32).sin() } else { 0.0 };
+        }
+    }
+    let config = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
+    let (bytes, report, q) = rate::encode(&s, &config).unwrap();
+    let band1 = report.groups.iter().find(|g| g.group == "sh_band1").unwrap();
+    assert!(band1.context_channels > 0, "contexts not chosen: {band1:?}");
+    assert!(band1.context_bits < band1.histogram_bits);
+    let expected = quantise::dequantise(&q);
+    for threads in [1, 3] {
+        assert_eq!(decode(&bytes, &DecodeOptions { threads, ..Default::default() }).unwrap(), expected, "{threads} threads");
+    }
+    let est = report.estimated_bits() / 8.0;
+    assert!((est - bytes.len() as f64).abs() / (bytes.len() as f64) < 0.01, "estimated {est} actual {}", bytes.len());
+}

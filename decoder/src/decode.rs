@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use crate::bitstream::layout::{self, chunk_count, Group, CHUNK, INFO_KIND, MAX_POSITION_BITS};
 use crate::bitstream::{self, ByteReader, Container, DecodeError, Header};
-use crate::entropy::{ChannelTable, SymbolDecoder};
+use crate::entropy::{context, ChannelTable, Lookup, SymbolDecoder, CONTEXTS};
 use crate::Splats;
 
 /// SH bands are decoded in jobs of about this many channels (a band has 9, 15 or 21).
@@ -52,6 +52,8 @@ pub struct FileInfo {
     pub input_sh_degree: Option<u8>,
     /// Channels stored once as constants, as `group/channel`.
     pub constant_channels: Vec<String>,
+    /// Channels coded with one table per context, as `group/channel`.
+    pub context_channels: Vec<String>,
 }
 
 /// Reads the fixed header only (magic, version, counts): the first 16 bytes are enough. No
@@ -71,6 +73,7 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
         input_gaussians: None,
         input_sh_degree: None,
         constant_channels: Vec::new(),
+        context_channels: Vec::new(),
     };
     for s in &c.sections {
         let name = Group::ALL.into_iter().find(|g| g.params_kind() == s.kind || g.data_kind() == s.kind).map(|g| g.name()).unwrap_or(
@@ -95,8 +98,10 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
     }
     for (g, p) in &params {
         for (i, t) in p.tables.iter().enumerate() {
-            if matches!(t, ChannelTable::Constant(_)) {
-                info.constant_channels.push(format!("{}/{}", g.name(), i));
+            match t {
+                ChannelTable::Constant(_) => info.constant_channels.push(format!("{}/{}", g.name(), i)),
+                ChannelTable::Context { .. } => info.context_channels.push(format!("{}/{}", g.name(), i)),
+                ChannelTable::Coded { .. } => {}
             }
         }
     }
@@ -131,7 +136,11 @@ fn read_params(g: Group, data: &[u8]) -> Result<GroupParams, DecodeError> {
             return Err(DecodeError::Corrupt("position grid above 21 bits per axis"));
         }
         p.grid = Some((origin, step, bits));
-        p.tables.push(ChannelTable::read(&mut r)?);
+        let lengths = ChannelTable::read(&mut r)?;
+        if matches!(lengths, ChannelTable::Context { .. }) {
+            return Err(DecodeError::Corrupt("context-coded position lengths"));
+        }
+        p.tables.push(lengths);
     } else {
         let n = r.u8("channel count")? as usize;
         if n != g.channels() {
@@ -170,6 +179,17 @@ fn finite(v: f32) -> Result<f32, DecodeError> {
     }
 }
 
+/// One coded channel being decoded: its stream, tables and the previous value (the context).
+struct Lane<'a> {
+    col: usize,
+    lo: i32,
+    centre: i32,
+    prev: i32,
+    tables: [Lookup<'a>; CONTEXTS],
+    scale: f32,
+    d: SymbolDecoder<'a>,
+}
+
 /// The next stream of a data section: `varint length`, then `length` bytes.
 fn next_stream_bytes<'a>(r: &mut ByteReader<'a>) -> Result<&'a [u8], DecodeError> {
     let len = r.varint("stream length")? as usize;
@@ -191,24 +211,38 @@ fn decode_channels(
     for t in &p.tables {
         streams.push(match t {
             ChannelTable::Constant(_) => &[][..],
-            ChannelTable::Coded { .. } => next_stream_bytes(r)?,
+            ChannelTable::Coded { .. } | ChannelTable::Context { .. } => next_stream_bytes(r)?,
         });
     }
     let w = channels.len();
     let mut vals = vec![0f32; count * w];
-    let mut coded = Vec::with_capacity(w);
+    let mut lanes = Vec::with_capacity(w);
     for (col, j) in channels.enumerate() {
-        match &p.tables[j] {
-            ChannelTable::Constant(v) => vals.iter_mut().skip(col).step_by(w).for_each(|x| *x = *v as f32 * scale[j]),
-            ChannelTable::Coded { lo, table } => coded.push((col, *lo, table.lookup_table(), scale[j], SymbolDecoder::new(streams[j])?)),
+        match p.tables[j].contexts() {
+            None => {
+                let v = if let ChannelTable::Constant(v) = p.tables[j] { v } else { 0 };
+                vals.iter_mut().skip(col).step_by(w).for_each(|x| *x = v as f32 * scale[j]);
+            }
+            Some((lo, centre, tables)) => lanes.push(Lane {
+                col,
+                lo,
+                centre,
+                prev: centre,
+                tables: tables.map(|t| t.lookup_table()),
+                scale: scale[j],
+                d: SymbolDecoder::new(streams[j])?,
+            }),
         }
     }
     for row in vals.chunks_exact_mut(w) {
-        for (col, lo, table, s, d) in coded.iter_mut() {
-            row[*col] = d.coded_value(*lo, *table) as f32 * *s;
+        for l in lanes.iter_mut() {
+            let v = l.d.coded_value(l.lo, l.tables[context(l.prev, l.centre)]);
+            l.prev = v;
+            row[l.col] = v as f32 * l.scale;
         }
     }
-    coded.into_iter().try_for_each(|(.., d)| d.finish())?;
+    let coded = lanes.into_iter().map(|l| l.d);
+    coded.into_iter().try_for_each(SymbolDecoder::finish)?;
     if !vals.iter().fold(true, |ok, x| ok & x.is_finite()) {
         return Err(DecodeError::Corrupt("dequantised value is not finite"));
     }
@@ -223,7 +257,7 @@ fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, count: usize) -> Re
     let limit = 1u64 << max_len; // bits <= 21, so at most 2^63
     let mut m: u64 = 0;
     for _ in 0..count {
-        let len = d.value(&p.tables[0]);
+        let len = d.value(&p.tables[0], 0);
         if len < 0 || len as u32 > max_len {
             return Err(DecodeError::Corrupt("position delta too long"));
         }

@@ -53,6 +53,7 @@ pub fn run(args: Args) -> crate::Result<()> {
                 "dropped_sh_bands": dropped_bands,
                 "constant_channels": info.constant_channels,
             },
+            "context_channels": info.context_channels,
         });
         println!("{v}");
     } else {
@@ -68,6 +69,9 @@ pub fn run(args: Args) -> crate::Result<()> {
         }
         if let (Some(d), Some(n)) = (info.input_sh_degree, dropped_bands) {
             println!("left out: {n} SH band(s) (input degree {d})");
+        }
+        if !info.context_channels.is_empty() {
+            println!("context-coded: {}", info.context_channels.join(", "));
         }
         if !info.constant_channels.is_empty() {
             println!("stored once (constant): {}", info.constant_channels.join(", "));

@@ -8,7 +8,7 @@ use gscodec_decoder::bitstream::layout::{chunk_count, Group, CHUNK, INFO_KIND, P
 use gscodec_decoder::bitstream::{
     self, ByteWriter, Header, Section, MAX_GAUSSIANS_PER_BYTE, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MINOR,
 };
-use gscodec_decoder::entropy::{ChannelTable, SymbolEncoder};
+use gscodec_decoder::entropy::{context, ChannelTable, SymbolEncoder};
 
 use super::quantise::Quantised;
 use super::tables::{self, ChosenTable};
@@ -29,6 +29,11 @@ pub struct GroupReport {
     pub histogram_bits: f64,
     /// Table + stream bits under the learned density alone.
     pub learned_bits: f64,
+    /// Table + stream bits with one static histogram per context (previous value's distance
+    /// from the channel's centre).
+    pub context_bits: f64,
+    /// Channels stored with context-coded tables.
+    pub context_channels: usize,
 }
 
 /// What an encode produced.
@@ -75,14 +80,15 @@ struct GroupPlan {
     tables: Vec<ChosenTable>,
     histogram_bits: f64,
     learned_bits: f64,
+    context_bits: f64,
 }
 
 fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
-    let compare = |v: &[i32]| if learned { tables::compare(v) } else { tables::histogram_only(v) };
+    let compare = |v: &[i32], contexts: bool| if learned { tables::compare(v, contexts) } else { tables::histogram_only(v, contexts) };
     let mut plans = Vec::new();
     let deltas = morton_deltas(&q.morton);
     let lens: Vec<i32> = deltas.iter().map(|&d| bit_len(d) as i32).collect();
-    let cmp = compare(&lens);
+    let cmp = compare(&lens, false); // position lengths are never context-coded (SPEC §4)
     let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
     let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
     let t = cmp.best;
@@ -92,11 +98,20 @@ fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
     step.iter().for_each(|&v| w.f32(v));
     w.u8(bits);
     w.bytes(&t.bytes);
-    plans.push(GroupPlan { group: Group::Position, params: w.buf, tables: vec![t], histogram_bits: hb, learned_bits: lb });
+    plans.push(GroupPlan {
+        group: Group::Position,
+        params: w.buf,
+        tables: vec![t],
+        histogram_bits: hb,
+        learned_bits: lb,
+        context_bits: f64::NAN,
+    });
     for (g, steps, chans) in &q.groups {
-        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| compare(c)).collect();
+        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| compare(c, true)).collect();
         let histogram_bits = cmps.iter().map(|c| c.histogram_bits).sum();
         let learned_bits = cmps.iter().map(|c| c.learned_bits).sum();
+        // A channel where contexts were not tried (a constant) costs its histogram bits.
+        let context_bits = cmps.iter().map(|c| if c.context_bits.is_nan() { c.histogram_bits } else { c.context_bits }).sum();
         let ts: Vec<ChosenTable> = cmps.into_iter().map(|c| c.best).collect();
         let mut w = ByteWriter::new();
         w.u8(chans.len() as u8);
@@ -104,7 +119,7 @@ fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
             w.f32(*s);
             w.bytes(&t.bytes);
         }
-        plans.push(GroupPlan { group: *g, params: w.buf, tables: ts, histogram_bits, learned_bits });
+        plans.push(GroupPlan { group: *g, params: w.buf, tables: ts, histogram_bits, learned_bits, context_bits });
     }
     plans
 }
@@ -123,7 +138,7 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<
         let mut e = SymbolEncoder::new();
         for &d in &deltas[range] {
             let len = bit_len(d);
-            e.value(&p.tables[0].table, len as i32);
+            e.value(&p.tables[0].table, 0, len as i32);
             if len >= 2 {
                 let rest = d & ((1u64 << (len - 1)) - 1);
                 let mut left = len - 1;
@@ -138,9 +153,13 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<
     } else {
         let chans = &q.groups.iter().find(|x| x.0 == p.group).expect("group").2;
         for (t, c) in p.tables.iter().zip(chans) {
-            if matches!(t.table, ChannelTable::Coded { .. }) {
+            if let Some((_, centre, _)) = t.table.contexts() {
                 let mut e = SymbolEncoder::new();
-                c[range.clone()].iter().for_each(|&v| e.value(&t.table, v));
+                let mut prev = centre;
+                for &v in &c[range.clone()] {
+                    e.value(&t.table, context(prev, centre), v);
+                    prev = v;
+                }
                 push_stream(&mut section, e);
             }
         }
@@ -173,6 +192,8 @@ pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8
                 constant_channels: p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Constant(_))).count(),
                 histogram_bits: p.histogram_bits,
                 learned_bits: p.learned_bits,
+                context_bits: p.context_bits,
+                context_channels: p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Context { .. })).count(),
             });
         }
         for (&(p, c), s) in jobs.iter().zip(streams) {

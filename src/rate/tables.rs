@@ -1,8 +1,9 @@
 //! Choosing a channel's integer table: range, escape and weight precision that minimise
 //! table bytes plus coded bits (the static-histogram model), and its exact cost.
 
+use gscodec_decoder::bitstream::layout::CHUNK;
 use gscodec_decoder::bitstream::ByteWriter;
-use gscodec_decoder::entropy::{ChannelTable, FreqTable, SymbolEncoder, MAX_SYMBOLS};
+use gscodec_decoder::entropy::{context, ChannelTable, FreqTable, SymbolEncoder, CONTEXTS, MAX_SYMBOLS};
 
 /// A channel's table as it will be written, with its cost on the values it codes.
 #[derive(Debug, Clone)]
@@ -53,58 +54,116 @@ pub fn choose_with(values: &[i32], model: Option<&dyn Fn(i32, usize) -> Vec<f64>
             Some(m) => m(lo, n),
             None => counts.iter().map(|&c| c as f64).collect(),
         };
-        let peak = shape.iter().cloned().fold(0.0, f64::max).max(1e-300);
-        for scale in [15.0, 127.0, 1023.0, 16383.0, 1e6] {
-            let weights: Vec<u32> = shape.iter().map(|&c| (c / peak * scale).round() as u32).collect();
-            let table = FreqTable::from_weights(&weights);
-            let mut w = ByteWriter::new();
-            ChannelTable::write_coded(&mut w, lo, &weights);
-            let bits: f64 = counts
-                .iter()
-                .enumerate()
-                .filter(|(_, &c)| c > 0)
-                .map(|(s, &c)| c as f64 * (table.bits(s) + if s == n { 32.0 } else { 0.0 }))
-                .sum();
-            let cand = ChosenTable { table: ChannelTable::Coded { lo, table }, bytes: w.buf, bits };
-            if best.as_ref().is_none_or(|b| cand.total_bits() < b.total_bits()) {
-                best = Some(cand);
-            }
+        let (weights, table, bits) = best_weights(&shape, &counts);
+        let mut w = ByteWriter::new();
+        ChannelTable::write_coded(&mut w, lo, &weights);
+        let cand = ChosenTable { table: ChannelTable::Coded { lo, table }, bytes: w.buf, bits };
+        if best.as_ref().is_none_or(|b| cand.total_bits() < b.total_bits()) {
+            best = Some(cand);
         }
     }
     best.unwrap_or_else(|| wide(values))
 }
 
-/// Both models for one channel: the static histogram and the learned (trained Laplace) density,
-/// each with its table; the cheaper (table bytes + coded bits) is the one to store.
+/// Weights proportional to `shape` at the precision (peak weight 15 … 10⁶) that minimises
+/// weight bytes + coded bits of `counts` (the last symbol is the escape, +32 raw bits); with
+/// the table and the coded bits.
+fn best_weights(shape: &[f64], counts: &[u64]) -> (Vec<u32>, FreqTable, f64) {
+    let n = counts.len() - 1;
+    let peak = shape.iter().cloned().fold(0.0, f64::max).max(1e-300);
+    let mut best: Option<(f64, Vec<u32>, FreqTable, f64)> = None;
+    for scale in [15.0, 127.0, 1023.0, 16383.0, 1e6] {
+        let weights: Vec<u32> = shape.iter().map(|&c| (c / peak * scale).round() as u32).collect();
+        let table = FreqTable::from_weights(&weights);
+        let bits: f64 = counts
+            .iter()
+            .enumerate()
+            .filter(|(_, &c)| c > 0)
+            .map(|(s, &c)| c as f64 * (table.bits(s) + if s == n { 32.0 } else { 0.0 }))
+            .sum();
+        let mut w = ByteWriter::new();
+        weights.iter().for_each(|&x| w.varint(x));
+        let total = bits + 8.0 * w.buf.len() as f64;
+        if best.as_ref().is_none_or(|b| total < b.0) {
+            best = Some((total, weights, table, bits));
+        }
+    }
+    let (_, weights, table, bits) = best.expect("at least one precision");
+    (weights, table, bits)
+}
+
+/// The context-coded version of a coded channel `base` (same range and escape): one histogram
+/// per context, the context of value i being [`context`] of value i−1 (the centre, the median,
+/// at the start of each chunk of [`CHUNK`] Gaussians), as the decoder sees them.
+pub fn with_contexts(values: &[i32], base: &ChosenTable) -> Option<ChosenTable> {
+    let ChannelTable::Coded { lo, table } = &base.table else { return None };
+    let (lo, n) = (*lo, table.len() - 1);
+    let mut sorted = values.to_vec();
+    sorted.sort_unstable();
+    let centre = sorted[sorted.len() / 2];
+    let mut counts = [(); CONTEXTS].map(|_| vec![0u64; n + 1]);
+    for (i, &v) in values.iter().enumerate() {
+        let prev = if i % CHUNK == 0 { centre } else { values[i - 1] };
+        let d = i64::from(v) - i64::from(lo);
+        let s = if d >= 0 && (d as usize) < n { d as usize } else { n };
+        counts[context(prev, centre)][s] += 1;
+    }
+    let mut bits = 0.0;
+    let chosen = counts.map(|c| {
+        let shape: Vec<f64> = c.iter().map(|&x| x as f64).collect();
+        let (weights, table, b) = best_weights(&shape, &c);
+        bits += b;
+        (weights, table)
+    });
+    let [(w0, t0), (w1, t1), (w2, t2), (w3, t3)] = chosen;
+    let mut w = ByteWriter::new();
+    ChannelTable::write_context(&mut w, lo, centre, &[w0, w1, w2, w3]);
+    Some(ChosenTable { table: ChannelTable::Context { lo, centre, tables: Box::new([t0, t1, t2, t3]) }, bytes: w.buf, bits })
+}
+
+/// The models for one channel: the static histogram, the learned (trained Laplace) density and
+/// the context-coded histograms, each with its table; the cheapest (table bytes + coded bits)
+/// is the one to store.
 pub struct Compared {
     pub best: ChosenTable,
     /// Total bits (table + stream) under the static histogram.
     pub histogram_bits: f64,
-    /// Total bits (table + stream) under the learned density.
+    /// Total bits (table + stream) under the learned density (NaN when not tried).
     pub learned_bits: f64,
+    /// Total bits (table + stream) with one histogram per context (NaN when not tried).
+    pub context_bits: f64,
 }
 
-/// The static histogram only (the learned cost is reported as NaN).
-pub fn histogram_only(values: &[i32]) -> Compared {
-    let best = choose(values);
-    let h = best.total_bits();
-    Compared { best, histogram_bits: h, learned_bits: f64::NAN }
-}
-
-/// Builds both tables for `values` and keeps the cheaper.
-pub fn compare(values: &[i32]) -> Compared {
+/// The static histogram, and its context-coded version when `contexts` (the learned cost is NaN).
+pub fn histogram_only(values: &[i32], contexts: bool) -> Compared {
     let hist = choose(values);
-    if matches!(hist.table, ChannelTable::Constant(_)) {
-        let b = hist.total_bits();
-        return Compared { best: hist, histogram_bits: b, learned_bits: b };
+    let h = hist.total_bits();
+    let ctx = if contexts { with_contexts(values, &hist) } else { None };
+    let c = ctx.as_ref().map_or(f64::NAN, ChosenTable::total_bits);
+    let best = match ctx {
+        Some(ctx) if c < h => ctx,
+        _ => hist,
+    };
+    Compared { best, histogram_bits: h, learned_bits: f64::NAN, context_bits: c }
+}
+
+/// Builds all the tables for `values` (contexts only when `contexts`) and keeps the cheapest.
+pub fn compare(values: &[i32], contexts: bool) -> Compared {
+    let mut out = histogram_only(values, contexts);
+    if matches!(out.best.table, ChannelTable::Constant(_)) {
+        out.learned_bits = out.histogram_bits;
+        return out;
     }
     let as_f32: Vec<f32> = values.iter().map(|&v| v as f32).collect();
     let mut model = crate::rate::model::LearnedChannel::fit_init(&as_f32);
     model.train(&as_f32, 1.0, 60);
     let shape = move |lo: i32, n: usize| model.weights(lo, n, 1.0);
     let learned = choose_with(values, Some(&shape));
-    let (h, l) = (hist.total_bits(), learned.total_bits());
-    Compared { best: if l < h { learned } else { hist }, histogram_bits: h, learned_bits: l }
+    out.learned_bits = learned.total_bits();
+    if out.learned_bits < out.best.total_bits() {
+        out.best = learned;
+    }
+    out
 }
 
 impl ChosenTable {
@@ -136,7 +195,7 @@ fn wide(values: &[i32]) -> ChosenTable {
     let mut w = ByteWriter::new();
     ChannelTable::write_coded(&mut w, lo, &weights);
     let table = ChannelTable::Coded { lo, table: FreqTable::from_weights(&weights) };
-    let bits = values.iter().map(|&v| SymbolEncoder::value_bits(&table, v)).sum();
+    let bits = values.iter().map(|&v| SymbolEncoder::value_bits(&table, 0, v)).sum();
     ChosenTable { table, bytes: w.buf, bits }
 }
 
@@ -149,7 +208,7 @@ mod tests {
         assert!(matches!(choose(&[4, 4, 4]).table, ChannelTable::Constant(4)));
         let values: Vec<i32> = (0..1000).map(|i| if i % 4 == 0 { 1 } else { 0 }).collect();
         let t = choose(&values);
-        let exact: f64 = values.iter().map(|&v| SymbolEncoder::value_bits(&t.table, v)).sum();
+        let exact: f64 = values.iter().map(|&v| SymbolEncoder::value_bits(&t.table, 0, v)).sum();
         assert!((t.bits - exact).abs() < 1e-6);
         // Entropy of (1/4, 3/4) is 0.811 bits per value.
         assert!((t.bits / 1000.0 - 0.811).abs() < 0.01, "{}", t.bits / 1000.0);

@@ -21,7 +21,7 @@ pub use bytes::{ByteReader, ByteWriter};
 /// First four bytes of every `.gsc` file.
 pub const MAGIC: [u8; 4] = [0x8A, b'G', b'S', b'C'];
 /// Format version written by this crate. A reader accepts any minor of its major.
-pub const VERSION_MAJOR: u8 = 2;
+pub const VERSION_MAJOR: u8 = 3;
 pub const VERSION_MINOR: u8 = 0;
 /// Section flag: a reader that does not know this section kind may skip it.
 pub const SECTION_OPTIONAL: u32 = 1;

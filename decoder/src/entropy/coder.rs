@@ -137,12 +137,14 @@ impl<'a> SymbolDecoder<'a> {
         }
     }
 
-    /// One value of a channel (constants read nothing).
+    /// One value of a channel in context `ctx` (see [`super::context`]; ignored unless the
+    /// channel is context-coded). Constants read nothing.
     #[inline(always)]
-    pub fn value(&mut self, channel: &ChannelTable) -> i32 {
+    pub fn value(&mut self, channel: &ChannelTable, ctx: usize) -> i32 {
         match channel {
             ChannelTable::Constant(v) => *v,
             ChannelTable::Coded { lo, table } => self.coded_value(*lo, table.lookup_table()),
+            ChannelTable::Context { lo, tables, .. } => self.coded_value(*lo, tables[ctx].lookup_table()),
         }
     }
 
@@ -185,14 +187,15 @@ impl SymbolEncoder {
         }
     }
 
-    /// One value of a channel; out-of-range values are escaped. Codes nothing for constants
-    /// (the caller guarantees the value equals the constant).
-    pub fn value(&mut self, channel: &ChannelTable, v: i32) {
-        match channel {
-            ChannelTable::Constant(c) => debug_assert_eq!(*c, v),
-            ChannelTable::Coded { lo, table } => {
+    /// One value of a channel in context `ctx`; out-of-range values are escaped. Codes nothing
+    /// for constants (the caller guarantees the value equals the constant).
+    pub fn value(&mut self, channel: &ChannelTable, ctx: usize, v: i32) {
+        match channel.contexts() {
+            None => debug_assert_eq!(channel, &ChannelTable::Constant(v)),
+            Some((lo, _, tables)) => {
+                let table = tables[ctx];
                 let n = table.len() - 1;
-                match v.checked_sub(*lo) {
+                match v.checked_sub(lo) {
                     Some(d) if d >= 0 && (d as usize) < n => self.symbol(table, d as usize),
                     _ => {
                         self.symbol(table, n);
@@ -203,13 +206,14 @@ impl SymbolEncoder {
         }
     }
 
-    /// Bits a value costs under `channel` (the exact ideal code length).
-    pub fn value_bits(channel: &ChannelTable, v: i32) -> f64 {
-        match channel {
-            ChannelTable::Constant(_) => 0.0,
-            ChannelTable::Coded { lo, table } => {
+    /// Bits a value costs under `channel` in context `ctx` (the exact ideal code length).
+    pub fn value_bits(channel: &ChannelTable, ctx: usize, v: i32) -> f64 {
+        match channel.contexts() {
+            None => 0.0,
+            Some((lo, _, tables)) => {
+                let table = tables[ctx];
                 let n = table.len() - 1;
-                match v.checked_sub(*lo) {
+                match v.checked_sub(lo) {
                     Some(d) if d >= 0 && (d as usize) < n => table.bits(d as usize),
                     _ => table.bits(n) + 32.0,
                 }
@@ -239,13 +243,13 @@ mod tests {
         let values: Vec<i32> = (0..5000).map(|i| ((i * 7919) % 13) as i32 - 6).chain([i32::MIN, i32::MAX, 0]).collect();
         let mut e = SymbolEncoder::new();
         for (i, &v) in values.iter().enumerate() {
-            e.value(&ch, v);
+            e.value(&ch, 0, v);
             e.raw_bits(i as u32 % 1000, 10);
         }
         let bytes = e.finish();
         let mut d = SymbolDecoder::new(&bytes).unwrap();
         for (i, &v) in values.iter().enumerate() {
-            assert_eq!(d.value(&ch), v);
+            assert_eq!(d.value(&ch, 0), v);
             assert_eq!(d.raw_bits(10), i as u32 % 1000);
         }
         d.finish().unwrap();

@@ -141,9 +141,52 @@ pub enum ChannelTable {
     Constant(i32),
     /// Values `lo .. lo + n` map to symbols `0 .. n`; symbol `n` is the escape.
     Coded { lo: i32, table: FreqTable },
+    /// As `Coded`, with one table per context: the context of a value is
+    /// [`context`]`(previous value of the channel in the chunk, centre)`.
+    Context { lo: i32, centre: i32, tables: Box<[FreqTable; CONTEXTS]> },
+}
+
+/// Number of contexts of a context-coded channel.
+pub const CONTEXTS: usize = 4;
+
+/// The context of a value whose predecessor in the channel (previous Gaussian of the chunk;
+/// `centre` for the first) is `prev`: how far `prev` lies from the channel's centre,
+/// 0 → 0, 1 → 1, 2..=3 → 2, ≥ 4 → 3 (SPEC §5.2).
+#[inline(always)]
+pub fn context(prev: i32, centre: i32) -> usize {
+    match (i64::from(prev) - i64::from(centre)).unsigned_abs() {
+        0 => 0,
+        1 => 1,
+        2 | 3 => 2,
+        _ => 3,
+    }
 }
 
 impl ChannelTable {
+    /// `(lo, centre, table per context)` of a coded channel (a single table serves every context);
+    /// `None` for a constant.
+    pub fn contexts(&self) -> Option<(i32, i32, [&FreqTable; CONTEXTS])> {
+        match self {
+            ChannelTable::Constant(_) => None,
+            ChannelTable::Coded { lo, table } => Some((*lo, 0, [table; CONTEXTS])),
+            ChannelTable::Context { lo, centre, tables } => Some((*lo, *centre, [&tables[0], &tables[1], &tables[2], &tables[3]])),
+        }
+    }
+
+    /// Serialises a context-coded channel: `u8 2, svarint centre, svarint lo, varint n`, then
+    /// for each context `(n+1) × varint weight`.
+    pub fn write_context(w: &mut ByteWriter, lo: i32, centre: i32, weights: &[Vec<u32>; CONTEXTS]) {
+        w.u8(2);
+        w.svarint(centre);
+        w.svarint(lo);
+        w.varint((weights[0].len() - 1) as u32);
+        for ws in weights {
+            for &x in ws {
+                w.varint(x);
+            }
+        }
+    }
+
     /// Serialises: `u8 0, svarint value` or `u8 1, svarint lo, varint n, (n+1) × varint weight`.
     /// `weights` are the weights the table was built from (including the escape weight last).
     pub fn write_coded(w: &mut ByteWriter, lo: i32, weights: &[u32]) {
@@ -164,27 +207,44 @@ impl ChannelTable {
         match r.u8("channel table")? {
             0 => Ok(ChannelTable::Constant(r.svarint("constant value")?)),
             1 => {
-                let lo = r.svarint("table range")?;
-                let n = r.varint("table size")? as usize;
-                if n == 0 || n > MAX_SYMBOLS {
-                    return Err(DecodeError::Limit("table size outside 1..=4096"));
-                }
-                if lo.checked_add(n as i32).is_none() {
-                    return Err(DecodeError::Corrupt("table range overflows"));
-                }
-                // Each weight takes at least one byte: check before allocating.
-                if r.remaining() < n + 1 {
-                    return Err(DecodeError::Truncated("table weights"));
-                }
-                let mut weights = Vec::with_capacity(n + 1);
-                for _ in 0..=n {
-                    weights.push(r.varint("table weight")?);
-                }
-                Ok(ChannelTable::Coded { lo, table: FreqTable::from_weights(&weights) })
+                let (lo, n) = read_range(r)?;
+                Ok(ChannelTable::Coded { lo, table: read_weights(r, n)? })
+            }
+            2 => {
+                let centre = r.svarint("context centre")?;
+                let (lo, n) = read_range(r)?;
+                let t = [read_weights(r, n)?, read_weights(r, n)?, read_weights(r, n)?, read_weights(r, n)?];
+                Ok(ChannelTable::Context { lo, centre, tables: Box::new(t) })
             }
             _ => Err(DecodeError::Corrupt("unknown channel table mode")),
         }
     }
+}
+
+/// `svarint lo, varint n` of a coded table, checked.
+fn read_range(r: &mut ByteReader<'_>) -> Result<(i32, usize), DecodeError> {
+    let lo = r.svarint("table range")?;
+    let n = r.varint("table size")? as usize;
+    if n == 0 || n > MAX_SYMBOLS {
+        return Err(DecodeError::Limit("table size outside 1..=4096"));
+    }
+    if lo.checked_add(n as i32).is_none() {
+        return Err(DecodeError::Corrupt("table range overflows"));
+    }
+    Ok((lo, n))
+}
+
+/// `(n+1) × varint weight`, rebuilt into a table.
+fn read_weights(r: &mut ByteReader<'_>, n: usize) -> Result<FreqTable, DecodeError> {
+    // Each weight takes at least one byte: check before allocating.
+    if r.remaining() < n + 1 {
+        return Err(DecodeError::Truncated("table weights"));
+    }
+    let mut weights = Vec::with_capacity(n + 1);
+    for _ in 0..=n {
+        weights.push(r.varint("table weight")?);
+    }
+    Ok(FreqTable::from_weights(&weights))
 }
 
 #[cfg(test)]
