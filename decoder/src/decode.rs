@@ -190,6 +190,17 @@ struct Lane<'a> {
     d: SymbolDecoder<'a>,
 }
 
+impl Lane<'_> {
+    /// The lane's next value into `row` (`CONTEXT`: pick the table by the previous value).
+    #[inline(always)]
+    fn decode<const CONTEXT: bool>(&mut self, row: &mut [f32]) {
+        let table = if CONTEXT { self.tables[context(self.prev, self.centre)] } else { self.tables[0] };
+        let v = self.d.coded_value(self.lo, table);
+        self.prev = v;
+        row[self.col] = v as f32 * self.scale;
+    }
+}
+
 /// The next stream of a data section: `varint length`, then `length` bytes.
 fn next_stream_bytes<'a>(r: &mut ByteReader<'a>) -> Result<&'a [u8], DecodeError> {
     let len = r.varint("stream length")? as usize;
@@ -216,33 +227,34 @@ fn decode_channels(
     }
     let w = channels.len();
     let mut vals = vec![0f32; count * w];
-    let mut lanes = Vec::with_capacity(w);
+    // Channels with one table and context-coded ones decode in separate lanes, so that the former
+    // skip the context computation.
+    let (mut plain, mut contextual) = (Vec::with_capacity(w), Vec::new());
     for (col, j) in channels.enumerate() {
         match p.tables[j].contexts() {
             None => {
                 let v = if let ChannelTable::Constant(v) = p.tables[j] { v } else { 0 };
                 vals.iter_mut().skip(col).step_by(w).for_each(|x| *x = v as f32 * scale[j]);
             }
-            Some((lo, centre, tables)) => lanes.push(Lane {
-                col,
-                lo,
-                centre,
-                prev: centre,
-                tables: tables.map(|t| t.lookup_table()),
-                scale: scale[j],
-                d: SymbolDecoder::new(streams[j])?,
-            }),
+            Some((lo, centre, tables)) => {
+                let lanes = if matches!(p.tables[j], ChannelTable::Context { .. }) { &mut contextual } else { &mut plain };
+                lanes.push(Lane {
+                    col,
+                    lo,
+                    centre,
+                    prev: centre,
+                    tables: tables.map(|t| t.lookup_table()),
+                    scale: scale[j],
+                    d: SymbolDecoder::new(streams[j])?,
+                });
+            }
         }
     }
     for row in vals.chunks_exact_mut(w) {
-        for l in lanes.iter_mut() {
-            let v = l.d.coded_value(l.lo, l.tables[context(l.prev, l.centre)]);
-            l.prev = v;
-            row[l.col] = v as f32 * l.scale;
-        }
+        plain.iter_mut().for_each(|l| l.decode::<false>(row));
+        contextual.iter_mut().for_each(|l| l.decode::<true>(row));
     }
-    let coded = lanes.into_iter().map(|l| l.d);
-    coded.into_iter().try_for_each(SymbolDecoder::finish)?;
+    plain.into_iter().chain(contextual).try_for_each(|l| l.d.finish())?;
     if !vals.iter().fold(true, |ok, x| ok & x.is_finite()) {
         return Err(DecodeError::Corrupt("dequantised value is not finite"));
     }

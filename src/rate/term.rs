@@ -36,6 +36,9 @@ pub struct RateTerm {
     pub lambda: f64,
     pub steps: Steps,
     pub learn_steps: bool,
+    /// Iterations before this one train without the term (plain renders, no rate): the scene's
+    /// structure (densification) forms first.
+    pub start_iter: usize,
     start_steps: Steps,
     adam: [(f64, f64); STEP_GROUPS],
     adam_t: i32,
@@ -57,6 +60,7 @@ impl RateTerm {
             lambda,
             steps,
             learn_steps: false,
+            start_iter: 0,
             start_steps: steps,
             adam: [(0.0, 0.0); STEP_GROUPS],
             adam_t: 0,
@@ -147,7 +151,10 @@ impl RateTerm {
 
     /// Straight-through quantised parameters: what the decoder will see (rounded per step;
     /// positions and rotations are left as they are, their quantisation error is far below a pixel).
-    pub fn render_params(&mut self, params: &Splats, _iter: usize) -> Option<Splats> {
+    pub fn render_params(&mut self, params: &Splats, iter: usize) -> Option<Splats> {
+        if iter < self.start_iter {
+            return None;
+        }
         let mut out = params.clone();
         let q = |v: &mut f32, s: f32| *v = (*v / s).round() * s;
         for i in 0..out.len() {
@@ -165,7 +172,10 @@ impl RateTerm {
     }
 
     /// Adds `λ·R/R_NORM` and its gradient into `grad`; trains the entropy model one step.
-    pub fn rate_and_grad(&mut self, params: &Splats, grad: &mut Splats, _iter: usize) -> f64 {
+    pub fn rate_and_grad(&mut self, params: &Splats, grad: &mut Splats, iter: usize) -> f64 {
+        if iter < self.start_iter {
+            return 0.0;
+        }
         let n = params.len();
         let nc = Self::channel_count(params);
         let k3 = params.rest_coeffs() * 3;
@@ -387,6 +397,20 @@ mod tests {
         for k in 0..4 {
             assert!(RateTerm::group_step(&t.steps, k) < 0.8 * RateTerm::group_step(&start, k), "group {k}: {:?}", t.steps);
         }
+    }
+
+    #[test]
+    fn the_term_is_off_before_its_start_iteration() {
+        let s = scene();
+        let mut t = RateTerm::new(1e6, Steps::default(), 0.02).learning_steps();
+        t.start_iter = 10;
+        let mut g = zeroed(&s);
+        assert!(t.render_params(&s, 9).is_none());
+        assert_eq!(t.rate_and_grad(&s, &mut g, 9), 0.0);
+        assert_eq!(g, zeroed(&s), "no gradient before the start");
+        assert_eq!(t.steps, Steps::default(), "no step learning before the start");
+        assert!(t.render_params(&s, 10).is_some());
+        assert!(t.rate_and_grad(&s, &mut g, 10) > 0.0);
     }
 
     #[test]

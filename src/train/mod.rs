@@ -293,6 +293,12 @@ pub fn train(
         let t3 = Instant::now();
         stages.optimiser += (t3 - t2).as_secs_f64();
 
+        // Held-out evaluation before densification: an opacity reset at this iteration would
+        // otherwise make the scene read as nearly empty. Its time is not training time.
+        let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
+        let t_eval = Instant::now();
+        let test_psnr = if eval_now { evaluate(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
+        let eval_seconds = t_eval.elapsed().as_secs_f64();
         if cfg.densify && it < sched.densify_until {
             if it > sched.densify_from && it % sched.densify_every == 0 {
                 let dp = DensifyParams {
@@ -314,13 +320,11 @@ pub fn train(
                 densify::reset_opacity(&mut params, &mut adam, 0.01);
             }
         }
-        stages.densify += t3.elapsed().as_secs_f64();
-        train_seconds += t_iter.elapsed().as_secs_f64();
+        stages.densify += t3.elapsed().as_secs_f64() - eval_seconds;
+        train_seconds += t_iter.elapsed().as_secs_f64() - eval_seconds;
 
         loss_sum += l;
         loss_n += 1;
-        let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
-        let test_psnr = if eval_now { evaluate(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
         if it % log_every == 0 || eval_now || it == cfg.iters {
             points.push(ReportPoint {
                 iteration: it,

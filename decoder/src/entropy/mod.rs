@@ -154,12 +154,10 @@ pub const CONTEXTS: usize = 4;
 /// 0 → 0, 1 → 1, 2..=3 → 2, ≥ 4 → 3 (SPEC §5.2).
 #[inline(always)]
 pub fn context(prev: i32, centre: i32) -> usize {
-    match (i64::from(prev) - i64::from(centre)).unsigned_abs() {
-        0 => 0,
-        1 => 1,
-        2 | 3 => 2,
-        _ => 3,
-    }
+    // A table lookup on the clamped distance: no data-dependent branch in the decoder's loop.
+    const CLASS: [u8; 5] = [0, 1, 2, 2, 3];
+    let d = (i64::from(prev) - i64::from(centre)).unsigned_abs().min(4);
+    usize::from(CLASS[d as usize])
 }
 
 impl ChannelTable {
@@ -261,6 +259,24 @@ mod tests {
         let t = FreqTable::from_weights(&[3, 1]);
         // R = 65534, f = 1 + 49150, 1 + 16383 = 49151, 16384; remainder 1 to symbol 0.
         assert_eq!((t.freq(0), t.freq(1)), (49152, 16384));
+    }
+
+    #[test]
+    fn context_classes() {
+        let cases = [
+            (0, 0, 0),
+            (1, 0, 1),
+            (-1, 0, 1),
+            (3, 1, 2),
+            (-2, 1, 2),
+            (-3, 1, 3),
+            (4, 0, 3),
+            (i32::MIN, i32::MAX, 3),
+            (i32::MAX, i32::MAX, 0),
+        ];
+        for (prev, centre, k) in cases {
+            assert_eq!(context(prev, centre), k, "prev {prev} centre {centre}");
+        }
     }
 
     #[test]
