@@ -152,6 +152,7 @@ fn fine_tune(
     start: &Instant,
     series: &mut Vec<serde_json::Value>,
 ) -> crate::Result<(Splats, rate::Steps, crate::io::Dataset)> {
+    use crate::rate::term::Shared;
     use crate::train::{train, TrainConfig};
     let (dataset, init) = if args.input.is_dir() {
         (crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?, None)
@@ -173,12 +174,13 @@ fn fine_tune(
     // reaches 30.6 dB (docs/codec.md). A .ply already has its structure: the term runs throughout.
     term.start_iter = if init.is_none() { iters / 2 } else { 0 };
     term.learn_steps = !args.fixed_steps;
-    let learned = term.steps_handle();
+    let shared = term.shared();
     let pb = super::progress::bar(iters as u64, "train", args.quiet);
     let (trained, _) = train(&dataset, init, &cfg, crate::loss::build_loss(&args.loss, iters, crate::loss::LossKind::Wdr)?, Some(Box::new(term)), &mut |p| {
         pb.set_position(p.iteration as u64);
         if let Some(psnr) = p.test_psnr {
-            series.push(json!({"iteration": p.iteration, "trial": "train", "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": null, "d": p.loss, "heldout_psnr": psnr}));
+            let bits = shared.lock().expect("term lock").bits;
+            series.push(json!({"iteration": p.iteration, "trial": "train", "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": bits, "d": p.loss, "heldout_psnr": psnr}));
         }
     })
     .map_err(|e| match e {
@@ -186,9 +188,13 @@ fn fine_tune(
         other => other,
     })?;
     pb.finish_and_clear();
-    let steps = *learned.lock().expect("steps lock");
-    series.push(json!({"iteration": iters, "trial": "learned steps", "wall_s": start.elapsed().as_secs_f64(), "steps": {
-        "scale": steps.scale, "opacity": steps.opacity, "sh_dc": steps.sh_dc, "sh_rest": steps.sh_rest,
-    }}));
+    let Shared { steps, bits } = *shared.lock().expect("term lock");
+    // The rate term's own estimate at the end of training: for a .ply (coded at these steps) it
+    // is to be compared with the file size.
+    series.push(
+        json!({"iteration": iters, "trial": "learned steps", "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": bits, "steps": {
+            "scale": steps.scale, "opacity": steps.opacity, "sh_dc": steps.sh_dc, "sh_rest": steps.sh_rest,
+        }}),
+    );
     Ok((trained, steps, dataset))
 }

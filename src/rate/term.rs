@@ -24,6 +24,15 @@ const STEP_LR: f64 = 2e-3;
 /// A learned step stays within this factor of its starting value.
 const STEP_RANGE: f64 = 8.0;
 
+/// What a [`RateTerm`] shares with its owner during training.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Shared {
+    /// The current (learned) steps.
+    pub steps: Steps,
+    /// Estimated bits of the scene at the last evaluation; `None` before the term starts.
+    pub bits: Option<f64>,
+}
+
 /// Rate term with a learned factorized model per channel (scale 3, opacity 1, DC 3, rest K·3)
 /// and, when `learn_steps`, quantisation steps learned per group.
 ///
@@ -42,7 +51,7 @@ pub struct RateTerm {
     start_steps: Steps,
     adam: [(f64, f64); STEP_GROUPS],
     adam_t: i32,
-    learned: Arc<Mutex<Steps>>,
+    shared: Arc<Mutex<Shared>>,
     /// Opacity at which Gaussians are pruned; the term charges each Gaussian its bits times a
     /// soft "kept" factor σ((logit − logit(min_opacity)) / 0.5), so pruning pays.
     pub min_opacity: f32,
@@ -64,7 +73,7 @@ impl RateTerm {
             start_steps: steps,
             adam: [(0.0, 0.0); STEP_GROUPS],
             adam_t: 0,
-            learned: Arc::new(Mutex::new(steps)),
+            shared: Arc::new(Mutex::new(Shared { steps, bits: None })),
             min_opacity,
             models: Vec::new(),
             last_bits: 0.0,
@@ -77,9 +86,10 @@ impl RateTerm {
         RateTerm { learn_steps: true, ..self }
     }
 
-    /// The steps as training leaves them, readable after the term has been moved into `train`.
-    pub fn steps_handle(&self) -> Arc<Mutex<Steps>> {
-        self.learned.clone()
+    /// The steps and the latest rate estimate, readable while and after the term is used by
+    /// `train` (which owns it).
+    pub fn shared(&self) -> Arc<Mutex<Shared>> {
+        self.shared.clone()
     }
 
     fn group_step(steps: &Steps, k: usize) -> f32 {
@@ -118,7 +128,7 @@ impl RateTerm {
             let log_s = (f64::from(*s).ln() - STEP_LR * mh / (vh.sqrt() + 1e-12)).clamp(start - STEP_RANGE.ln(), start + STEP_RANGE.ln());
             *s = log_s.exp() as f32;
         }
-        *self.learned.lock().expect("steps lock") = self.steps;
+        self.shared.lock().expect("term lock").steps = self.steps;
     }
 
     fn channel_count(s: &Splats) -> usize {
@@ -231,6 +241,7 @@ impl RateTerm {
             m.log_b -= 0.1 * gb / nn;
         }
         self.last_step_gradient = d_log_step;
+        self.shared.lock().expect("term lock").bits = Some(total);
         if self.learn_steps {
             self.update_steps(&d_log_step);
         }
@@ -367,11 +378,11 @@ mod tests {
         let start = Steps::default();
         // Rate only (a huge λ, no distortion gradient): every step grows.
         let mut t = RateTerm::new(1e6, start, 0.02).learning_steps();
-        let handle = t.steps_handle();
+        let handle = t.shared();
         for it in 0..200 {
             t.rate_and_grad(&s, &mut zeroed(&s), it);
         }
-        let grown = *handle.lock().unwrap();
+        let grown = handle.lock().unwrap().steps;
         for k in 0..4 {
             assert!(RateTerm::group_step(&grown, k) > 1.2 * RateTerm::group_step(&start, k), "group {k}: {grown:?}");
         }
