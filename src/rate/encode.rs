@@ -8,7 +8,7 @@ use gscodec_decoder::bitstream::layout::{chunk_count, Group, CHUNK, INFO_KIND, P
 use gscodec_decoder::bitstream::{
     self, ByteWriter, Header, Section, MAX_GAUSSIANS_PER_BYTE, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MINOR,
 };
-use gscodec_decoder::entropy::{context, ChannelTable, SymbolEncoder};
+use gscodec_decoder::entropy::{in_context, ChannelTable, SymbolEncoder};
 
 use super::quantise::Quantised;
 use super::tables::{self, ChosenTable};
@@ -155,11 +155,7 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<
         for (t, c) in p.tables.iter().zip(chans) {
             if let Some((_, centre, _)) = t.table.contexts() {
                 let mut e = SymbolEncoder::new();
-                let mut prev = centre;
-                for &v in &c[range.clone()] {
-                    e.value(&t.table, context(prev, centre), v);
-                    prev = v;
-                }
+                in_context(&c[range.clone()], centre).for_each(|(ctx, v)| e.value(&t.table, ctx, v));
                 push_stream(&mut section, e);
             }
         }

@@ -3,7 +3,7 @@
 
 use gscodec_decoder::bitstream::layout::CHUNK;
 use gscodec_decoder::bitstream::ByteWriter;
-use gscodec_decoder::entropy::{context, ChannelTable, FreqTable, SymbolEncoder, CONTEXTS, MAX_SYMBOLS};
+use gscodec_decoder::entropy::{in_context, symbol_of, ChannelTable, FreqTable, SymbolEncoder, CONTEXTS, MAX_SYMBOLS};
 
 /// A channel's table as it will be written, with its cost on the values it codes.
 #[derive(Debug, Clone)]
@@ -43,12 +43,7 @@ pub fn choose_with(values: &[i32], model: Option<&dyn Fn(i32, usize) -> Vec<f64>
         }
         let mut counts = vec![0u64; n + 1];
         for &v in values {
-            let d = i64::from(v) - i64::from(lo);
-            if d >= 0 && (d as usize) < n {
-                counts[d as usize] += 1;
-            } else {
-                counts[n] += 1;
-            }
+            counts[symbol_of(lo, n, v)] += 1;
         }
         let shape: Vec<f64> = match model {
             Some(m) => m(lo, n),
@@ -93,20 +88,19 @@ fn best_weights(shape: &[f64], counts: &[u64]) -> (Vec<u32>, FreqTable, f64) {
 }
 
 /// The context-coded version of a coded channel `base` (same range and escape): one histogram
-/// per context, the context of value i being [`context`] of value i−1 (the centre, the median,
-/// at the start of each chunk of [`CHUNK`] Gaussians), as the decoder sees them.
+/// per context, contexts as the decoder sees them: per chunk of [`CHUNK`] Gaussians (one stream),
+/// [`in_context`] with the channel's median as the centre.
 pub fn with_contexts(values: &[i32], base: &ChosenTable) -> Option<ChosenTable> {
     let ChannelTable::Coded { lo, table } = &base.table else { return None };
     let (lo, n) = (*lo, table.len() - 1);
-    let mut sorted = values.to_vec();
-    sorted.sort_unstable();
-    let centre = sorted[sorted.len() / 2];
+    let mut scratch = values.to_vec();
+    let half = scratch.len() / 2;
+    let centre = *scratch.select_nth_unstable(half).1; // the median
     let mut counts = [(); CONTEXTS].map(|_| vec![0u64; n + 1]);
-    for (i, &v) in values.iter().enumerate() {
-        let prev = if i % CHUNK == 0 { centre } else { values[i - 1] };
-        let d = i64::from(v) - i64::from(lo);
-        let s = if d >= 0 && (d as usize) < n { d as usize } else { n };
-        counts[context(prev, centre)][s] += 1;
+    for chunk in values.chunks(CHUNK) {
+        for (ctx, v) in in_context(chunk, centre) {
+            counts[ctx][symbol_of(lo, n, v)] += 1;
+        }
     }
     let mut bits = 0.0;
     let chosen = counts.map(|c| {
@@ -188,8 +182,7 @@ fn wide(values: &[i32]) -> ChosenTable {
     let n = MAX_SYMBOLS;
     let mut weights = vec![0u32; n + 1];
     for &v in values {
-        let d = i64::from(v) - i64::from(lo);
-        let s = if d >= 0 && (d as usize) < n { d as usize } else { n };
+        let s = symbol_of(lo, n, v);
         weights[s] = weights[s].saturating_add(1);
     }
     let mut w = ByteWriter::new();

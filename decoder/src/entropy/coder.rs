@@ -12,7 +12,7 @@ use constriction::stream::stack::{AnsCoder, DefaultAnsCoder};
 use constriction::stream::{Decode, Encode};
 use constriction::{CoderError, Stack};
 
-use super::{ChannelTable, FreqTable, Lookup, PRECISION};
+use super::{symbol_of, ChannelTable, FreqTable, Lookup, PRECISION};
 use crate::bitstream::bytes::{unzigzag, zigzag};
 use crate::bitstream::DecodeError;
 
@@ -193,14 +193,11 @@ impl SymbolEncoder {
         match channel.contexts() {
             None => debug_assert_eq!(channel, &ChannelTable::Constant(v)),
             Some((lo, _, tables)) => {
-                let table = tables[ctx];
-                let n = table.len() - 1;
-                match v.checked_sub(lo) {
-                    Some(d) if d >= 0 && (d as usize) < n => self.symbol(table, d as usize),
-                    _ => {
-                        self.symbol(table, n);
-                        self.raw_bits(zigzag(v), 32);
-                    }
+                let (table, n) = (tables[ctx], tables[ctx].len() - 1);
+                let s = symbol_of(lo, n, v);
+                self.symbol(table, s);
+                if s == n {
+                    self.raw_bits(zigzag(v), 32);
                 }
             }
         }
@@ -211,12 +208,9 @@ impl SymbolEncoder {
         match channel.contexts() {
             None => 0.0,
             Some((lo, _, tables)) => {
-                let table = tables[ctx];
-                let n = table.len() - 1;
-                match v.checked_sub(lo) {
-                    Some(d) if d >= 0 && (d as usize) < n => table.bits(d as usize),
-                    _ => table.bits(n) + 32.0,
-                }
+                let (table, n) = (tables[ctx], tables[ctx].len() - 1);
+                let s = symbol_of(lo, n, v);
+                table.bits(s) + if s == n { 32.0 } else { 0.0 }
             }
         }
     }

@@ -160,6 +160,24 @@ pub fn context(prev: i32, centre: i32) -> usize {
     usize::from(CLASS[d as usize])
 }
 
+/// The values of one stream with their contexts: value i's context is [`context`] of value
+/// i−1, and of `centre` for the first (SPEC §5.2). The encoder's side of the decoder's running
+/// previous value.
+pub fn in_context(values: &[i32], centre: i32) -> impl Iterator<Item = (usize, i32)> + '_ {
+    let prevs = std::iter::once(centre).chain(values.iter().copied());
+    prevs.zip(values).map(move |(prev, &v)| (context(prev, centre), v))
+}
+
+/// The symbol of value `v` in a table over `lo .. lo + n`: `v − lo`, or the escape `n` outside.
+pub fn symbol_of(lo: i32, n: usize, v: i32) -> usize {
+    let d = i64::from(v) - i64::from(lo);
+    if d >= 0 && (d as usize) < n {
+        d as usize
+    } else {
+        n
+    }
+}
+
 impl ChannelTable {
     /// `(lo, centre, table per context)` of a coded channel (a single table serves every context);
     /// `None` for a constant.
