@@ -44,8 +44,8 @@ fn rust_dump(bytes: &[u8]) -> Vec<u8> {
 #[test]
 fn c_program_decodes_like_rust() {
     let lib = static_lib();
-    let dir = tempfile_dir();
-    let exe = dir.join("decode_gsc");
+    let dir = TempDir::new();
+    let exe = dir.0.join("decode_gsc");
     let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
     let status = Command::new(&cc)
         .arg(repo().join("decoder/tests/c/decode_gsc.c"))
@@ -65,7 +65,7 @@ fn c_program_decodes_like_rust() {
         .collect();
     assert!(!vectors.is_empty());
     for v in vectors {
-        let out = dir.join("dump.bin");
+        let out = dir.0.join("dump.bin");
         let run = Command::new(&exe).arg(&v).arg(&out).output().unwrap();
         assert!(run.status.success(), "{}: {}{}", v.display(), String::from_utf8_lossy(&run.stdout), String::from_utf8_lossy(&run.stderr));
         eprint!("{}: {}", v.display(), String::from_utf8_lossy(&run.stdout));
@@ -73,8 +73,19 @@ fn c_program_decodes_like_rust() {
     }
 }
 
-fn tempfile_dir() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("gscodec-capi-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch folder for the C build, removed when the test ends (pass or fail).
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new() -> Self {
+        let d = std::env::temp_dir().join(format!("gscodec-capi-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        TempDir(d)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
