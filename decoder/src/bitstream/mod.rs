@@ -198,12 +198,28 @@ fn parse_sections(bytes: &[u8], prefix: bool) -> Result<Container<'_>, DecodeErr
         if sections.iter().any(|s: &Section| s.kind == kind && s.chunk == chunk) {
             return Err(DecodeError::Corrupt("duplicate section"));
         }
+        if flags & SECTION_OPTIONAL == 0 && !is_known(&header, kind, chunk) {
+            return Err(DecodeError::UnknownSection(kind));
+        }
         sections.push(Section { kind, chunk, flags, data });
     }
     if body.remaining() != 0 && !prefix {
         return Err(DecodeError::TrailingData(body.remaining()));
     }
     Ok(Container { header, sections, pending })
+}
+
+/// Whether (kind, chunk) is a section this version defines for a file with `header`'s Gaussian
+/// count and SH degree (SPEC §3): parameters (chunk 0) and data (chunk < chunk count) of a present
+/// group, info and padding (chunk 0). Anything else is unknown: skipped when OPTIONAL, else an error.
+pub fn is_known(header: &Header, kind: u16, chunk: u16) -> bool {
+    if kind == layout::INFO_KIND || kind == layout::PADDING_KIND {
+        return chunk == 0;
+    }
+    let n = header.gaussians as usize;
+    n > 0
+        && layout::Group::present(header.sh_degree)
+            .any(|g| (kind == g.params_kind() && chunk == 0) || (kind == g.data_kind() && usize::from(chunk) < layout::chunk_count(n)))
 }
 
 /// Serialises a container. Sections are written in the given order.
@@ -238,7 +254,27 @@ mod tests {
 
     fn sample() -> Vec<u8> {
         let h = Header { version_major: VERSION_MAJOR, version_minor: VERSION_MINOR, gaussians: 3, sh_degree: 1 };
-        write(&h, &[Section { kind: 1, chunk: 0, flags: 0, data: b"abc" }, Section { kind: 9, chunk: 2, flags: 1, data: b"" }])
+        write(&h, &[Section { kind: 0x11, chunk: 0, flags: 0, data: b"abc" }, Section { kind: 9, chunk: 2, flags: 1, data: b"" }])
+    }
+
+    #[test]
+    fn unknown_sections_are_skipped_only_when_optional() {
+        let h = Header { version_major: VERSION_MAJOR, version_minor: VERSION_MINOR, gaussians: 3, sh_degree: 1 };
+        let with = |kind: u16, chunk: u16, flags: u32| parse(&write(&h, &[Section { kind, chunk, flags, data: b"" }])).map(|_| ());
+        // Known: parameters and data of present groups (one chunk here), info, padding.
+        for (kind, chunk) in [(0x10, 0), (0x15, 0), (0x20, 0), (0x25, 0), (0x100, 0), (0x101, 0)] {
+            assert_eq!(with(kind, chunk, 0), Ok(()), "{kind:#x}/{chunk}");
+        }
+        // Unknown: an absent SH band, a chunk past the last, parameters of chunk 1, a new kind.
+        for (kind, chunk) in [(0x16, 0), (0x26, 0), (0x20, 1), (0x11, 1), (0x18, 0), (0x102, 0), (0x100, 1)] {
+            assert_eq!(with(kind, chunk, 0), Err(DecodeError::UnknownSection(kind)), "{kind:#x}/{chunk}");
+            assert_eq!(with(kind, chunk, SECTION_OPTIONAL), Ok(()), "{kind:#x}/{chunk} optional");
+        }
+        let empty = Header { gaussians: 0, ..h };
+        assert_eq!(
+            parse(&write(&empty, &[Section { kind: 0x10, chunk: 0, flags: 0, data: b"" }])).unwrap_err(),
+            DecodeError::UnknownSection(0x10)
+        );
     }
 
     #[test]
@@ -247,7 +283,7 @@ mod tests {
         let c = parse(&bytes).unwrap();
         assert_eq!(c.header.gaussians, 3);
         assert_eq!(c.sections.len(), 2);
-        assert_eq!(c.section(1, 0).unwrap().data, b"abc");
+        assert_eq!(c.section(0x11, 0).unwrap().data, b"abc");
         assert_eq!(c.section(9, 2).unwrap().flags, SECTION_OPTIONAL);
     }
 

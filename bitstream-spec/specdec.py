@@ -1,0 +1,512 @@
+#!/usr/bin/env python3
+"""Independent decoder for the gscodec `.gsc` bitstream, version 3.x, written
+from bitstream-spec/SPEC.md alone (without reading the Rust decoder), as a check
+that the spec is complete.  Usage: python3 specdec.py IN.gsc OUT.ply
+
+Writes the reference .ply of SPEC §7.2.  Exit code 1 and a one-line message on
+stderr for a malformed file.  Needs numpy.
+"""
+import struct
+import sys
+import zlib
+
+import numpy as np
+
+MAGIC = b"\x8aGSC"
+VERSION_MAJOR = 3
+MAX_SECTIONS = 4096
+MAX_N = 1 << 26
+MAX_TABLE_N = 4096
+MAX_BITS = 21
+CHUNK = 65536
+PROB_BITS = 16
+PROB_TOTAL = 1 << PROB_BITS
+
+# group index -> channel count (position: its length table only)
+GROUP_CHANNELS = [1, 3, 4, 1, 3, 9, 15, 21]
+KIND_INFO = 0x100
+KIND_PADDING = 0x101
+
+
+class DecodeError(Exception):
+    """kind is one of the error classes listed in SPEC §9."""
+
+    def __init__(self, kind, msg):
+        super().__init__(f"{kind}: {msg}")
+        self.kind = kind
+
+
+def corrupt(msg):
+    return DecodeError("corrupt data", msg)
+
+
+# ----------------------------------------------------------------------------
+# Byte reader (§1)
+# ----------------------------------------------------------------------------
+class Reader:
+    def __init__(self, data, what):
+        self.data = data
+        self.pos = 0
+        self.what = what
+
+    def remaining(self):
+        return len(self.data) - self.pos
+
+    def take(self, n):
+        if n > self.remaining():
+            raise DecodeError("truncation", f"{self.what}: need {n} bytes, {self.remaining()} left")
+        b = self.data[self.pos:self.pos + n]
+        self.pos += n
+        return b
+
+    def u8(self):
+        return self.take(1)[0]
+
+    def u16(self):
+        return struct.unpack("<H", self.take(2))[0]
+
+    def u32(self):
+        return struct.unpack("<I", self.take(4))[0]
+
+    def f32(self):
+        raw = self.take(4)
+        v = np.frombuffer(raw, dtype="<f4")[0]
+        if not np.isfinite(v):
+            raise corrupt(f"{self.what}: non-finite f32 {raw.hex()}")
+        return v  # np.float32
+
+    def varint(self):
+        value = 0
+        for i in range(5):
+            b = self.u8()
+            value |= (b & 0x7F) << (7 * i)
+            if not b & 0x80:
+                if value >= 1 << 32:
+                    raise corrupt(f"{self.what}: varint exceeds 32 bits")
+                return value
+        raise corrupt(f"{self.what}: varint longer than 5 bytes")
+
+    def svarint(self):
+        return unzigzag(self.varint())
+
+    def expect_end(self):
+        if self.remaining():
+            raise corrupt(f"{self.what}: {self.remaining()} unconsumed bytes")
+
+
+def unzigzag(z):
+    return (z >> 1) ^ -(z & 1)
+
+
+# ----------------------------------------------------------------------------
+# Tables (§4.1, §4.2)
+# ----------------------------------------------------------------------------
+def build_cdf(weights):
+    m = len(weights)
+    w = list(weights)
+    if all(x == 0 for x in w):
+        w = [1] * m
+    total = sum(w)
+    r = PROB_TOTAL - m
+    f = [1 + (x * r) // total for x in w]
+    biggest = max(w)
+    b = w.index(biggest)  # smallest index with the largest weight
+    f[b] += PROB_TOTAL - sum(f)
+    cdf = [0]
+    for x in f:
+        cdf.append(cdf[-1] + x)
+    assert cdf[-1] == PROB_TOTAL and min(f) >= 1
+    return cdf
+
+
+class ChannelTable:
+    def __init__(self, mode, value=0, lo=0, n=0, centre=0, cdfs=()):
+        self.mode = mode      # 0 constant, 1 coded, 2 context
+        self.value = value
+        self.lo = lo
+        self.n = n
+        self.centre = centre
+        self.cdfs = list(cdfs)  # one cdf (mode 1) or four (mode 2)
+
+
+def read_weights(rd, m):
+    # every weight is at least one byte: check before allocating
+    if m > rd.remaining():
+        raise DecodeError("truncation", f"{rd.what}: {m} weights cannot fit")
+    return [rd.varint() for _ in range(m)]
+
+
+def read_lo_n(rd):
+    lo = rd.svarint()
+    n = rd.varint()
+    if not 1 <= n <= MAX_TABLE_N:
+        raise DecodeError("limit exceeded", f"{rd.what}: table size n={n}")
+    if lo + n > 0x7FFFFFFF:
+        raise corrupt(f"{rd.what}: lo + n overflows i32")
+    return lo, n
+
+
+def read_channel_table(rd, allow_context):
+    mode = rd.u8()
+    if mode == 0:
+        return ChannelTable(0, value=rd.svarint())
+    if mode == 1:
+        lo, n = read_lo_n(rd)
+        return ChannelTable(1, lo=lo, n=n, cdfs=[build_cdf(read_weights(rd, n + 1))])
+    if mode == 2 and allow_context:
+        centre = rd.svarint()
+        lo, n = read_lo_n(rd)
+        cdfs = [build_cdf(read_weights(rd, n + 1)) for _ in range(4)]
+        return ChannelTable(2, lo=lo, n=n, centre=centre, cdfs=cdfs)
+    raise corrupt(f"{rd.what}: bad table mode {mode}")
+
+
+# ----------------------------------------------------------------------------
+# ANS decoder (§5)
+# ----------------------------------------------------------------------------
+class AnsDecoder:
+    def __init__(self, data, what):
+        if len(data) % 4:
+            raise corrupt(f"{what}: stream length {len(data)} not a multiple of 4")
+        self.words = struct.unpack(f"<{len(data) // 4}I", data)
+        self.what = what
+        self.next = 0
+        if not self.words:
+            self.x = 0
+        else:
+            if self.words[0] == 0:
+                raise corrupt(f"{what}: first word is zero")
+            self.x = self.words[0]
+            self.next = 1
+            if len(self.words) > 1:
+                self.x = (self.x << 32) | self.words[1]
+                self.next = 2
+
+    def _advance(self, start, freq, q):
+        self.x = (self.x >> 16) * freq + (q - start)
+        if self.x < (1 << 32) and self.next < len(self.words):
+            self.x = (self.x << 32) | self.words[self.next]
+            self.next += 1
+
+    def symbol(self, cdf):
+        q = self.x & 0xFFFF
+        # binary search: largest s with cdf[s] <= q
+        lo, hi = 0, len(cdf) - 1
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if cdf[mid] <= q:
+                lo = mid
+            else:
+                hi = mid
+        self._advance(cdf[lo], cdf[lo + 1] - cdf[lo], q)
+        return lo
+
+    def raw(self, k):
+        # §5.1: uniform table over 2^k symbols, f = 2^(16-k)
+        assert 1 <= k <= 16
+        shift = 16 - k
+        q = self.x & 0xFFFF
+        s = q >> shift
+        self._advance(s << shift, 1 << shift, q)
+        return s
+
+    def raw_bits(self, bits):
+        left, value = bits, 0
+        while left > 0:
+            take = min(left, 16)
+            left -= take
+            value = (value << take) | self.raw(take)
+        return value
+
+    def finish(self):
+        if self.next != len(self.words) or self.x != 0:
+            raise corrupt(f"{self.what}: end check failed "
+                          f"({len(self.words) - self.next} words left, x={self.x:#x})")
+
+
+def read_value(dec, table, state):
+    """§5.2. state is a one-element list holding `prev` (context tables)."""
+    if table.mode == 0:
+        return table.value
+    if table.mode == 1:
+        cdf = table.cdfs[0]
+    else:
+        d = abs(state[0] - table.centre)
+        k = 0 if d == 0 else 1 if d == 1 else 2 if d <= 3 else 3
+        cdf = table.cdfs[k]
+    s = dec.symbol(cdf)
+    v = table.lo + s if s < table.n else unzigzag(dec.raw_bits(32))
+    state[0] = v
+    return v
+
+
+# ----------------------------------------------------------------------------
+# Container (§2, §3)
+# ----------------------------------------------------------------------------
+def parse_container(data):
+    if len(data) < 4 or data[:4] != MAGIC:
+        raise DecodeError("bad magic", "not a .gsc file")
+    rd = Reader(data, "header")
+    rd.take(4)
+    major, minor = rd.u8(), rd.u8()
+    if major != VERSION_MAJOR:
+        raise DecodeError("unsupported major version", f"{major}.{minor}")
+    s_count = rd.u16()
+    n = rd.u32()
+    degree = rd.u8()
+    flags = rd.u8()
+    reserved = rd.u16()
+    if s_count > MAX_SECTIONS:
+        raise DecodeError("limit exceeded", f"S={s_count}")
+    if n > MAX_N or n > 8 * len(data):
+        raise DecodeError("limit exceeded", f"N={n} (file length {len(data)})")
+    if degree > 3:
+        raise corrupt(f"SH degree {degree}")
+    if flags != 0 or reserved != 0:
+        raise corrupt("header flags/reserved not zero")
+    table = []
+    for _ in range(s_count):
+        table.append(struct.unpack("<HHIII", rd.take(16)))
+    header_crc = rd.u32()
+    if zlib.crc32(data[:rd.pos - 4]) != header_crc:
+        raise DecodeError("checksum mismatch", "header CRC")
+
+    sections = {}
+    for kind, chunk, sflags, length, crc in table:
+        rd.what = f"section {kind:#x}/{chunk}"
+        payload = rd.take(length)
+        if zlib.crc32(payload) != crc:
+            raise DecodeError("checksum mismatch", f"section {kind:#x}/{chunk}")
+        if sflags & ~1:
+            raise corrupt(f"section {kind:#x}/{chunk}: flags {sflags:#x}")
+        if (kind, chunk) in sections:
+            raise corrupt(f"duplicate section {kind:#x}/{chunk}")
+        sections[(kind, chunk)] = (sflags, payload)
+    if rd.remaining():
+        raise DecodeError("trailing data", f"{rd.remaining()} bytes after last payload")
+    return n, degree, sections
+
+
+def classify_sections(n, degree, sections):
+    """Check known/unknown sections; return {(kind, chunk): payload} for known ones."""
+    groups = (5 + degree) if n > 0 else 0
+    chunks = (n + CHUNK - 1) // CHUNK
+    known = {}
+    for (kind, chunk), (sflags, payload) in sections.items():
+        is_known = (
+            (0x10 <= kind < 0x10 + groups and chunk == 0)
+            or (0x20 <= kind < 0x20 + groups and chunk < chunks)
+            or (kind in (KIND_INFO, KIND_PADDING) and chunk == 0)
+        )
+        if is_known:
+            known[(kind, chunk)] = payload
+        elif not sflags & 1:
+            raise DecodeError("unknown required section", f"{kind:#x}/{chunk}")
+    for g in range(groups):
+        if (0x10 + g, 0) not in known:
+            raise DecodeError("missing section", f"parameters of group {g}")
+    # The info section is informative (§3): its content is never a reason to reject a file.
+    return known, groups, chunks
+
+
+# ----------------------------------------------------------------------------
+# Parameters (§4) and data sections (§6)
+# ----------------------------------------------------------------------------
+def parse_position_params(payload):
+    rd = Reader(payload, "position parameters")
+    origin = [rd.f32() for _ in range(3)]
+    step = [rd.f32() for _ in range(3)]
+    bits = rd.u8()
+    if bits > MAX_BITS:
+        raise DecodeError("limit exceeded", f"grid bits {bits}")
+    table = read_channel_table(rd, allow_context=False)
+    rd.expect_end()
+    return origin, step, bits, table
+
+
+def parse_group_params(g, payload):
+    rd = Reader(payload, f"parameters of group {g}")
+    c = rd.u8()
+    if c != GROUP_CHANNELS[g]:
+        raise corrupt(f"group {g}: channel count {c}, expected {GROUP_CHANNELS[g]}")
+    channels = []
+    for _ in range(c):
+        step = rd.f32()
+        channels.append((step, read_channel_table(rd, allow_context=True)))
+    rd.expect_end()
+    return channels
+
+
+def split_streams(payload, count, what):
+    rd = Reader(payload, what)
+    streams = []
+    for j in range(count):
+        length = rd.varint()
+        streams.append(rd.take(length))
+    rd.expect_end()
+    return streams
+
+
+def decode_positions(payload, k, bits, table, what):
+    (stream,) = split_streams(payload, 1, what)
+    dec = AnsDecoder(stream, what)
+    state = [0]
+    limit = 1 << (3 * bits)
+    m = 0
+    codes = np.empty(k, dtype=np.uint64)
+    for i in range(k):
+        length = read_value(dec, table, state)
+        if not 0 <= length <= 3 * bits:
+            raise corrupt(f"{what}: Morton length {length}")
+        d = length if length <= 1 else (1 << (length - 1)) + dec.raw_bits(length - 1)
+        m += d
+        if m >= limit:
+            raise corrupt(f"{what}: Morton code out of range")
+        codes[i] = m
+    dec.finish()
+    q = np.zeros((k, 3), dtype=np.int64)
+    for bit in range(bits):
+        for axis in range(3):
+            q[:, axis] |= ((codes >> np.uint64(3 * bit + axis)) & np.uint64(1)).astype(np.int64) << bit
+    return q
+
+
+def decode_channels(payload, k, channels, what):
+    coded = [j for j, (_, t) in enumerate(channels) if t.mode != 0]
+    streams = split_streams(payload, len(coded), what)
+    values = np.empty((k, len(channels)), dtype=np.int64)
+    for j, (_, table) in enumerate(channels):
+        if table.mode == 0:
+            values[:, j] = table.value
+    for j, stream in zip(coded, streams):
+        table = channels[j][1]
+        dec = AnsDecoder(stream, f"{what} channel {j}")
+        state = [table.centre]
+        col = [read_value(dec, table, state) for _ in range(k)]
+        dec.finish()
+        values[:, j] = col
+    return values
+
+
+# ----------------------------------------------------------------------------
+# Dequantisation (§8)
+# ----------------------------------------------------------------------------
+def dequant(values, steps):
+    out = values.astype(np.float32) * np.asarray(steps, dtype=np.float32)
+    return out.astype(np.float32)
+
+
+def check_finite(arr, what):
+    if not np.all(np.isfinite(arr)):
+        raise corrupt(f"non-finite dequantised {what}")
+
+
+def decode(data):
+    n, degree, sections = parse_container(data)
+    known, groups, chunks = classify_sections(n, degree, sections)
+
+    cols = {}
+    if n > 0:
+        origin, pstep, bits, ltable = parse_position_params(known[(0x10, 0)])
+        params = {g: parse_group_params(g, known[(0x10 + g, 0)]) for g in range(1, groups)}
+        ints = {g: [] for g in range(groups)}
+        for c in range(chunks):
+            k = min(n, CHUNK * (c + 1)) - CHUNK * c
+            for g in range(groups):
+                payload = known.get((0x20 + g, c), b"")
+                what = f"data group {g} chunk {c}"
+                if g == 0:
+                    ints[0].append(decode_positions(payload, k, bits, ltable, what))
+                else:
+                    ints[g].append(decode_channels(payload, k, params[g], what))
+        ints = {g: np.concatenate(v) for g, v in ints.items()}
+
+        with np.errstate(all="ignore"):
+            pos = np.asarray(origin, np.float32) + (ints[0].astype(np.float32) * np.asarray(pstep, np.float32))
+            pos = pos.astype(np.float32)
+            check_finite(pos, "position")
+            deq = {}
+            for g in range(1, groups):
+                steps = [s for s, _ in params[g]]
+                if g == 2:
+                    idx = ints[2][:, 0]
+                    if np.any((idx < 0) | (idx > 3)):
+                        raise corrupt("rotation index out of 0..3")
+                    deq[g] = dequant(ints[2][:, 1:], steps[1:])
+                else:
+                    deq[g] = dequant(ints[g], steps)
+                check_finite(deq[g], f"group {g}")
+            c0, c1, c2 = (deq[2][:, i] for i in range(3))
+            t = (c0 * c0 + c1 * c1) + c2 * c2
+            big = np.sqrt(np.maximum(np.float32(1) - t, np.float32(0))).astype(np.float32)
+            # big goes to slot i; c0, c1, c2 fill the other slots in increasing order
+            idx = ints[2][:, 0]
+            rot = np.empty((n, 4), np.float32)
+            for slot in range(4):
+                # the stored component that lands in `slot` is c[slot] if slot < i else c[slot-1]
+                below = [c0, c1, c2, c2][slot]
+                above = [c0, c0, c1, c2][slot]
+                rot[:, slot] = np.where(idx == slot, big, np.where(slot < idx, below, above))
+            check_finite(rot, "rotation")
+
+        cols["pos"] = pos
+        cols["scale"] = deq[1]
+        cols["rot"] = rot
+        cols["opacity"] = deq[3]
+        cols["dc"] = deq[4]
+        # §7: band b's coefficients m go to rest coefficients b²-1+m; each
+        # colour's coefficients are stored contiguously (INRIA f_rest layout,
+        # inferred from the vectors).
+        ncoef = (degree + 1) ** 2 - 1
+        rest = np.zeros((n, 3, ncoef), np.float32)
+        for b in range(1, degree + 1):
+            vals = deq[4 + b]  # channel j = 3*m + colour
+            for m_ in range(2 * b + 1):
+                for colour in range(3):
+                    rest[:, colour, b * b - 1 + m_] = vals[:, 3 * m_ + colour]
+        cols["rest"] = rest.reshape(n, 3 * ncoef)
+    return n, degree, cols
+
+
+# ----------------------------------------------------------------------------
+# PLY output (layout inferred from the vectors; not in SPEC.md)
+# ----------------------------------------------------------------------------
+def write_ply(path, n, degree, cols):
+    names = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    nrest = 3 * ((degree + 1) ** 2 - 1)
+    names += [f"f_rest_{i}" for i in range(nrest)]
+    names += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    header = "ply\nformat binary_little_endian 1.0\n"
+    header += f"element vertex {n}\n"
+    header += "".join(f"property float {name}\n" for name in names)
+    header += "end_header\n"
+    if n:
+        body = np.concatenate([
+            cols["pos"], np.zeros((n, 3), np.float32), cols["dc"], cols["rest"],
+            cols["opacity"], cols["scale"], cols["rot"],
+        ], axis=1).astype("<f4")
+        assert body.shape[1] == len(names)
+        body_bytes = body.tobytes()
+    else:
+        body_bytes = b""
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii") + body_bytes)
+
+
+def main(argv):
+    if len(argv) != 3:
+        print("usage: specdec.py IN.gsc OUT.ply", file=sys.stderr)
+        return 2
+    with open(argv[1], "rb") as f:
+        data = f.read()
+    try:
+        n, degree, cols = decode(data)
+    except DecodeError as e:
+        print(f"specdec: error: {e}", file=sys.stderr)
+        return 1
+    write_ply(argv[2], n, degree, cols)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
