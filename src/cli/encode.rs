@@ -95,14 +95,17 @@ pub fn run(args: Args) -> crate::Result<()> {
     let (bytes, report, q) = rate::encode(&scene, &config).map_err(|e| Error::input(&args.input, e))?;
     crate::io::atomic::write_bytes_atomic(&args.output, &bytes)?;
     if !args.quiet {
+        let per_gaussian = match report.gaussians {
+            0 => String::new(),
+            n => format!(" ({:.2} bytes/Gaussian)", bytes.len() as f64 / n as f64),
+        };
         eprintln!(
-            "{}: {} Gaussians (of {}), SH degree {}, {} bytes ({:.2} bytes/Gaussian)",
+            "{}: {} Gaussians (of {}), SH degree {}, {} bytes{per_gaussian}",
             args.output.display(),
             report.gaussians,
             scene.len(),
             report.sh_degree,
             bytes.len(),
-            bytes.len() as f64 / report.gaussians.max(1) as f64
         );
     }
     if let Some(path) = &args.report {
