@@ -1,6 +1,7 @@
 //! Dataset loading: NeRF transforms, COLMAP .bin/.txt, the shared lego-200 set.
 
 use glam::{Mat3, Quat, Vec3};
+use gscodec::decoder::camera::DEFAULT_ZNEAR;
 use gscodec::decoder::{Camera, Image};
 use gscodec::io::colmap::read_model;
 use gscodec::io::image::write_png;
@@ -190,7 +191,7 @@ fn nerf_intrinsics_extensions_missing_frames_and_downscale() {
     let b = &ds.frames[1].camera;
     assert_eq!((b.fx, b.fy, b.cx, b.cy), (5.0, 6.0, 1.5, 1.25));
     // Scene scale: centres at x = 0 and 2, median distance to the mean is 1.
-    assert!((b.znear - 0.01).abs() < 1e-7);
+    assert!((b.znear - DEFAULT_ZNEAR).abs() < 1e-7);
     let half = load_dataset(dir.path(), &LoadOptions { downscale: 2 }).unwrap();
     let hb = &half.frames[1];
     assert_eq!((hb.image.width, hb.image.height, hb.camera.fx, hb.camera.cx), (4, 3, 2.5, 0.75));
@@ -211,8 +212,8 @@ fn nerf_test_file_forms_the_test_split() {
     let ds = load_dataset(dir.path(), &LoadOptions::default()).unwrap();
     assert_eq!(ds.split(Split::Test).iter().map(|f| f.index).collect::<Vec<_>>(), [3, 4]);
     assert_eq!(ds.split(Split::Train).len(), 3);
-    // Degenerate camera spread: znear falls back to 0.01.
-    assert_eq!(ds.frames[0].camera.znear, 0.01);
+    // Degenerate camera spread: the scale falls back to 1.
+    assert_eq!(ds.frames[0].camera.znear, DEFAULT_ZNEAR);
 }
 
 #[test]

@@ -20,8 +20,14 @@ pub struct Camera {
     pub znear: f32,
 }
 
-/// Default near plane, in scene units. Rescaled scenes should scale it too ([`Camera::scaled`]).
-pub const DEFAULT_ZNEAR: f32 = 0.01;
+/// Near plane per unit of camera-rig size, and the default near plane in scene units.
+///
+/// The reference rasterizer culls at a fixed depth of 0.2, which breaks rescaled scenes (DESIGN
+/// §8); we scale the near plane with the cameras instead: datasets use `DEFAULT_ZNEAR × s` with
+/// `s` the median distance of the camera centres to their mean, orbits `DEFAULT_ZNEAR × radius`.
+/// 0.05 gives the NeRF-synthetic rig (s = 4.03) a near plane of 0.2015, the reference's 0.2.
+/// Rescaled scenes should scale it too ([`Camera::scaled`]).
+pub const DEFAULT_ZNEAR: f32 = 0.05;
 
 impl Camera {
     /// A camera from its world-to-camera rotation and translation, principal point at the centre.

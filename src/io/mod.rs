@@ -38,7 +38,7 @@ impl Default for LoadOptions {
 ///   `transforms*.json` file is accepted too.
 /// * COLMAP: `sparse/0/{cameras,images,points3D}.{bin,txt}` and `images/`.
 ///
-/// Every camera's near plane is scaled with the scene: `znear = 0.01 × s`, where `s` is the
+/// Every camera's near plane is scaled with the scene: `znear = 0.05 × s` (`DEFAULT_ZNEAR`; 0.2 for NeRF-synthetic, as the reference rasterizer), where `s` is the
 /// median distance of the camera centres to their mean (1 when that is degenerate).
 ///
 /// # Errors
