@@ -19,6 +19,12 @@ fn dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("bitstream-spec/vectors")
 }
 
+/// The SHA-256 that `SHA256SUMS` lists for `NAME.ply`.
+fn expected_hash<'a>(sums: &'a str, name: &str) -> &'a str {
+    let line = sums.lines().find(|l| l.ends_with(&format!("  {name}.ply"))).unwrap_or_else(|| panic!("{name} not in SHA256SUMS"));
+    &line[..64]
+}
+
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
@@ -151,8 +157,7 @@ fn vectors_decode_to_their_expected_output() {
         let bytes = std::fs::read(dir().join(format!("{name}.gsc"))).unwrap();
         for threads in [1, 4] {
             let ply = decode(&bytes, &DecodeOptions { threads, ..Default::default() }).unwrap().to_ply();
-            let expected = sums.lines().find(|l| l.ends_with(&format!("  {name}.ply"))).unwrap();
-            assert_eq!(&expected[..64], hex(&Sha256::digest(&ply)), "{name}");
+            assert_eq!(expected_hash(&sums, name), hex(&Sha256::digest(&ply)), "{name}");
             if !HASH_ONLY.contains(&name) {
                 assert_eq!(ply, std::fs::read(dir().join(format!("{name}.ply"))).unwrap(), "{name}");
             }
@@ -170,19 +175,16 @@ fn independent_python_decoder_agrees() {
         eprintln!("SKIPPED: python3 with numpy not found; the independent decoder was not run");
         return;
     }
+    let specdec = |input: &Path, output: &Path| {
+        std::process::Command::new("python3").arg(dir().join("../specdec.py")).arg(input).arg(output).output().unwrap()
+    };
     let sums = std::fs::read_to_string(dir().join("SHA256SUMS")).unwrap();
     let out = tempfile::tempdir().unwrap();
     for name in NAMES {
         let ply = out.path().join(format!("{name}.ply"));
-        let run = std::process::Command::new("python3")
-            .arg(dir().join("../specdec.py"))
-            .arg(dir().join(format!("{name}.gsc")))
-            .arg(&ply)
-            .output()
-            .unwrap();
+        let run = specdec(&dir().join(format!("{name}.gsc")), &ply);
         assert!(run.status.success(), "{name}: {}", String::from_utf8_lossy(&run.stderr));
-        let expected = sums.lines().find(|l| l.ends_with(&format!("  {name}.ply"))).unwrap();
-        assert_eq!(&expected[..64], hex(&Sha256::digest(std::fs::read(&ply).unwrap())), "{name}");
+        assert_eq!(expected_hash(&sums, name), hex(&Sha256::digest(std::fs::read(&ply).unwrap())), "{name}");
     }
     // And it rejects what the spec says to reject: a flipped payload byte, a newer major version.
     let mut bad = std::fs::read(dir().join("hand.gsc")).unwrap();
@@ -193,13 +195,7 @@ fn independent_python_decoder_agrees() {
     for (what, bytes) in [("flipped byte", bad), ("newer major", newer)] {
         let f = out.path().join("bad.gsc");
         std::fs::write(&f, bytes).unwrap();
-        let run = std::process::Command::new("python3")
-            .arg(dir().join("../specdec.py"))
-            .arg(&f)
-            .arg(out.path().join("bad.ply"))
-            .output()
-            .unwrap();
-        assert!(!run.status.success(), "{what} accepted");
+        assert!(!specdec(&f, &out.path().join("bad.ply")).status.success(), "{what} accepted");
     }
 }
 

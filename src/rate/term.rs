@@ -391,18 +391,11 @@ mod tests {
         for it in 0..200 {
             let q = t.render_params(&s, it).unwrap();
             let mut g = zeroed(&s);
-            g.log_scales
-                .iter_mut()
-                .flatten()
-                .zip(q.log_scales.iter().flatten().zip(s.log_scales.iter().flatten()))
-                .for_each(|(g, (q, v))| *g = 2.0 * (q - v));
-            g.opacity_logits.iter_mut().zip(q.opacity_logits.iter().zip(&s.opacity_logits)).for_each(|(g, (q, v))| *g = 2.0 * (q - v));
-            g.sh_dc
-                .iter_mut()
-                .flatten()
-                .zip(q.sh_dc.iter().flatten().zip(s.sh_dc.iter().flatten()))
-                .for_each(|(g, (q, v))| *g = 2.0 * (q - v));
-            g.sh_rest.iter_mut().zip(q.sh_rest.iter().zip(&s.sh_rest)).for_each(|(g, (q, v))| *g = 2.0 * (q - v));
+            let d_grad = |g: &mut [f32], q: &[f32], v: &[f32]| g.iter_mut().zip(q.iter().zip(v)).for_each(|(g, (q, v))| *g = 2.0 * (q - v));
+            d_grad(g.log_scales.as_flattened_mut(), q.log_scales.as_flattened(), s.log_scales.as_flattened());
+            d_grad(&mut g.opacity_logits, &q.opacity_logits, &s.opacity_logits);
+            d_grad(g.sh_dc.as_flattened_mut(), q.sh_dc.as_flattened(), s.sh_dc.as_flattened());
+            d_grad(&mut g.sh_rest, &q.sh_rest, &s.sh_rest);
             t.rate_and_grad(&s, &mut g, it);
         }
         for k in 0..4 {
