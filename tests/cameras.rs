@@ -94,7 +94,10 @@ fn undistorted_photos_match_pinhole_renders_of_the_loaded_cameras() {
             naive.height = H;
             (naive.fx, naive.fy, naive.cx, naive.cy) = (lens.fx as f32, lens.fy as f32, lens.cx as f32, lens.cy as f32);
             let bad = psnr(photo, &render(&scene, &naive, &RenderOptions { background: bg, max_sh_degree: 3 }));
-            eprintln!("{model} {}: {}x{} undistorted vs direct {good:.2} dB; distortion ignored {bad:.2} dB", f.name, f.camera.width, f.camera.height);
+            eprintln!(
+                "{model} {}: {}x{} undistorted vs direct {good:.2} dB; distortion ignored {bad:.2} dB",
+                f.name, f.camera.width, f.camera.height
+            );
             assert!(good > 30.0 && good > bad + 6.0, "{model} {}: {good:.2} dB vs ignored {bad:.2} dB", f.name);
         }
     }
@@ -107,10 +110,8 @@ fn training_on_distorted_photos_matches_training_on_pinhole_images() {
     let lens = opencv();
     let cams = orbit_cameras(16, 3.5, W, H);
     // Reference: pinhole images with the lens's focal length and principal point.
-    let pinhole: Vec<Camera> = cams
-        .iter()
-        .map(|c| Camera { fx: lens.fx as f32, fy: lens.fy as f32, cx: lens.cx as f32, cy: lens.cy as f32, ..*c })
-        .collect();
+    let pinhole: Vec<Camera> =
+        cams.iter().map(|c| Camera { fx: lens.fx as f32, fy: lens.fy as f32, cx: lens.cx as f32, cy: lens.cy as f32, ..*c }).collect();
     let reference = render_targets(&scene, &pinhole, bg);
     let photos: Vec<Image> = cams.iter().map(|c| photo(&scene, c, &lens, bg)).collect();
     let dir = tempfile::tempdir().unwrap();
@@ -216,7 +217,9 @@ fn downscale_uses_images_n_and_max_size_resizes() {
     for (f, cam) in small.frames.iter().zip(&cams) {
         let c = f.camera;
         assert_eq!((c.width, c.height), (40, 30));
-        assert!((c.fx - 35.0).abs() < 1e-5 && (c.cx - W as f32 * 40.0 / 128.0).abs() < 1e-5 && (c.cy - H as f32 * 30.0 / 96.0).abs() < 1e-5);
+        assert!(
+            (c.fx - 35.0).abs() < 1e-5 && (c.cx - W as f32 * 40.0 / 128.0).abs() < 1e-5 && (c.cy - H as f32 * 30.0 / 96.0).abs() < 1e-5
+        );
         let p = psnr(&f.image, &render(&scene, &c, &ropts));
         let shifted = psnr(&f.image, &render(&scene, &Camera { cx: c.cx + 0.5, ..c }, &ropts));
         eprintln!("max-size 40: {p:.2} dB against a direct render, {shifted:.2} dB half a pixel off");

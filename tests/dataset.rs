@@ -222,7 +222,8 @@ fn lego_200_loads() {
 
 #[test]
 fn colmap_every_camera_model_loads_from_bin_and_txt() {
-    const NAMES: [&str; 11] = ["m00.png", "m01.png", "m02.png", "m03.png", "m04.png", "m05.png", "m06.png", "m07.png", "m08.png", "m09.png", "m10.png"];
+    const NAMES: [&str; 11] =
+        ["m00.png", "m01.png", "m02.png", "m03.png", "m04.png", "m05.png", "m06.png", "m07.png", "m08.png", "m09.png", "m10.png"];
     let (f, cx, cy) = (30.0, 16.0, 12.0);
     let cams: Vec<Cam> = gscodec::io::lens::COLMAP_MODELS
         .iter()
@@ -241,7 +242,8 @@ fn colmap_every_camera_model_loads_from_bin_and_txt() {
             (id as u32 + 1, id, name, 32, 24, p)
         })
         .collect();
-    let imgs: Vec<Img> = (0..11).map(|i| (i as u32 + 1, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 4.0 + i as f64], i as u32 + 1, NAMES[i])).collect();
+    let imgs: Vec<Img> =
+        (0..11).map(|i| (i as u32 + 1, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 4.0 + i as f64], i as u32 + 1, NAMES[i])).collect();
     let m = Model { cams, imgs, pts: model().pts };
     let (b, t) = (colmap_dir(&m, true), colmap_dir(&m, false));
     let (db, dt) = (load_dataset(b.path(), &LoadOptions::default()).unwrap(), load_dataset(t.path(), &LoadOptions::default()).unwrap());

@@ -83,17 +83,15 @@ impl Lens {
             "RADIAL" => ([p[0], p[0], p[1], p[2]], Distortion::RadialTangential { k: [p[3], p[4], 0.0, 0.0], p: z2 }),
             "OPENCV" => ([p[0], p[1], p[2], p[3]], Distortion::RadialTangential { k: [p[4], p[5], 0.0, 0.0], p: [p[6], p[7]] }),
             "OPENCV_FISHEYE" => ([p[0], p[1], p[2], p[3]], Distortion::Fisheye { k: [p[4], p[5], p[6], p[7]], p: z2, s: z2 }),
-            "FULL_OPENCV" => (
-                [p[0], p[1], p[2], p[3]],
-                Distortion::Rational { k: [p[4], p[5], p[8], p[9], p[10], p[11]], p: [p[6], p[7]] },
-            ),
+            "FULL_OPENCV" => {
+                ([p[0], p[1], p[2], p[3]], Distortion::Rational { k: [p[4], p[5], p[8], p[9], p[10], p[11]], p: [p[6], p[7]] })
+            }
             "FOV" => ([p[0], p[1], p[2], p[3]], Distortion::Fov { omega: p[4] }),
             "SIMPLE_RADIAL_FISHEYE" => ([p[0], p[0], p[1], p[2]], Distortion::Fisheye { k: [p[3], 0.0, 0.0, 0.0], p: z2, s: z2 }),
             "RADIAL_FISHEYE" => ([p[0], p[0], p[1], p[2]], Distortion::Fisheye { k: [p[3], p[4], 0.0, 0.0], p: z2, s: z2 }),
-            "THIN_PRISM_FISHEYE" => (
-                [p[0], p[1], p[2], p[3]],
-                Distortion::Fisheye { k: [p[4], p[5], p[8], p[9]], p: [p[6], p[7]], s: [p[10], p[11]] },
-            ),
+            "THIN_PRISM_FISHEYE" => {
+                ([p[0], p[1], p[2], p[3]], Distortion::Fisheye { k: [p[4], p[5], p[8], p[9]], p: [p[6], p[7]], s: [p[10], p[11]] })
+            }
             _ => unreachable!("model checked above"),
         };
         Lens::new(width, height, f, d)
@@ -495,7 +493,10 @@ mod tests {
                     let (u, v) = t.from_pixel(i as f64 + 0.5, j as f64 + 0.5);
                     let (x, y) = lens.distort(u, v);
                     let (px, py) = lens.to_pixel(x, y);
-                    assert!((-1e-6..=128.0 + 1e-6).contains(&px) && (-1e-6..=96.0 + 1e-6).contains(&py), "{model}: ({i},{j}) -> ({px},{py})");
+                    assert!(
+                        (-1e-6..=128.0 + 1e-6).contains(&px) && (-1e-6..=96.0 + 1e-6).contains(&py),
+                        "{model}: ({i},{j}) -> ({px},{py})"
+                    );
                 }
             }
         }

@@ -204,7 +204,9 @@ impl FrameSpec {
         let any = d.iter().any(|&v| v != 0.0);
         let distortion = match i.camera_model.as_deref() {
             None | Some("OPENCV") => Distortion::RadialTangential { k: [d[0], d[1], d[2], d[3]], p: [d[4], d[5]] },
-            Some("OPENCV_FISHEYE") if d[4] == 0.0 && d[5] == 0.0 => Distortion::Fisheye { k: [d[0], d[1], d[2], d[3]], p: [0.0; 2], s: [0.0; 2] },
+            Some("OPENCV_FISHEYE") if d[4] == 0.0 && d[5] == 0.0 => {
+                Distortion::Fisheye { k: [d[0], d[1], d[2], d[3]], p: [0.0; 2], s: [0.0; 2] }
+            }
             Some("OPENCV_FISHEYE") => return Err("OPENCV_FISHEYE takes k1..k4 only, not p1/p2".into()),
             Some("PINHOLE" | "SIMPLE_PINHOLE") if !any => Distortion::None,
             Some(m @ ("PINHOLE" | "SIMPLE_PINHOLE")) => return Err(format!("camera_model {m} with distortion coefficients")),
