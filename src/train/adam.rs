@@ -1,6 +1,7 @@
 //! Adam with one learning rate per parameter group, over `Splats`-shaped moment buffers.
 
 use gscodec_decoder::Splats;
+use rayon::prelude::*;
 
 /// The parameter groups of a scene, in `Splats` field order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -88,6 +89,9 @@ pub fn first_non_finite(s: &Splats) -> Option<(usize, Group)> {
     None
 }
 
+/// Values per parallel work item of [`Adam::step`].
+const ADAM_CHUNK: usize = 1 << 14;
+
 /// Adam state (moments shaped like the scene) with the reference hyper-parameters.
 #[derive(Debug, Clone)]
 pub struct Adam {
@@ -117,12 +121,19 @@ impl Adam {
             let gr = group(grad, g);
             let m = group_mut(&mut self.m, g);
             let v = group_mut(&mut self.v, g);
-            for i in 0..p.len() {
-                let gi = gr[i];
-                m[i] = b1 * m[i] + (1.0 - b1) * gi;
-                v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
-                p[i] -= step_size * m[i] / (v[i].sqrt() / sqrt_bc2 + eps);
-            }
+            // Element-wise, so parallel chunks give bit-identical results for any thread count.
+            p.par_chunks_mut(ADAM_CHUNK)
+                .zip(gr.par_chunks(ADAM_CHUNK))
+                .zip(m.par_chunks_mut(ADAM_CHUNK))
+                .zip(v.par_chunks_mut(ADAM_CHUNK))
+                .for_each(|(((p, gr), m), v)| {
+                    for i in 0..p.len() {
+                        let gi = gr[i];
+                        m[i] = b1 * m[i] + (1.0 - b1) * gi;
+                        v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
+                        p[i] -= step_size * m[i] / (v[i].sqrt() / sqrt_bc2 + eps);
+                    }
+                });
         }
     }
 }
