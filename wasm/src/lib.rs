@@ -81,6 +81,13 @@ export interface GscodecError extends Error {
 }
 "#;
 
+#[wasm_bindgen]
+extern "C" {
+    /// The `DecodeOptions` object of the TypeScript declarations above.
+    #[wasm_bindgen(typescript_type = "DecodeOptions")]
+    pub type Options;
+}
+
 /// The error as a JavaScript `Error` named `GscodecError` with a `kind` property.
 fn js_error(e: Error) -> JsValue {
     let err = js_sys::Error::new(&e.message);
@@ -94,15 +101,13 @@ fn set(obj: &Object, key: &str, value: impl Into<JsValue>) {
     let _ = Reflect::set(obj, &key.into(), &value.into());
 }
 
-/// `maxShDegree` and `units` of an options object (`undefined`/`null` = the defaults).
-fn read_options(options: &JsValue) -> Result<(u8, Units), Error> {
-    if options.is_undefined() || options.is_null() {
-        return Ok((3, Units::default()));
-    }
+/// `maxShDegree` and `units` of an options object (absent = the defaults).
+fn read_options(options: Option<Options>) -> Result<(u8, Units), Error> {
+    let Some(options) = options else { return Ok((3, Units::default())) };
     if !options.is_object() {
         return Err(Error::argument("options must be an object"));
     }
-    let get = |key: &str| Reflect::get(options, &key.into()).unwrap_or(JsValue::UNDEFINED);
+    let get = |key: &str| Reflect::get(&options, &key.into()).unwrap_or(JsValue::UNDEFINED);
     let degree = match get("maxShDegree") {
         v if v.is_undefined() => 3,
         v => match v.as_f64() {
@@ -143,8 +148,8 @@ fn header_object(h: &door::Header) -> Object {
 
 /// Decodes a whole `.gsc` file.
 #[wasm_bindgen(unchecked_return_type = "Scene")]
-pub fn decode(bytes: &[u8], #[wasm_bindgen(unchecked_param_type = "DecodeOptions | undefined")] options: JsValue) -> Result<JsValue, JsValue> {
-    let (degree, units) = read_options(&options).map_err(js_error)?;
+pub fn decode(bytes: &[u8], options: Option<Options>) -> Result<JsValue, JsValue> {
+    let (degree, units) = read_options(options).map_err(js_error)?;
     let splats = door::decode(bytes, degree).map_err(|e| js_error(e.into()))?;
     Ok(scene_object(WebScene::new(splats, units)))
 }
@@ -188,8 +193,8 @@ pub struct StreamDecoder {
 #[wasm_bindgen]
 impl StreamDecoder {
     #[wasm_bindgen(constructor)]
-    pub fn new(#[wasm_bindgen(unchecked_param_type = "DecodeOptions | undefined")] options: JsValue) -> Result<StreamDecoder, JsValue> {
-        let (degree, units) = read_options(&options).map_err(js_error)?;
+    pub fn new(options: Option<Options>) -> Result<StreamDecoder, JsValue> {
+        let (degree, units) = read_options(options).map_err(js_error)?;
         Ok(StreamDecoder { stream: Stream::new(degree), units })
     }
 
