@@ -23,17 +23,26 @@ export function cameraCenter(cam) {
   ];
 }
 
-/** A camera at `eye` looking at `target`, `up` appearing up in the image; vertical field of view `fovY`. */
-export function lookAt(eye, target, up, width, height, fovY, znear) {
+/** A camera at `eye` looking at `target`, `up` appearing up in the image, horizontal field of view
+ *  `fovX` (Camera::look_at). */
+export function lookAt(eye, target, up, width, height, fovX, znear) {
   const z = normalize(sub(target, eye));
   let x = cross(z, up);
-  if (norm(x) < 1e-9) x = cross(z, Math.abs(z[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0]);
-  x = normalize(x);
+  if (!(norm(x) > 0)) x = cross(z, [1, 0, 0]);
+  x = norm(x) > 0 ? normalize(x) : [0, 1, 0];
   const y = cross(z, x);
   const R = [...x, ...y, ...z];
   const t = [-dot(x, eye), -dot(y, eye), -dot(z, eye)];
-  const f = height / (2 * Math.tan(fovY / 2));
+  const f = width / (2 * Math.tan(fovX / 2));
   return { width, height, fx: f, fy: f, cx: width / 2, cy: height / 2, R, t, znear };
+}
+
+/** glam's Vec3::any_orthonormal_vector, so that orbits start where Camera::orbit's do. */
+function anyOrthonormal(v) {
+  const sign = v[2] < 0 || Object.is(v[2], -0) ? -1 : 1; // f32::signum
+  const a = -1 / (sign + v[2]);
+  const b = v[0] * v[1] * a;
+  return [b, sign + v[1] * v[1] * a, -v[1]];
 }
 
 /**
@@ -52,13 +61,16 @@ export function nerfCamera(c2w, angleX, declared, width, height, znear) {
   return { width, height, fx: f * sx, fy: f * sy, cx: (declared[0] / 2) * sx, cy: (declared[1] / 2) * sy, R, t, znear };
 }
 
-/** World up axes a scene may use: the CLI's `--up` values. 3DGS/COLMAP scenes are -y up. */
-export const UP_AXES = { '-y': [0, -1, 0], '+y': [0, 1, 0], '+z': [0, 0, 1], '-z': [0, 0, -1], '+x': [1, 0, 0], '-x': [-1, 0, 0] };
+/** World up axes a scene may use: the CLI's `--up` values. 3DGS/COLMAP scenes are -y up. The
+ *  negative axes carry -0 components, as `-Vec3::Y` does in Rust (it decides anyOrthonormal's sign). */
+export const UP_AXES = { '-y': [-0, -1, -0], '+y': [0, 1, 0], '+z': [0, 0, 1], '-z': [-0, -0, -1], '+x': [1, 0, 0], '-x': [-1, -0, -0] };
 
 /**
  * Orbit controls: a target, a distance, yaw around the up axis and pitch above the plane
- * orthogonal to it (as Camera::orbit places its views). Left drag orbits, right or shift drag
- * pans, the wheel zooms.
+ * orthogonal to it, placed as Camera::orbit places its views. Left drag orbits, right or shift
+ * drag pans, the wheel zooms. A framed scene is first seen as view 0 of `gscodec render --orbit N`
+ * (src/views.rs: robust centre, 2.5 × the robust extent away, 25° up, 0.8 rad horizontal FOV,
+ * near plane 0.05 × the distance).
  */
 export class Orbit {
   constructor(up = UP_AXES['-y']) {
@@ -66,19 +78,18 @@ export class Orbit {
     this.target = [0, 0, 0];
     this.distance = 4;
     this.yaw = 0;
-    this.pitch = 0.3;
-    this.fovY = (50 * Math.PI) / 180;
+    this.pitch = (25 * Math.PI) / 180;
+    this.fovX = 0.8;
   }
 
   setUp(up) {
     this.up = normalize(up);
-    // Two directions orthogonal to up (any, but fixed).
-    const helper = Math.abs(this.up[0]) < 0.9 ? [1, 0, 0] : [0, 1, 0];
-    this.a = normalize(cross(this.up, helper));
+    this.a = anyOrthonormal(this.up);
     this.b = cross(this.up, this.a);
   }
 
-  /** Frames points (positions, 3 per point): target = per-axis median, distance from their spread. */
+  /** Frames points (positions, 3 per point): target = per-axis median, distance = 2.5 × the
+   *  90th-percentile distance to it (views.rs robust_frame; large scenes are sampled). */
   frame(positions) {
     const n = positions.length / 3;
     if (n === 0) return;
@@ -88,13 +99,14 @@ export class Orbit {
       for (let i = 0; i < n; i += step) v.push(positions[i * 3 + k]);
       return v.sort((p, q) => p - q);
     };
-    const xs = [axis(0), axis(1), axis(2)];
-    this.target = xs.map((v) => v[v.length >> 1]);
+    this.target = [0, 1, 2].map((k) => axis(k)).map((v) => v[v.length >> 1]);
     const d = [];
     for (let i = 0; i < n; i += step) d.push(norm(sub([positions[i * 3], positions[i * 3 + 1], positions[i * 3 + 2]], this.target)));
     d.sort((p, q) => p - q);
-    const r = d[Math.floor(0.9 * (d.length - 1))] || 1;
-    this.distance = r / Math.tan(this.fovY / 2);
+    const r = d[Math.min(d.length - 1, Math.floor((d.length * 9) / 10))];
+    this.distance = 2.5 * (r > 0 && Number.isFinite(r) ? r : 1);
+    this.yaw = 0;
+    this.pitch = (25 * Math.PI) / 180;
   }
 
   eye() {
@@ -104,7 +116,7 @@ export class Orbit {
   }
 
   camera(width, height) {
-    return lookAt(this.eye(), this.target, this.up, width, height, this.fovY, 0.01 * this.distance);
+    return lookAt(this.eye(), this.target, this.up, width, height, this.fovX, 0.05 * this.distance);
   }
 
   /** Continues orbiting from a given camera: target on its view axis at the current distance. */

@@ -73,6 +73,13 @@ class Viewer {
     return done;
   }
 
+  /** Resolves once the current view has been drawn in depth order. */
+  drawn() {
+    const done = new Promise((resolve) => this.waiters.push({ key: null, resolve }));
+    this.requestFrame();
+    return done;
+  }
+
   /** What the depth order depends on. */
   static key(cam) {
     return [cam.R[6], cam.R[7], cam.R[8], cam.t[2], cam.znear].join(',');
@@ -105,8 +112,9 @@ class Viewer {
     }
     this.renderer.render(cam, this.background, this.maxShDegree);
     if (key === this.sortedKey) {
-      const ready = this.waiters.filter((w) => w.key === key);
-      this.waiters = this.waiters.filter((w) => w.key !== key);
+      const now = (w) => w.key === key || w.key === null;
+      const ready = this.waiters.filter(now);
+      this.waiters = this.waiters.filter((w) => !now(w));
       ready.forEach((w) => w.resolve());
     }
   }

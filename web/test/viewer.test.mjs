@@ -20,20 +20,8 @@ import puppeteer from 'puppeteer-core';
 import { serve, repoRoot } from '../serve.mjs';
 import { readPng, psnr } from './png.mjs';
 import { nerfCamera } from '../src/camera.js';
+import { CHROMIUM, CHROMIUM_FLAGS } from './chromium.mjs';
 
-/** Headless Chromium with WebGL2 on the CPU (SwiftShader): no GPU, no sandbox (root in CI), no network. */
-export const CHROMIUM_FLAGS = [
-  '--headless',
-  '--no-sandbox',
-  '--disable-gpu',
-  '--use-angle=swiftshader',
-  '--enable-unsafe-swiftshader',
-  '--disable-quic',
-  '--no-first-run',
-  '--disable-background-networking',
-  '--disable-component-update',
-  '--disable-sync',
-];
 const SIZE = 256; // the sample's 64×64 views, rendered at 4× for a meaningful image comparison
 const FRAMES = [0, 5, 11];
 // Measured 74–76 dB (the images differ by a few 8-bit roundings). The issue asks for >= 30 dB; the
@@ -76,11 +64,12 @@ before(async () => {
   gscodec('encode', 'samples/tiny/truth.ply', '-o', path.join(tmp, 'tiny.gsc'), '--quiet');
   gscodec('decode', path.join(tmp, 'tiny.gsc'), '-o', path.join(tmp, 'tiny.ply'), '--quiet');
   fs.writeFileSync(path.join(tmp, 'info.json'), gscodec('info', path.join(tmp, 'tiny.gsc'), '--json'));
+  gscodec('render', path.join(tmp, 'tiny.gsc'), '--orbit', '1', '--size', `${SIZE}x${SIZE}`, '-o', path.join(tmp, 'orbit'), '--quiet');
   gscodec('render', path.join(tmp, 'tiny.gsc'), '--cameras', 'samples/tiny', '--split', 'all', '--size', `${SIZE}x${SIZE}`, '--background', '1,1,1', '-o', path.join(tmp, 'ref'), '--quiet');
 
   server = await serve({ mounts: { '/test-data/': tmp } });
   base = `http://127.0.0.1:${server.address().port}`;
-  browser = await puppeteer.launch({ executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium', headless: true, args: CHROMIUM_FLAGS });
+  browser = await puppeteer.launch({ executablePath: CHROMIUM, headless: true, args: CHROMIUM_FLAGS });
   page = await browser.newPage();
   page.on('pageerror', (e) => pageErrors.push(e.message));
   page.on('console', (m) => m.type() === 'error' && pageErrors.push(m.text()));
@@ -193,6 +182,16 @@ test('the file picker loads a scene', async () => {
   assert.equal(stats.final, true);
 });
 
+/** PSNR of a screenshot against a CPU render; both kept in web/test-output/ as NAME-browser/cpu.png. */
+function compare(shot, reference, name) {
+  fs.writeFileSync(path.join(out, `${name}-browser.png`), shot);
+  fs.copyFileSync(reference, path.join(out, `${name}-cpu.png`));
+  const a = readPng(shot);
+  const b = readPng(fs.readFileSync(reference));
+  assert.deepEqual([a.width, a.height], [b.width, b.height]);
+  return psnr(a.rgb, b.rgb);
+}
+
 test('viewer frames match the CPU renderer', async () => {
   const transforms = JSON.parse(fs.readFileSync(path.join(repoRoot, 'samples/tiny/transforms_train.json'), 'utf8'));
   // The dataset loader's near plane: 0.05 × the median distance of the camera centres to their mean.
@@ -205,15 +204,28 @@ test('viewer frames match the CPU renderer', async () => {
     const cam = nerfCamera(transforms.frames[f].transform_matrix, transforms.camera_angle_x, [64, 64], SIZE, SIZE, znear);
     await page.evaluate((c) => window.viewer.setCamera(c), cam);
     const shot = Buffer.from(await canvas.screenshot({ type: 'png' }));
-    const name = `${String(f).padStart(3, '0')}.png`;
-    fs.writeFileSync(path.join(out, `browser-${name}`), shot);
-    fs.copyFileSync(path.join(tmp, 'ref', name), path.join(out, `cpu-${name}`));
-    const a = readPng(shot);
-    const b = readPng(fs.readFileSync(path.join(tmp, 'ref', name)));
-    assert.deepEqual([a.width, a.height], [b.width, b.height]);
-    const db = psnr(a.rgb, b.rgb);
+    const name = String(f).padStart(3, '0');
+    const db = compare(shot, path.join(tmp, 'ref', `${name}.png`), `frame-${name}`);
     console.log(`frame ${f}: PSNR(browser WebGL2, CPU renderer) = ${db.toFixed(2)} dB at ${SIZE}×${SIZE}`);
     assert.ok(db >= MIN_PSNR, `frame ${f}: ${db.toFixed(2)} dB < ${MIN_PSNR} dB`);
   }
+  assert.deepEqual(pageErrors, []);
+});
+
+test("the viewer's first view is the CLI's orbit view 0", async () => {
+  // A page of the render's size: the canvas fills it, the orbit frames the scene as `--orbit` does.
+  const orbitPage = await browser.newPage();
+  orbitPage.on('pageerror', (e) => pageErrors.push(e.message));
+  await orbitPage.setViewport({ width: SIZE, height: SIZE, deviceScaleFactor: 1 });
+  await orbitPage.goto(`${base}/web/?url=/test-data/tiny.gsc&bare=1`);
+  await orbitPage.evaluate(async () => {
+    await window.viewer.loaded;
+    await window.viewer.drawn();
+  });
+  const shot = Buffer.from(await (await orbitPage.$('#view')).screenshot({ type: 'png' }));
+  const db = compare(shot, path.join(tmp, 'orbit', '000.png'), 'orbit-000');
+  console.log(`orbit view 0: PSNR(browser WebGL2, gscodec render --orbit) = ${db.toFixed(2)} dB at ${SIZE}×${SIZE}`);
+  assert.ok(db >= MIN_PSNR, `${db.toFixed(2)} dB < ${MIN_PSNR} dB`);
+  await orbitPage.close();
   assert.deepEqual(pageErrors, []);
 });
