@@ -133,16 +133,7 @@ impl Stream {
     }
 
     fn with_check_step(max_sh_degree: u8, min_check_step: usize) -> Stream {
-        Stream {
-            max_sh_degree,
-            min_check_step,
-            buf: Vec::new(),
-            header: None,
-            shown: None,
-            next_check: 0,
-            failed: None,
-            finished: false,
-        }
+        Stream { max_sh_degree, min_check_step, buf: Vec::new(), header: None, shown: None, next_check: 0, failed: None, finished: false }
     }
 
     /// The file's header, once its first 16 bytes have arrived.
