@@ -2,10 +2,12 @@
 //!
 //! * [`quantise`] — scene ⇄ integer channels (Morton-ordered position grid, smallest-three
 //!   rotations, per-channel steps) and pruning.
+//! * [`group`] — the one attribute-group type ([`group::Group`]) and per-group maps.
 //! * [`tables`] — the integer tables written to the file and their exact cost.
 //! * [`encode`] — streams per (group, chunk) and the container.
 
 pub mod encode;
+pub mod group;
 pub mod model;
 pub mod quantise;
 pub mod rd;

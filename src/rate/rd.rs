@@ -9,6 +9,7 @@ use gscodec_decoder::render::render;
 use gscodec_decoder::{Image, RenderOptions, SceneError, Splats};
 use serde::Serialize;
 
+use super::group::Group;
 use super::quantise::{dequantise, Steps};
 use super::{encode, EncodeConfig};
 use crate::views::{orbit_cameras, UpAxis};
@@ -63,8 +64,6 @@ fn psnr_of(d: f64) -> f64 {
     10.0 * (255.0f64 * 255.0 / d.max(1e-12)).log10()
 }
 
-/// Knobs of the search: one step multiplier per group.
-const KNOBS: [&str; 8] = ["position", "scale", "rotation", "opacity", "sh_dc", "sh_band1", "sh_band2", "sh_band3"];
 const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 /// Pruning thresholds tried, in units of 1/255 opacity.
 const PRUNE_THRESHOLDS: [f32; 12] = [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 64.0, 512.0];
@@ -76,17 +75,10 @@ const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts
 /// Quarter-octave moves of the last pass.
 const REFINE_FINE: [f32; 3] = [0.840_896_4, 1.0, 1.189_207_1];
 
-fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
+/// `c` with group `g`'s step multiplied by `m` (the knobs of the search: one per group).
+fn with_knob(c: &EncodeConfig, g: Group, m: f32) -> EncodeConfig {
     let mut c = *c;
-    let s = &mut c.steps;
-    match knob {
-        0 => s.position_rel *= m,
-        1 => s.scale *= m,
-        2 => s.rotation *= m,
-        3 => s.opacity *= m,
-        4 => s.sh_dc *= m,
-        k => s.sh_rest[k - 5] *= m,
-    }
+    *c.steps.of_mut(g) *= m;
     c
 }
 
@@ -158,14 +150,14 @@ pub fn search_from(
     let base = best.1;
     let (b0, d0, r0) = ev.eval_report(&base)?;
     let group_bytes =
-        |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
+        |r: &super::EncodeReport, k: Group| r.groups.iter().find(|g| g.group == k.name()).map_or(0, |g| g.stream_bytes + g.table_bytes);
     // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
     //    (half-octave moves around the first choice), then quarter-octave moves.
     let mut chosen = base;
     for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
         let start = chosen;
         let (b0, d0, r0) = if pass == 0 { (b0, d0, r0.clone()) } else { ev.eval_report(&start)? };
-        for k in 0..KNOBS.len() {
+        for k in Group::ALL {
             if group_bytes(&r0, k) == 0 {
                 continue;
             }
@@ -178,7 +170,7 @@ pub fn search_from(
                     let (b, d, r) = ev.eval_report(&c)?;
                     (b, d, group_bytes(&r, k))
                 };
-                record(format!("pass{pass} {}x{m}", KNOBS[k]), b, d, &mut path);
+                record(format!("pass{pass} {}x{m}", k.name()), b, d, &mut path);
                 let cost = (d - d0) + lambda * gb as f64 * 8.0 / 1e6;
                 if cost < best_k.0 {
                     best_k = (cost, m);

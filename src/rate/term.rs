@@ -7,8 +7,10 @@ use std::sync::{Arc, Mutex};
 use gscodec_decoder::math::sigmoid;
 use gscodec_decoder::Splats;
 
+use super::group::{self, Group, GroupMap};
 use super::model::LearnedChannel;
 use super::quantise::Steps;
+use crate::train::adam::AdamRule;
 
 /// `R` is measured in megabits: λ = 1 trades one unit of loss for 10⁶ bits, on every scene.
 pub const R_NORM: f64 = 1e6;
@@ -16,13 +18,14 @@ pub const R_NORM: f64 = 1e6;
 /// escapes, table share); measured on the shared scenes at default steps (docs/codec.md).
 pub const FIXED_BITS_PER_GAUSSIAN: f64 = 30.0;
 
-/// Step groups learned in training: scale, opacity, SH DC, SH bands 1–3 (positions and rotations
-/// are not quantised in training: their quantisation error is far below a pixel).
-const STEP_GROUPS: usize = 6;
+/// Groups quantised (and their steps learned) in training: scale, opacity, SH DC and the SH
+/// bands (positions and rotations are not quantised in training: their quantisation error is
+/// far below a pixel).
+pub const LEARNED_GROUPS: [Group; 6] = [Group::Scale, Group::Opacity, Group::ShDc, Group::Sh1, Group::Sh2, Group::Sh3];
 /// Adam learning rate of the log steps (per iteration).
-const STEP_LR: f64 = 2e-3;
+const STEP_LR: f32 = 2e-3;
 /// A learned step stays within this factor of its starting value.
-const STEP_RANGE: f64 = 8.0;
+const STEP_RANGE: f32 = 8.0;
 
 /// What a [`RateTerm`] shares with its owner during training.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,8 +52,8 @@ pub struct RateTerm {
     /// structure (densification) forms first.
     pub start_iter: usize,
     start_steps: Steps,
-    adam: [(f64, f64); STEP_GROUPS],
-    adam_t: i32,
+    /// Adam on the log steps: the rule and its two moments per group.
+    adam: (AdamRule, GroupMap<f32>, GroupMap<f32>),
     shared: Arc<Mutex<Shared>>,
     /// Opacity at which Gaussians are pruned; the term charges each Gaussian its bits times a
     /// soft "kept" factor σ((logit − logit(min_opacity)) / 0.5), so pruning pays.
@@ -58,9 +61,9 @@ pub struct RateTerm {
     models: Vec<LearnedChannel>,
     /// Bits of the last evaluation (for reports).
     pub last_bits: f64,
-    /// ∂(D + λ·R/R_NORM)/∂ln s per step group at the last evaluation (scale, opacity, SH DC,
-    /// SH bands 1–3); zero unless `learn_steps`.
-    pub last_step_gradient: [f64; STEP_GROUPS],
+    /// ∂(D + λ·R/R_NORM)/∂ln s per group at the last evaluation ([`LEARNED_GROUPS`]; zero for
+    /// the others, and unless `learn_steps`).
+    pub last_step_gradient: GroupMap<f64>,
 }
 
 impl RateTerm {
@@ -71,13 +74,12 @@ impl RateTerm {
             learn_steps: false,
             start_iter: 0,
             start_steps: steps,
-            adam: [(0.0, 0.0); STEP_GROUPS],
-            adam_t: 0,
+            adam: (AdamRule::default(), GroupMap::default(), GroupMap::default()),
             shared: Arc::new(Mutex::new(Shared { steps, bits: None })),
             min_opacity,
             models: Vec::new(),
             last_bits: 0.0,
-            last_step_gradient: [0.0; STEP_GROUPS],
+            last_step_gradient: GroupMap::default(),
         }
     }
 
@@ -92,71 +94,26 @@ impl RateTerm {
         self.shared.clone()
     }
 
-    fn group_step(steps: &Steps, k: usize) -> f32 {
-        match k {
-            0 => steps.scale,
-            1 => steps.opacity,
-            2 => steps.sh_dc,
-            _ => steps.sh_rest[k - 3],
-        }
-    }
-
-    fn group_step_mut(steps: &mut Steps, k: usize) -> &mut f32 {
-        match k {
-            0 => &mut steps.scale,
-            1 => &mut steps.opacity,
-            2 => &mut steps.sh_dc,
-            _ => &mut steps.sh_rest[k - 3],
-        }
-    }
-
     /// One Adam step on the log steps from `d_log_step` (∂objective/∂ln s per group).
-    fn update_steps(&mut self, d_log_step: &[f64; STEP_GROUPS]) {
-        self.adam_t += 1;
-        let (b1, b2) = (0.9, 0.999);
-        for (k, &g) in d_log_step.iter().enumerate() {
-            if g == 0.0 {
-                continue; // a group with no values (e.g. SH bands of a degree-0 scene)
-            }
-            let (m, v) = &mut self.adam[k];
-            *m = b1 * *m + (1.0 - b1) * g;
-            *v = b2 * *v + (1.0 - b2) * g * g;
-            let mh = *m / (1.0 - b1.powi(self.adam_t));
-            let vh = *v / (1.0 - b2.powi(self.adam_t));
-            let start = f64::from(Self::group_step(&self.start_steps, k)).ln();
-            let s = Self::group_step_mut(&mut self.steps, k);
-            let log_s = (f64::from(*s).ln() - STEP_LR * mh / (vh.sqrt() + 1e-12)).clamp(start - STEP_RANGE.ln(), start + STEP_RANGE.ln());
-            *s = log_s.exp() as f32;
+    fn update_steps(&mut self, d_log_step: &GroupMap<f64>) {
+        let (rule, m, v) = &mut self.adam;
+        let c = rule.begin_step();
+        for g in LEARNED_GROUPS {
+            let start = self.start_steps.of(g).ln();
+            let mut log_s = [self.steps.of(g).ln()];
+            rule.update(c, STEP_LR, &mut log_s, &[d_log_step[g] as f32], std::slice::from_mut(&mut m[g]), std::slice::from_mut(&mut v[g]));
+            *self.steps.of_mut(g) = log_s[0].clamp(start - STEP_RANGE.ln(), start + STEP_RANGE.ln()).exp();
         }
         self.shared.lock().expect("term lock").steps = self.steps;
     }
 
-    fn channel_count(s: &Splats) -> usize {
-        7 + s.rest_coeffs() * 3
-    }
-
-    /// (value, step, step group) of channel `c` of Gaussian `i`.
-    fn value(&self, s: &Splats, c: usize, i: usize) -> (f32, f32, usize) {
-        match c {
-            0..=2 => (s.log_scales[i][c], self.steps.scale, 0),
-            3 => (s.opacity_logits[i], self.steps.opacity, 1),
-            4..=6 => (s.sh_dc[i][c - 4], self.steps.sh_dc, 2),
-            _ => {
-                let j = c - 7;
-                let band = ((j / 3 + 1) as f32).sqrt().floor() as usize; // coefficient k = j/3 is in band ⌊√(k+1)⌋
-                let band = band.clamp(1, 3);
-                (s.rest_of(i)[j], self.steps.sh_rest[band - 1], 2 + band)
-            }
-        }
-    }
-
-    fn grad_slot<'a>(g: &'a mut Splats, c: usize, i: usize, k3: usize) -> &'a mut f32 {
-        match c {
-            0..=2 => &mut g.log_scales[i][c],
-            3 => &mut g.opacity_logits[i],
-            4..=6 => &mut g.sh_dc[i][c - 4],
-            _ => &mut g.sh_rest[i * k3 + c - 7],
-        }
+    /// The channels the term models for a scene of SH degree `degree`: (group, value within it).
+    fn channels(degree: u8) -> Vec<(Group, usize)> {
+        LEARNED_GROUPS
+            .into_iter()
+            .filter(|g| g.sh_band() <= degree)
+            .flat_map(|g| (0..group::layout(g, degree).1.len()).map(move |c| (g, c)))
+            .collect()
     }
 
     /// Straight-through quantised parameters: what the decoder will see (rounded per step;
@@ -166,17 +123,13 @@ impl RateTerm {
             return None;
         }
         let mut out = params.clone();
-        let q = |v: &mut f32, s: f32| *v = (*v / s).round() * s;
-        for i in 0..out.len() {
-            out.log_scales[i].iter_mut().for_each(|v| q(v, self.steps.scale));
-            q(&mut out.opacity_logits[i], self.steps.opacity);
-            out.sh_dc[i].iter_mut().for_each(|v| q(v, self.steps.sh_dc));
-        }
-        let k = out.rest_coeffs();
-        for (j, v) in out.sh_rest.iter_mut().enumerate() {
-            let coeff = (j / 3) % k.max(1);
-            let band = ((coeff + 1) as f32).sqrt().floor() as usize;
-            q(v, self.steps.sh_rest[band.clamp(1, 3) - 1]);
+        let degree = out.sh_degree;
+        for g in LEARNED_GROUPS.into_iter().filter(|g| g.sh_band() <= degree) {
+            let (stride, r) = group::layout(g, degree);
+            let s = self.steps.of(g);
+            for v in group::values_mut(&mut out, g).chunks_exact_mut(stride).flat_map(|c| &mut c[r.clone()]) {
+                *v = (*v / s).round() * s;
+            }
         }
         Some(out)
     }
@@ -187,21 +140,25 @@ impl RateTerm {
             return 0.0;
         }
         let n = params.len();
-        let nc = Self::channel_count(params);
-        let k3 = params.rest_coeffs() * 3;
+        let degree = params.sh_degree;
+        let channels = Self::channels(degree);
+        let nc = channels.len();
+        let at = |i: usize, (g, c): (Group, usize)| group::index(g, degree, i, c);
         if self.models.len() != nc {
-            self.models =
-                (0..nc).map(|c| LearnedChannel::fit_init(&(0..n).map(|i| self.value(params, c, i).0).collect::<Vec<_>>())).collect();
+            self.models = channels
+                .iter()
+                .map(|&(g, c)| LearnedChannel::fit_init(&(0..n).map(|i| group::values(params, g)[at(i, (g, c))]).collect::<Vec<_>>()))
+                .collect();
         }
         // ∂D/∂ln s from the distortion gradient w.r.t. the rendered (quantised) values, which
         // `grad` holds before the rate gradient is added.
-        let mut d_log_step = [0.0f64; STEP_GROUPS];
+        let mut d_log_step = GroupMap::<f64>::default();
         if self.learn_steps {
-            for i in 0..n {
-                for c in 0..nc {
-                    let (v, step, k) = self.value(params, c, i);
-                    let x = v / step;
-                    d_log_step[k] += f64::from(*Self::grad_slot(grad, c, i, k3)) * f64::from((x.round() - x) * step);
+            for &(g, c) in &channels {
+                let (vals, grads, step) = (group::values(params, g), group::values(grad, g), self.steps.of(g));
+                for i in 0..n {
+                    let x = vals[at(i, (g, c))] / step;
+                    d_log_step[g] += f64::from(grads[at(i, (g, c))]) * f64::from((x.round() - x) * step);
                 }
             }
         }
@@ -211,26 +168,26 @@ impl RateTerm {
         for i in 0..n {
             let mut bits_i = FIXED_BITS_PER_GAUSSIAN;
             let mut d_values = vec![0.0f64; nc];
-            let mut d_step_i = [0.0f64; STEP_GROUPS];
-            for c in 0..nc {
-                let (v, step, k) = self.value(params, c, i);
-                let g = self.models[c].bits(f64::from(v), f64::from(step));
-                bits_i += g.bits;
-                d_values[c] = g.d_value;
-                d_step_i[k] += g.d_step * f64::from(step);
-                model_grads[c].0 += g.d_mu;
-                model_grads[c].1 += g.d_log_b;
+            let mut d_step_i = GroupMap::<f64>::default();
+            for (k, &(g, c)) in channels.iter().enumerate() {
+                let step = self.steps.of(g);
+                let b = self.models[k].bits(f64::from(group::values(params, g)[at(i, (g, c))]), f64::from(step));
+                bits_i += b.bits;
+                d_values[k] = b.d_value;
+                d_step_i[g] += b.d_step * f64::from(step);
+                model_grads[k].0 += b.d_mu;
+                model_grads[k].1 += b.d_log_b;
             }
             let t = (params.opacity_logits[i] - logit_min) / 0.5;
             let keep = f64::from(sigmoid(t));
             let d_keep = keep * (1.0 - keep) / 0.5;
             total += keep * bits_i;
             let scale = self.lambda / R_NORM;
-            for (d, ds) in d_log_step.iter_mut().zip(d_step_i) {
-                *d += scale * keep * ds;
+            for g in LEARNED_GROUPS {
+                d_log_step[g] += scale * keep * d_step_i[g];
             }
-            for c in 0..nc {
-                *Self::grad_slot(grad, c, i, k3) += (scale * keep * d_values[c]) as f32;
+            for (k, &(g, c)) in channels.iter().enumerate() {
+                group::values_mut(grad, g)[at(i, (g, c))] += (scale * keep * d_values[k]) as f32;
             }
             grad.opacity_logits[i] += (scale * bits_i * d_keep) as f32;
         }
@@ -358,17 +315,19 @@ mod tests {
         let mut t = fitted.clone().learning_steps();
         t.rate_and_grad(&s, &mut zeroed(&s), 0); // no distortion gradient: the rate part alone
         let h = 1e-4f64;
-        for k in 0..4 {
+        for k in &LEARNED_GROUPS[..4] {
+            let k = *k;
             let at = |e: f64| {
                 let mut f = fitted.clone();
-                let v = RateTerm::group_step_mut(&mut f.steps, k);
+                let v = f.steps.of_mut(k);
                 *v = (f64::from(*v) * e.exp()) as f32;
                 f.rate(&s)
             };
             let fd = (at(h) - at(-h)) / (2.0 * h);
             let analytic = t.last_step_gradient[k];
-            assert!((analytic - fd).abs() <= 0.02 * fd.abs() + 1e-6, "group {k}: analytic {analytic} fd {fd}");
-            assert!(analytic < 0.0, "coarser steps must cost fewer bits (group {k}: {analytic})");
+            assert_eq!(t.last_step_gradient[Group::Sh2], 0.0, "a degree-1 scene has no band 2");
+            assert!((analytic - fd).abs() <= 0.02 * fd.abs() + 1e-6, "group {k:?}: analytic {analytic} fd {fd}");
+            assert!(analytic < 0.0, "coarser steps must cost fewer bits (group {k:?}: {analytic})");
         }
     }
 
@@ -383,8 +342,8 @@ mod tests {
             t.rate_and_grad(&s, &mut zeroed(&s), it);
         }
         let grown = handle.lock().unwrap().steps;
-        for k in 0..4 {
-            assert!(RateTerm::group_step(&grown, k) > 1.2 * RateTerm::group_step(&start, k), "group {k}: {grown:?}");
+        for k in &LEARNED_GROUPS[..4] {
+            assert!(grown.of(*k) > 1.2 * start.of(*k), "group {k:?}: {grown:?}");
         }
         // Distortion only (λ = 0, D = Σ (q − v)² so ∂D/∂q = 2(q − v)): every step shrinks.
         let mut t = RateTerm::new(0.0, start, 0.02).learning_steps();
@@ -398,8 +357,8 @@ mod tests {
             d_grad(&mut g.sh_rest, &q.sh_rest, &s.sh_rest);
             t.rate_and_grad(&s, &mut g, it);
         }
-        for k in 0..4 {
-            assert!(RateTerm::group_step(&t.steps, k) < 0.8 * RateTerm::group_step(&start, k), "group {k}: {:?}", t.steps);
+        for k in &LEARNED_GROUPS[..4] {
+            assert!(t.steps.of(*k) < 0.8 * start.of(*k), "group {k:?}: {:?}", t.steps);
         }
     }
 

@@ -13,7 +13,8 @@ use crate::loss::ImageLoss;
 use crate::raster;
 use crate::rng::Rng;
 use crate::{Error, Result};
-use adam::{first_non_finite, Adam, Group};
+use crate::rate::group::Group;
+use adam::{first_non_finite, Adam};
 use densify::{DensifyParams, DensifyStats};
 use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
@@ -228,11 +229,11 @@ pub fn train(
                 let l = ((LR_POSITION_INIT as f64).ln() * (1.0 - t) + (LR_POSITION_FINAL as f64).ln() * t).exp();
                 (l * extent as f64) as f32
             }
-            Group::LogScale => LR_SCALE,
+            Group::Scale => LR_SCALE,
             Group::Rotation => LR_ROTATION,
             Group::Opacity => LR_OPACITY,
             Group::ShDc => LR_SH_DC,
-            Group::ShRest => LR_SH_REST,
+            Group::Sh1 | Group::Sh2 | Group::Sh3 => LR_SH_REST,
         };
         base * cfg.lr_scale
     };
