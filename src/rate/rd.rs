@@ -3,13 +3,14 @@
 //!
 //! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
 //!   ([`crate::views::orbit_cameras`], up −y as `eval --orbit`, 8 views at 96×96) against the views of the input scene.
-//! * `R` = file size in megabits (bits / 10⁶): a fixed constant, so λ means the same everywhere.
+//! * `R` = file size in megabits (bits / 10⁶): λ is a [`Lambda`], whose docs hold the unit.
 
 use gscodec_decoder::render::render;
 use gscodec_decoder::{Image, RenderOptions, SceneError, Splats};
 use serde::Serialize;
 
 use super::group::Group;
+use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
 use super::{encode, EncodeConfig};
 use crate::views::{orbit_cameras, UpAxis};
@@ -86,7 +87,7 @@ fn with_knob(c: &EncodeConfig, g: Group, m: f32) -> EncodeConfig {
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the pruning threshold, then the SH degree, then per group
 /// the multiplier of the fine step minimising `ΔD_g + λ·R_g`. `on_step` sees each trial.
-pub fn search(scene: &Splats, lambda: f64, on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
+pub fn search(scene: &Splats, lambda: Lambda, on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
     search_from(scene, lambda, Steps::default().scaled(0.7), on_step)
 }
 
@@ -94,13 +95,13 @@ pub fn search(scene: &Splats, lambda: f64, on_step: impl FnMut(&RdPoint)) -> Res
 /// training) instead of the default fine steps; multiplier 1 keeps a step as it is.
 pub fn search_from(
     scene: &Splats,
-    lambda: f64,
+    lambda: Lambda,
     fine: Steps,
     mut on_step: impl FnMut(&RdPoint),
 ) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
     scene.validate()?;
     let ev = Evaluator::new(scene);
-    let j = |bytes: usize, d: f64| d + lambda * bytes as f64 * 8.0 / 1e6;
+    let j = |bytes: usize, d: f64| d + lambda.rate_cost(bytes);
     let mut path = Vec::new();
     let mut record = |change: String, bytes: usize, d: f64, path: &mut Vec<RdPoint>| {
         let p = RdPoint { step: path.len(), change, bytes, d, psnr: psnr_of(d), j: j(bytes, d) };
@@ -171,7 +172,7 @@ pub fn search_from(
                     (b, d, group_bytes(&r, k))
                 };
                 record(format!("pass{pass} {}x{m}", k.name()), b, d, &mut path);
-                let cost = (d - d0) + lambda * gb as f64 * 8.0 / 1e6;
+                let cost = (d - d0) + lambda.rate_cost(gb);
                 if cost < best_k.0 {
                     best_k = (cost, m);
                 }
@@ -195,4 +196,28 @@ pub fn search_from(
         chosen = best.1;
     }
     Ok((EncodeConfig { learned_tables: true, ..chosen }, path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// λ measured end to end: the search's chosen file shrinks and its distortion grows as λ
+    /// grows (replaces a test that only checked the final multiply by λ).
+    #[test]
+    fn larger_lambda_gives_smaller_files_and_more_distortion() {
+        let scene = crate::sample::scene(300, 1);
+        let ev = Evaluator::new(&scene);
+        let mut last: Option<(usize, f64)> = None;
+        for l in [0.0, 20.0, 2000.0] {
+            let (cfg, path) = search(&scene, Lambda::new(l).unwrap(), |_| {}).unwrap();
+            let (bytes, d) = ev.eval(&cfg).unwrap();
+            assert!(path.iter().all(|p| (p.j - (p.d + Lambda::new(l).unwrap().rate_cost(p.bytes))).abs() < 1e-9));
+            if let Some((b0, d0)) = last {
+                assert!(bytes < b0, "λ {l}: {bytes} bytes, not fewer than {b0}");
+                assert!(d >= d0, "λ {l}: D {d} below {d0}");
+            }
+            last = Some((bytes, d));
+        }
+    }
 }
