@@ -38,6 +38,9 @@ pub struct Args {
     /// Write a JSON report (sizes per attribute group, estimated vs actual, time series).
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Dataset image options.
+    #[command(flatten)]
+    pub dataset: super::dataset_args::DatasetArgs,
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
@@ -151,7 +154,7 @@ fn fine_tune(
     use crate::rate::term::Shared;
     use crate::train::{train, TrainConfig};
     let (dataset, init) = if args.input.is_dir() {
-        (crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?, None)
+        (crate::io::load_dataset(&args.input, &args.dataset.load_options())?, None)
     } else {
         // Training views avoid the 8 orbit views `orbit_psnr` evaluates on (held out).
         let cams = training_cameras(scene, 8, 256, 256, UpAxis::NegY.vector());
