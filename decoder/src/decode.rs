@@ -5,9 +5,13 @@ use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
-use crate::bitstream::layout::{self, chunk_count, Group, CHUNK, INFO_KIND, MAX_POSITION_BITS};
-use crate::bitstream::{self, ByteReader, Container, DecodeError, Header};
-use crate::entropy::{context, ChannelTable, Lookup, SymbolDecoder, CONTEXTS};
+use crate::bitstream::assemble::{assemble, Piece};
+use crate::bitstream::layout::{self, chunk_count, Group, CHUNK, INFO_KIND};
+use crate::bitstream::params::read_all_params;
+use crate::bitstream::stream::decode_data_section;
+use crate::bitstream::tables::ChannelTable;
+use crate::bitstream::{self, header, info, Container, Header};
+use crate::error::{self, DecodeError, FormatErrorKind, Limit};
 use crate::Splats;
 
 /// SH bands are decoded in jobs of about this many channels (a band has 9, 15 or 21).
@@ -59,7 +63,7 @@ pub struct FileInfo {
 /// Reads the fixed header only (magic, version, counts): the first 16 bytes are enough. No
 /// checksums and no check of the Gaussian count against the file size ([`decode`] does both).
 pub fn peek_header(bytes: &[u8]) -> Result<Header, DecodeError> {
-    bitstream::parse_header_fields(bytes).map(|(h, _)| h)
+    header::read_header(bytes).map(|(h, _)| h)
 }
 
 /// Parses and checks a file without decoding its streams.
@@ -90,10 +94,9 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
             bytes: s.data.len(),
             name,
         });
-        if s.kind == INFO_KIND && s.data.len() == 5 {
-            let mut r = ByteReader::new(s.data);
-            info.input_gaussians = r.u32("info").ok();
-            info.input_sh_degree = r.u8("info").ok();
+        if let Some(i) = (s.kind == INFO_KIND).then(|| info::read_info(s.data)).flatten() {
+            info.input_gaussians = Some(i.input_gaussians);
+            info.input_sh_degree = Some(i.input_sh_degree);
         }
     }
     for (g, p) in &params {
@@ -115,212 +118,6 @@ pub fn decode(bytes: &[u8], options: &DecodeOptions) -> Result<Splats, DecodeErr
     in_pool(options, || decode_container(&c, c.header.sh_degree.min(options.max_sh_degree)))
 }
 
-/// Parsed parameter section of one group.
-#[derive(Debug)]
-struct GroupParams {
-    /// Per channel dequantisation step (Position: unused).
-    steps: Vec<f32>,
-    tables: Vec<ChannelTable>,
-    /// Position only: grid origin, step and bits per axis.
-    grid: Option<([f32; 3], [f32; 3], u8)>,
-}
-
-fn read_params(g: Group, data: &[u8]) -> Result<GroupParams, DecodeError> {
-    let mut r = ByteReader::new(data);
-    let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None };
-    if g == Group::Position {
-        let origin = [r.f32("grid origin")?, r.f32("grid origin")?, r.f32("grid origin")?];
-        let step = [r.f32("grid step")?, r.f32("grid step")?, r.f32("grid step")?];
-        let bits = r.u8("grid bits")?;
-        if bits > MAX_POSITION_BITS {
-            return Err(DecodeError::Corrupt("position grid above 21 bits per axis"));
-        }
-        p.grid = Some((origin, step, bits));
-        let lengths = ChannelTable::read(&mut r)?;
-        if matches!(lengths, ChannelTable::Context { .. }) {
-            return Err(DecodeError::Corrupt("context-coded position lengths"));
-        }
-        p.tables.push(lengths);
-    } else {
-        let n = r.u8("channel count")? as usize;
-        if n != g.channels() {
-            return Err(DecodeError::Corrupt("wrong channel count"));
-        }
-        for _ in 0..n {
-            p.steps.push(r.f32("channel step")?);
-            p.tables.push(ChannelTable::read(&mut r)?);
-        }
-    }
-    if r.remaining() != 0 {
-        return Err(DecodeError::Corrupt("trailing bytes in a parameter section"));
-    }
-    Ok(p)
-}
-
-fn read_all_params(c: &Container<'_>, degree: u8) -> Result<Vec<(Group, GroupParams)>, DecodeError> {
-    if c.header.gaussians == 0 {
-        return Ok(Vec::new());
-    }
-    let groups: Vec<Group> = Group::present(degree).collect();
-    groups
-        .into_par_iter()
-        .map(|g| {
-            let s = c.section(g.params_kind(), 0).ok_or_else(|| DecodeError::MissingSection(format!("{} parameters", g.name())))?;
-            Ok((g, read_params(g, s.data)?))
-        })
-        .collect()
-}
-
-fn finite(v: f32) -> Result<f32, DecodeError> {
-    if v.is_finite() {
-        Ok(v)
-    } else {
-        Err(DecodeError::Corrupt("dequantised value is not finite"))
-    }
-}
-
-/// One coded channel being decoded: its stream, tables and the previous value (the context).
-struct Lane<'a> {
-    col: usize,
-    lo: i32,
-    centre: i32,
-    prev: i32,
-    tables: [Lookup<'a>; CONTEXTS],
-    scale: f32,
-    d: SymbolDecoder<'a>,
-}
-
-impl Lane<'_> {
-    /// The lane's next value into `row` (`CONTEXT`: pick the table by the previous value).
-    #[inline(always)]
-    fn decode<const CONTEXT: bool>(&mut self, row: &mut [f32]) {
-        let table = if CONTEXT { self.tables[context(self.prev, self.centre)] } else { self.tables[0] };
-        let v = self.d.coded_value(self.lo, table);
-        self.prev = v;
-        row[self.col] = v as f32 * self.scale;
-    }
-}
-
-/// The next stream of a data section: `varint length`, then `length` bytes.
-fn next_stream_bytes<'a>(r: &mut ByteReader<'a>) -> Result<&'a [u8], DecodeError> {
-    let len = r.varint("stream length")? as usize;
-    r.take(len, "stream")
-}
-
-/// Channels `channels` of a (non-position) group chunk, Gaussian-major (`count × channels.len()`),
-/// each value `f32(v) · scale[channel]`. Each coded channel has its own stream; decoding them side
-/// by side lets the independent coder states overlap in the CPU.
-fn decode_channels(
-    p: &GroupParams,
-    r: &mut ByteReader<'_>,
-    count: usize,
-    scale: &[f32],
-    channels: Range<usize>,
-) -> Result<Vec<f32>, DecodeError> {
-    // Every channel's stream is located (so the section's layout is checked), the wanted ones decoded.
-    let mut streams = Vec::with_capacity(p.tables.len());
-    for t in &p.tables {
-        streams.push(match t {
-            ChannelTable::Constant(_) => &[][..],
-            ChannelTable::Coded { .. } | ChannelTable::Context { .. } => next_stream_bytes(r)?,
-        });
-    }
-    let w = channels.len();
-    let mut vals = vec![0f32; count * w];
-    // Channels with one table and context-coded ones decode in separate lanes, so that the former
-    // skip the context computation.
-    let (mut plain, mut contextual) = (Vec::with_capacity(w), Vec::new());
-    for (col, j) in channels.enumerate() {
-        match p.tables[j].contexts() {
-            None => {
-                let v = if let ChannelTable::Constant(v) = p.tables[j] { v } else { 0 };
-                vals.iter_mut().skip(col).step_by(w).for_each(|x| *x = v as f32 * scale[j]);
-            }
-            Some((lo, centre, tables)) => {
-                let lanes = if matches!(p.tables[j], ChannelTable::Context { .. }) { &mut contextual } else { &mut plain };
-                lanes.push(Lane {
-                    col,
-                    lo,
-                    centre,
-                    prev: centre,
-                    tables: tables.map(|t| t.lookup_table()),
-                    scale: scale[j],
-                    d: SymbolDecoder::new(streams[j])?,
-                });
-            }
-        }
-    }
-    for row in vals.chunks_exact_mut(w) {
-        plain.iter_mut().for_each(|l| l.decode::<false>(row));
-        contextual.iter_mut().for_each(|l| l.decode::<true>(row));
-    }
-    plain.into_iter().chain(contextual).try_for_each(|l| l.d.finish())?;
-    if !vals.iter().fold(true, |ok, x| ok & x.is_finite()) {
-        return Err(DecodeError::Corrupt("dequantised value is not finite"));
-    }
-    Ok(vals)
-}
-
-fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, count: usize) -> Result<Vec<f32>, DecodeError> {
-    let (origin, step, bits) = p.grid.expect("position has a grid");
-    let mut d = SymbolDecoder::new(next_stream_bytes(r)?)?;
-    let mut out = Vec::with_capacity(count * 3);
-    let max_len = 3 * u32::from(bits);
-    let limit = 1u64 << max_len; // bits <= 21, so at most 2^63
-    let mut m: u64 = 0;
-    for _ in 0..count {
-        let len = d.value(&p.tables[0], 0);
-        if len < 0 || len as u32 > max_len {
-            return Err(DecodeError::Corrupt("position delta too long"));
-        }
-        let len = len as u32;
-        let delta = if len <= 1 {
-            u64::from(len)
-        } else {
-            let mut rest = 0u64;
-            let mut left = len - 1;
-            while left > 0 {
-                let take = left.min(32);
-                rest = (rest << take) | u64::from(d.raw_bits(take));
-                left -= take;
-            }
-            (1u64 << (len - 1)) | rest
-        };
-        m = m.checked_add(delta).filter(|&m| m < limit).ok_or(DecodeError::Corrupt("position outside the grid"))?;
-        let q = layout::morton_decode(m, bits);
-        for a in 0..3 {
-            out.push(finite(layout::dequantise_position(origin[a], step[a], q[a]))?);
-        }
-    }
-    d.finish()?;
-    Ok(out)
-}
-
-/// Decodes channels `channels` of one data section (position and rotation: always all of them).
-fn decode_chunk(g: Group, p: &GroupParams, data: &[u8], count: usize, channels: Range<usize>) -> Result<Vec<f32>, DecodeError> {
-    let mut r = ByteReader::new(data);
-    let out = match g {
-        Group::Position => decode_positions(p, &mut r, count)?,
-        Group::Rotation => {
-            // The index channel is read unscaled: f32 holds 0..=3 (and any escaped value) exactly enough.
-            let vals = decode_channels(p, &mut r, count, &[1.0, p.steps[1], p.steps[2], p.steps[3]], 0..4)?;
-            let mut out = Vec::with_capacity(count * 4);
-            for v in vals.chunks_exact(4) {
-                if !matches!(v[0], 0.0 | 1.0 | 2.0 | 3.0) {
-                    return Err(DecodeError::Corrupt("rotation index outside 0..4"));
-                }
-                out.extend_from_slice(&layout::rotation_from_smallest_three(v[0] as usize, [v[1], v[2], v[3]]));
-            }
-            out
-        }
-        _ => decode_channels(p, &mut r, count, &p.steps, channels)?,
-    };
-    if r.remaining() != 0 {
-        return Err(DecodeError::Corrupt("trailing bytes in a data section"));
-    }
-    Ok(out)
-}
-
 /// Decodes a `.gsc` file from any reader (a file, a socket, a decompressor), reading it to the end.
 ///
 /// ```
@@ -331,7 +128,7 @@ fn decode_chunk(g: Group, p: &GroupParams, data: &[u8], count: usize, channels: 
 /// ```
 pub fn decode_reader(mut reader: impl std::io::Read, options: &DecodeOptions) -> Result<Splats, DecodeError> {
     let mut bytes = Vec::new();
-    reader.read_to_end(&mut bytes).map_err(|e| DecodeError::Io(e.to_string()))?;
+    reader.read_to_end(&mut bytes)?;
     decode(&bytes, options)
 }
 
@@ -359,10 +156,10 @@ pub fn decode_prefix(bytes: &[u8], options: &DecodeOptions) -> Result<Option<Spl
     }
     let c = match bitstream::parse_prefix(bytes) {
         Ok(c) => c,
-        Err(DecodeError::Truncated(_)) => return Ok(None),
+        Err(e) if e.format_error().is_some_and(|f| f.kind() == FormatErrorKind::Truncated) => return Ok(None),
         Err(e) => return Err(e),
     };
-    let arrived = |g: Group| !c.pending.iter().any(|&(kind, _)| kind == g.params_kind() || kind == g.data_kind());
+    let arrived = |g: Group| !c.pending.iter().any(|id| id.kind == g.params_kind() || id.kind == g.data_kind());
     if !Group::present(0).all(arrived) {
         return Ok(None);
     }
@@ -405,7 +202,7 @@ fn decode_container(c: &Container<'_>, degree: u8) -> Result<Splats, DecodeError
     let params = read_all_params(c, degree)?;
     let chunks = chunk_count(n);
     if chunks > usize::from(u16::MAX) + 1 {
-        return Err(DecodeError::Limit("too many chunks"));
+        return Err(error::limit(Limit::Gaussians, n as u64, (usize::from(u16::MAX) + 1) as u64 * CHUNK as u64, false));
     }
     // One job per (group, chunk); SH bands are split further into channel ranges of about
     // JOB_CHANNELS so that the work balances over the threads even for a one-chunk scene.
@@ -421,60 +218,23 @@ fn decode_container(c: &Container<'_>, degree: u8) -> Result<Splats, DecodeError
         .par_iter()
         .map(|(gi, ch, channels)| {
             let (g, p) = &params[*gi];
-            let data = c.section(g.data_kind(), *ch as u16).map_or(&[][..], |s| s.data);
             let count = CHUNK.min(n - ch * CHUNK);
-            decode_chunk(*g, p, data, count, channels.clone())
+            decode_data_section(*g, p, &mut c.reader(g.data_kind(), *ch as u16), count, channels.clone())
         })
         .collect::<Result<_, _>>()?;
-
-    let row = splats.rest_coeffs() * 3;
-    // The jobs' results, in (group, chunk) order, as the scene's arrays: the base groups are
-    // concatenated, the SH jobs' columns scattered into the rest rows, all in parallel.
-    let group_values = |group: Group| -> Vec<&[f32]> {
-        jobs.iter().zip(&results).filter(|((gi, ..), _)| params[*gi].0 == group).map(|(_, v)| v.as_slice()).collect()
-    };
-    let concat = |group: Group| -> Vec<f32> { group_values(group).concat() };
-    let triples = |group: Group| -> Vec<[f32; 3]> { concat(group).chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect() };
-    let scatter_sh = || {
-        let mut rest = vec![0.0f32; n * row];
-        // SH channel j of band b is rest value (b²−1)·3 + j of its Gaussian.
-        let mut pieces: Vec<Vec<(usize, &[f32])>> = vec![Vec::new(); chunks];
-        for ((gi, ch, channels), vals) in jobs.iter().zip(&results) {
-            let b = params[*gi].0.sh_band() as usize;
-            if b > 0 {
-                pieces[*ch].push(((b * b - 1) * 3 + channels.start, vals));
-            }
-        }
-        rest.par_chunks_mut(CHUNK * row.max(1)).zip(&pieces).for_each(|(rows, pieces)| {
-            let count = rows.len() / row.max(1);
-            rows.par_chunks_mut(row.max(1)).enumerate().with_min_len(1024).for_each(|(i, dst)| {
-                for &(first, vals) in pieces {
-                    let w = vals.len() / count;
-                    dst[first..first + w].copy_from_slice(&vals[i * w..(i + 1) * w]);
-                }
-            });
-        });
-        rest
-    };
-    let ((positions, log_scales), ((rotations, opacity_logits), (sh_dc, sh_rest))) = rayon::join(
-        || rayon::join(|| triples(Group::Position), || triples(Group::Scale)),
-        || {
-            rayon::join(
-                || {
-                    rayon::join(
-                        || concat(Group::Rotation).chunks_exact(4).map(|v| [v[0], v[1], v[2], v[3]]).collect(),
-                        || concat(Group::Opacity),
-                    )
-                },
-                || rayon::join(|| triples(Group::ShDc), scatter_sh),
-            )
-        },
-    );
-    splats.positions = positions;
-    splats.log_scales = log_scales;
-    splats.rotations = rotations;
-    splats.opacity_logits = opacity_logits;
-    splats.sh_dc = sh_dc;
-    splats.sh_rest = sh_rest;
+    let pieces: Vec<Piece> = jobs
+        .iter()
+        .zip(&results)
+        .map(|((gi, ch, channels), values)| {
+            let group = params[*gi].0;
+            let columns = match group {
+                Group::Position => 0..3,
+                Group::Rotation => 0..4,
+                _ => channels.clone(),
+            };
+            Piece { group, first: ch * CHUNK, columns, values }
+        })
+        .collect();
+    assemble(n, degree, &pieces, &mut splats);
     Ok(splats)
 }

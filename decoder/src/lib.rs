@@ -17,12 +17,13 @@ pub mod camera;
 pub mod capi;
 mod decode;
 pub mod entropy;
+mod error;
 pub mod math;
 pub mod render;
 pub mod splats;
 
 pub use bitstream::layout::Group;
-pub use bitstream::DecodeError;
+pub use error::{ChecksumError, DecodeError, FormatError, FormatErrorKind, Limit, LimitError, SectionId, UnsupportedError};
 pub use camera::Camera;
 pub use decode::{decode, decode_prefix, decode_reader, inspect, peek_header, DecodeOptions, FileInfo, SectionInfo};
 pub use render::{Image, RenderOptions};
