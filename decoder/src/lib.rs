@@ -45,6 +45,9 @@ pub mod entropy;
 mod error;
 pub mod math;
 pub mod render;
+#[cfg(feature = "gpu")]
+#[doc(hidden)]
+pub mod shaders;
 pub mod splats;
 
 pub use bitstream::info::EncoderInfo;
