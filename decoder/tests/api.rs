@@ -175,3 +175,26 @@ fn reader_errors_are_typed() {
     let e = Decoder::new(&bytes[..10]).read_info().unwrap_err();
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::Truncated));
 }
+
+/// `bitstream-spec/vectors/bad/EXPECTED` lists each bad vector with its error class: every entry
+/// point refuses it with that class (and the fuzz test covers their mutations).
+#[test]
+fn bad_vectors_fail_with_their_class() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bitstream-spec/vectors/bad");
+    let Ok(expected) = std::fs::read_to_string(dir.join("EXPECTED")) else {
+        eprintln!("SKIP: no {}", dir.join("EXPECTED").display());
+        return;
+    };
+    let mut checked = 0;
+    for line in expected.lines().filter(|l| !l.starts_with('#') && !l.trim().is_empty()) {
+        let mut words = line.split_whitespace();
+        let (name, class) = (words.next().unwrap(), words.next().unwrap());
+        let bytes = std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let e = decode(&bytes).unwrap_err();
+        assert_eq!(e.class(), class, "{name}: {e}");
+        let e = Decoder::new(&bytes[..]).read_info().and_then(|r| r.decode()).unwrap_err();
+        assert_eq!(e.class(), class, "{name} (reader): {e}");
+        checked += 1;
+    }
+    assert!(checked >= 8, "only {checked} bad vectors");
+}
