@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use gscodec::rate::{self, EncodeConfig};
 use gscodec::rng::Rng;
 use gscodec_decoder::bitstream::{self, Header, VERSION_MAJOR, VERSION_MINOR};
-use gscodec_decoder::{decode, DecodeOptions, Splats};
+use gscodec_decoder::{decode, Decoder, Limits, Splats};
 use sha2::{Digest, Sha256};
 
 const NAMES: [&str; 8] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks"];
@@ -145,7 +145,7 @@ fn regenerate() {
             rate::encode(&vector_scene(name), &EncodeConfig::default()).unwrap().0
         };
         std::fs::write(dir().join(format!("{name}.gsc")), &bytes).unwrap();
-        let ply = decode(&bytes, &DecodeOptions::default()).unwrap().to_ply();
+        let ply = decode(&bytes).unwrap().to_ply();
         if !HASH_ONLY.contains(&name) {
             std::fs::write(dir().join(format!("{name}.ply")), &ply).unwrap();
         }
@@ -160,7 +160,11 @@ fn vectors_decode_to_their_expected_output() {
     for name in NAMES {
         let bytes = std::fs::read(dir().join(format!("{name}.gsc"))).unwrap();
         for threads in [1, 4] {
-            let ply = decode(&bytes, &DecodeOptions { threads, ..Default::default() }).unwrap().to_ply();
+            let ply = {
+                let mut d = Decoder::new(&bytes[..]);
+                d.set_threads(threads);
+                d.read_info().and_then(|r| r.decode())
+            }.unwrap().to_ply();
             assert_eq!(expected_hash(&sums, name), hex(&Sha256::digest(&ply)), "{name}");
             if !HASH_ONLY.contains(&name) {
                 assert_eq!(ply, std::fs::read(dir().join(format!("{name}.ply"))).unwrap(), "{name}");
@@ -283,7 +287,7 @@ fn mutated_vectors_never_panic() {
         state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         ((state >> 33) as usize) % m.max(1)
     };
-    let opts = DecodeOptions { threads: 1, ..Default::default() };
+    let limits = Limits::default();
     for name in NAMES {
         let bytes = std::fs::read(dir().join(format!("{name}.gsc"))).unwrap();
         for _ in 0..1500 {
@@ -302,9 +306,9 @@ fn mutated_vectors_never_panic() {
                     repair_crcs(&mut b);
                 }
             }
-            let _ = decode(&b, &opts);
+            let _ = decode(&b);
             let _ = gscodec_decoder::inspect(&b);
-            let _ = gscodec_decoder::decode_prefix(&b, &opts);
+            let _ = gscodec_decoder::decode_prefix(&b, &limits);
         }
     }
 }
