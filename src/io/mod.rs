@@ -2,11 +2,14 @@
 
 pub mod atomic;
 pub mod colmap;
+pub mod compressed_ply;
 pub mod dataset;
+pub mod gltf;
 pub mod image;
 pub mod nerf;
 pub mod ply;
 pub mod scene;
+pub mod sog;
 pub mod splat;
 pub mod spz;
 
