@@ -388,3 +388,59 @@ fn malformed_inputs_fail_cleanly() {
     std::fs::write(p("trunc.compressed.ply"), &cply[..cply.len() - 1000]).unwrap();
     assert_bad(&p("trunc.compressed.ply"), "truncated");
 }
+
+/// Random byte edits and truncations of each reference file: the readers return an error or a
+/// scene, never panic (and never allocate for a size the data cannot back).
+#[test]
+fn mutated_files_never_panic() {
+    let mut x = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    let files: [(&str, fn(&[u8]) -> bool); 3] = [
+        ("tiny.sog", |b| decode_sog_bundle(b).is_ok()),
+        ("tiny.compressed.ply", |b| decode_compressed_ply(b).is_ok()),
+        ("tiny-sh1.glb", |b| decode_gltf(b, None).is_ok()),
+    ];
+    for (name, decode) in files {
+        let orig = std::fs::read(data(name)).unwrap();
+        assert!(decode(&orig), "{name}");
+        for round in 0..150 {
+            let mut b = orig.clone();
+            if round % 5 == 0 {
+                b.truncate((next() % b.len() as u64) as usize);
+            } else {
+                for _ in 0..1 + next() % 8 {
+                    let at = (next() % b.len() as u64) as usize;
+                    b[at] = next() as u8;
+                }
+            }
+            let _ = decode(&b);
+        }
+    }
+    // The unbundled folder (no zip CRC in the way): edit one of its files per round.
+    let dir = tempfile::tempdir().unwrap();
+    let names: Vec<std::ffi::OsString> = std::fs::read_dir(data("tiny-sog")).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let copy_all = || names.iter().for_each(|n| drop(std::fs::copy(data("tiny-sog").join(n), dir.path().join(n)).unwrap()));
+    for _ in 0..100 {
+        copy_all();
+        let victim = dir.path().join(&names[(next() % names.len() as u64) as usize]);
+        let mut b = std::fs::read(&victim).unwrap();
+        for _ in 0..1 + next() % 4 {
+            let at = (next() % b.len() as u64) as usize;
+            b[at] = next() as u8;
+        }
+        std::fs::write(&victim, &b).unwrap();
+        let _ = read_scene(&dir.path().join("meta.json"));
+    }
+    // A meta.json announcing far more Gaussians than its images hold.
+    copy_all();
+    let mut meta: serde_json::Value = serde_json::from_slice(&std::fs::read(data("tiny-sog/meta.json")).unwrap()).unwrap();
+    meta["count"] = serde_json::json!(1u64 << 40);
+    std::fs::write(dir.path().join("meta.json"), serde_json::to_vec(&meta).unwrap()).unwrap();
+    let e = read_scene(&dir.path().join("meta.json")).unwrap_err().to_string();
+    assert!(e.contains("fewer than count"), "{e}");
+}

@@ -45,6 +45,8 @@ const SHORT: u64 = 5122;
 const UNSIGNED_SHORT: u64 = 5123;
 /// Largest node depth followed (a guard against cyclic node graphs).
 const MAX_DEPTH: usize = 64;
+/// Largest number of node instances visited (a guard against node graphs that fan out).
+const MAX_NODE_VISITS: usize = 1 << 16;
 
 /// `(l, m)` of the 0-based non-DC SH coefficient `k` (`k = l² + l + m − 1`).
 fn sh_lm(k: usize) -> (usize, i32) {
@@ -295,7 +297,12 @@ fn splat_meshes(doc: &Value) -> Result<Vec<(usize, Mat4)>, String> {
     };
     let mut out = Vec::new();
     let mut stack: Vec<(usize, Mat4, usize)> = roots.into_iter().map(|r| (r, Mat4::IDENTITY, 0)).collect();
+    let mut visits = 0;
     while let Some((i, parent, depth)) = stack.pop() {
+        visits += 1;
+        if visits > MAX_NODE_VISITS {
+            return Err(format!("more than {MAX_NODE_VISITS} node instances"));
+        }
         if depth > MAX_DEPTH {
             return Err("node hierarchy deeper than 64 levels (a cycle?)".into());
         }
@@ -367,14 +374,15 @@ fn accessor(doc: &Value, buffers: &[Vec<u8>], idx: &Value, ty: &str, allowed: &[
     let v = doc["bufferViews"].get(vi).ok_or_else(|| bad(format!("bufferView {vi} does not exist")))?;
     let buf = buffers.get(v["buffer"].as_u64().unwrap_or(u64::MAX) as usize).ok_or_else(|| bad(format!("bufferView {vi} names no buffer")))?;
     let (voff, vlen) = (v["byteOffset"].as_u64().unwrap_or(0) as usize, v["byteLength"].as_u64().ok_or_else(|| bad("no byteLength".into()))? as usize);
-    let view = buf.get(voff..voff.checked_add(vlen).ok_or("overflow")?).ok_or_else(|| bad(format!("bufferView {vi} lies outside its buffer")))?;
+    let view = buf.get(voff..voff.checked_add(vlen).ok_or_else(|| bad("bufferView overflows".into()))?).ok_or_else(|| bad(format!("bufferView {vi} lies outside its buffer")))?;
     let elem = size * comps;
     let stride = v["byteStride"].as_u64().map_or(elem, |s| s as usize);
     if stride < elem {
         return Err(bad(format!("byteStride {stride} is smaller than an element ({elem} bytes)")));
     }
     let off = a["byteOffset"].as_u64().unwrap_or(0) as usize;
-    let need = if count == 0 { 0 } else { (count - 1).checked_mul(stride).and_then(|x| x.checked_add(off + elem)).ok_or("overflow")? };
+    let need = if count == 0 { Some(0) } else { (count - 1).checked_mul(stride).and_then(|x| x.checked_add(off)).and_then(|x| x.checked_add(elem)) }
+        .ok_or_else(|| bad(format!("{count} elements overflow")))?;
     if need > view.len() {
         return Err(bad(format!("{count} elements need {need} bytes, bufferView {vi} has {}", view.len())));
     }
@@ -451,7 +459,7 @@ fn read_primitive(doc: &Value, buffers: &[Vec<u8>], prim: &Value, m: &Mat4) -> R
         }
     }
     // Node transform: translation and uniform positive scale only.
-    let (s3, r, t) = m.to_scale_rotation_translation();
+    let (s3, r, _) = m.to_scale_rotation_translation();
     let uniform = (s3.x - s3.y).abs() <= 1e-6 * s3.x.abs() && (s3.x - s3.z).abs() <= 1e-6 * s3.x.abs() && s3.x > 0.0;
     if !uniform || r.angle_between(Quat::IDENTITY) > 1e-6 || !m.is_finite() {
         return Err("node transforms with rotation, non-uniform or negative scale are not supported".into());
@@ -486,7 +494,6 @@ fn read_primitive(doc: &Value, buffers: &[Vec<u8>], prim: &Value, m: &Mat4) -> R
             &coeffs,
         );
     }
-    let _ = t;
     Ok(s)
 }
 

@@ -127,7 +127,8 @@ pub fn decode_sog_bundle(bytes: &[u8]) -> Result<Splats, String> {
         if f.size() > MAX_ENTRY_BYTES {
             return Err(format!("{name}: {} bytes uncompressed is too large", f.size()));
         }
-        let mut out = Vec::with_capacity(f.size() as usize);
+        // The declared size only bounds the reservation: the data itself decides the length.
+        let mut out = Vec::with_capacity(f.size().min(1 << 24) as usize);
         f.by_ref().take(MAX_ENTRY_BYTES).read_to_end(&mut out).map_err(|e| format!("{name}: {e}"))?;
         Ok(out)
     };
