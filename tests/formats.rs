@@ -115,7 +115,8 @@ fn sog_unbundled_and_palette() {
     write_scene(&meta, &s).unwrap();
     let (a, b) = (read_scene(&bundle).unwrap(), read_scene(&meta).unwrap());
     assert_eq!(a, b);
-    let names: Vec<String> = std::fs::read_dir(dir.path().join("unb")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+    let names: Vec<String> =
+        std::fs::read_dir(dir.path().join("unb")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
     assert_eq!(names.len(), 8, "{names:?}");
     // 3000 Gaussians → a 2048-entry palette: SH error stays well below the coefficients' spread.
     let order = morton_order(&s.positions);
@@ -219,7 +220,8 @@ fn match_all(src: &Splats, dec: &Splats, pos_tol: &dyn Fn(usize, usize) -> f32, 
     assert_eq!(src.len(), dec.len());
     let mut used = vec![false; src.len()];
     for t in 0..dec.len() {
-        let cand = (0..src.len()).filter(|&g| !used[g] && (0..3).all(|a| (src.positions[g][a] - dec.positions[t][a]).abs() <= pos_tol(t, a)));
+        let cand =
+            (0..src.len()).filter(|&g| !used[g] && (0..3).all(|a| (src.positions[g][a] - dec.positions[t][a]).abs() <= pos_tol(t, a)));
         let best = cand.filter(|&g| same(g, t)).next();
         let g = best.unwrap_or_else(|| panic!("decoded Gaussian {t} at {:?} matches no source Gaussian", dec.positions[t]));
         used[g] = true;
@@ -246,7 +248,10 @@ fn sog_meta_from_zip(path: &Path) -> Vec<u8> {
 #[test]
 fn reference_sog_matches_source() {
     let src = truth();
-    for (path, meta) in [(data("tiny.sog"), sog_meta_from_zip(&data("tiny.sog"))), (data("tiny-sog/meta.json"), std::fs::read(data("tiny-sog/meta.json")).unwrap())] {
+    for (path, meta) in [
+        (data("tiny.sog"), sog_meta_from_zip(&data("tiny.sog"))),
+        (data("tiny-sog/meta.json"), std::fs::read(data("tiny-sog/meta.json")).unwrap()),
+    ] {
         let d = read_scene(&path).unwrap();
         assert_eq!((d.len(), d.sh_degree), (1000, 3), "{}", path.display());
         let step = sog_steps(&meta);
@@ -257,7 +262,9 @@ fn reference_sog_matches_source() {
         let same = |g: usize, t: usize| {
             rot_err(src.rotations[g], d.rotations[t]) < 1e-4
                 && (sigmoid(src.opacity_logits[g]) - sigmoid(d.opacity_logits[t])).abs() <= 1.0 / 255.0 + 1e-6
-                && (0..3).all(|a| (src.log_scales[g][a] - d.log_scales[t][a]).abs() <= scale_tol && (src.sh_dc[g][a] - d.sh_dc[t][a]).abs() <= dc_tol)
+                && (0..3).all(|a| {
+                    (src.log_scales[g][a] - d.log_scales[t][a]).abs() <= scale_tol && (src.sh_dc[g][a] - d.sh_dc[t][a]).abs() <= dc_tol
+                })
         };
         match_all(&src, &d, &tol, &same);
         let energy = |s: &Splats| s.sh_rest.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>();
@@ -274,7 +281,8 @@ fn reference_compressed_ply_matches_source() {
     assert_eq!((d.len(), d.sh_degree), (1000, 3));
     let chunk_range = |t: usize, f: &dyn Fn(usize) -> f32| -> f32 {
         let c = t / CHUNK_SIZE;
-        let (lo, hi) = (c * CHUNK_SIZE..((c + 1) * CHUNK_SIZE).min(d.len())).map(f).fold((f32::MAX, f32::MIN), |(l, h), v| (l.min(v), h.max(v)));
+        let (lo, hi) =
+            (c * CHUNK_SIZE..((c + 1) * CHUNK_SIZE).min(d.len())).map(f).fold((f32::MAX, f32::MIN), |(l, h), v| (l.min(v), h.max(v)));
         hi - lo
     };
     let half = |a: usize| 0.5 / ((1u32 << [11, 10, 11][a]) - 1) as f32;
@@ -308,7 +316,12 @@ fn reference_glb_matches_source() {
         assert!(rot_err(d.rotations[i], src.rotations[i]) < 1e-6);
         assert!((sigmoid(d.opacity_logits[i]) - sigmoid(src.opacity_logits[i])).abs() < 1e-6);
         for j in 0..9 {
-            assert!((d.sh_rest[i * 9 + j] - src.sh_rest[i * 9 + j]).abs() < 1e-5, "{i} SH {j}: {} vs {}", d.sh_rest[i * 9 + j], src.sh_rest[i * 9 + j]);
+            assert!(
+                (d.sh_rest[i * 9 + j] - src.sh_rest[i * 9 + j]).abs() < 1e-5,
+                "{i} SH {j}: {} vs {}",
+                d.sh_rest[i * 9 + j],
+                src.sh_rest[i * 9 + j]
+            );
         }
     }
 }
@@ -320,10 +333,14 @@ fn convert_between_formats() {
     let truth_ply = root().join("samples/tiny/truth.ply");
     for name in ["a.sog", "b/meta.json", "c.compressed.ply", "d.glb", "e.gltf"] {
         let out = dir.path().join(name);
-        let o = Command::new(env!("CARGO_BIN_EXE_gscodec")).args(["convert", truth_ply.to_str().unwrap(), out.to_str().unwrap()]).output().unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_gscodec"))
+            .args(["convert", truth_ply.to_str().unwrap(), out.to_str().unwrap()])
+            .output()
+            .unwrap();
         assert!(o.status.success(), "{name}: {}", String::from_utf8_lossy(&o.stderr));
         let back = dir.path().join(format!("{}.ply", name.replace('/', "_")));
-        let o = Command::new(env!("CARGO_BIN_EXE_gscodec")).args(["convert", out.to_str().unwrap(), back.to_str().unwrap()]).output().unwrap();
+        let o =
+            Command::new(env!("CARGO_BIN_EXE_gscodec")).args(["convert", out.to_str().unwrap(), back.to_str().unwrap()]).output().unwrap();
         assert!(o.status.success(), "{name} back: {}", String::from_utf8_lossy(&o.stderr));
         let s = read_ply(&back).unwrap();
         assert_eq!((s.len(), s.sh_degree), (1000, 3), "{name}");
@@ -366,7 +383,8 @@ fn malformed_inputs_fail_cleanly() {
     assert_bad(&p("nomeans/meta.json"), "missing field `means`");
     // An image missing from the folder.
     std::fs::remove_file(p("nomeans/quats.webp")).unwrap();
-    meta["means"] = serde_json::from_slice::<serde_json::Value>(&std::fs::read(data("tiny-sog/meta.json")).unwrap()).unwrap()["means"].clone();
+    meta["means"] =
+        serde_json::from_slice::<serde_json::Value>(&std::fs::read(data("tiny-sog/meta.json")).unwrap()).unwrap()["means"].clone();
     std::fs::write(p("nomeans/meta.json"), serde_json::to_vec(&meta).unwrap()).unwrap();
     assert_bad(&p("nomeans/meta.json"), "quats.webp");
     // glTF: an accessor claiming more elements than its buffer view holds, one that does not exist,

@@ -162,9 +162,10 @@ pub fn decode_compressed_ply(bytes: &[u8]) -> Result<Splats, String> {
     for (i, e) in h.elements.iter().enumerate() {
         let stride: usize = e.props.as_ref().map_or(0, |p| p.iter().map(|(_, t)| t.size()).sum());
         start[i] = at;
-        at = e.count.checked_mul(stride).and_then(|s| s.checked_add(at)).filter(|&end| end <= body.len()).ok_or_else(|| {
-            format!("truncated: element `{}` ({} rows of {stride} bytes) runs past the end of the file", e.name, e.count)
-        })?;
+        at =
+            e.count.checked_mul(stride).and_then(|s| s.checked_add(at)).filter(|&end| end <= body.len()).ok_or_else(|| {
+                format!("truncated: element `{}` ({} rows of {stride} bytes) runs past the end of the file", e.name, e.count)
+            })?;
     }
     if at != body.len() {
         return Err(format!("{} bytes after the last element", body.len() - at));
@@ -313,7 +314,12 @@ pub fn encode_compressed_ply(splats: &Splats) -> Result<Vec<u8>, String> {
                 | pack_unorm(ct[1], 8) << 16
                 | pack_unorm(ct[2], 8) << 8
                 | pack_unorm(sigmoid(splats.opacity_logits[g]), 8);
-            for w in [pack(splats.positions[g], plo, phi), pack_rotation(splats.rotations[g]), pack(splats.log_scales[g], slo, shi), packed_color] {
+            for w in [
+                pack(splats.positions[g], plo, phi),
+                pack_rotation(splats.rotations[g]),
+                pack(splats.log_scales[g], slo, shi),
+                packed_color,
+            ] {
                 verts.extend_from_slice(&w.to_le_bytes());
             }
             let rest = splats.rest_of(g);

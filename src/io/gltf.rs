@@ -27,9 +27,9 @@
 use crate::io::atomic::write_bytes_atomic;
 use crate::{Error, Result};
 use base64::Engine;
+use glam::{Mat4, Quat, Vec3};
 use gscodec_decoder::math::{normalize_quat, sh_rest_coeffs, sigmoid};
 use gscodec_decoder::Splats;
-use glam::{Mat4, Quat, Vec3};
 use serde_json::{json, Value};
 use std::path::{Component, Path};
 
@@ -210,11 +210,8 @@ fn split_glb(b: &[u8]) -> Result<(&[u8], Option<&[u8]>), String> {
 
 /// Decodes glTF JSON or GLB bytes; `dir` resolves external buffer files (none when `None`).
 pub fn decode_gltf(bytes: &[u8], dir: Option<&Path>) -> Result<Splats, String> {
-    let (text, glb_bin) = if bytes.len() >= 4 && u32::from_le_bytes(bytes[..4].try_into().unwrap()) == GLB_MAGIC {
-        split_glb(bytes)?
-    } else {
-        (bytes, None)
-    };
+    let (text, glb_bin) =
+        if bytes.len() >= 4 && u32::from_le_bytes(bytes[..4].try_into().unwrap()) == GLB_MAGIC { split_glb(bytes)? } else { (bytes, None) };
     let doc: Value = serde_json::from_slice(text).map_err(|e| format!("JSON: {e}"))?;
     let version = doc["asset"]["version"].as_str().ok_or("no `asset.version`")?;
     if !version.starts_with("2.") {
@@ -256,7 +253,10 @@ fn load_buffers(doc: &Value, glb_bin: Option<&[u8]>, dir: Option<&Path>) -> Resu
                 None if i == 0 => glb_bin.ok_or("buffer 0 has no `uri` and there is no GLB BIN chunk")?.to_vec(),
                 None => return Err(format!("buffer {i} has no `uri`")),
                 Some(uri) if uri.starts_with("data:") => {
-                    let b64 = uri.split_once(";base64,").map(|(_, d)| d).ok_or_else(|| format!("buffer {i}: only base64 data URIs are supported"))?;
+                    let b64 = uri
+                        .split_once(";base64,")
+                        .map(|(_, d)| d)
+                        .ok_or_else(|| format!("buffer {i}: only base64 data URIs are supported"))?;
                     base64::engine::general_purpose::STANDARD.decode(b64).map_err(|e| format!("buffer {i}: bad base64: {e}"))?
                 }
                 Some(uri) => {
@@ -291,7 +291,8 @@ fn splat_meshes(doc: &Value) -> Result<Vec<(usize, Mat4)>, String> {
             scene["nodes"].as_array().map(|a| a.iter().filter_map(Value::as_u64).map(|v| v as usize).collect()).unwrap_or_default()
         }
         _ => {
-            let children: Vec<u64> = nodes.iter().flat_map(|n| n["children"].as_array().cloned().unwrap_or_default()).filter_map(|v| v.as_u64()).collect();
+            let children: Vec<u64> =
+                nodes.iter().flat_map(|n| n["children"].as_array().cloned().unwrap_or_default()).filter_map(|v| v.as_u64()).collect();
             (0..nodes.len()).filter(|i| !children.contains(&(*i as u64))).collect()
         }
     };
@@ -372,17 +373,25 @@ fn accessor(doc: &Value, buffers: &[Vec<u8>], idx: &Value, ty: &str, allowed: &[
     };
     let vi = view.as_u64().ok_or_else(|| bad("bad `bufferView`".into()))? as usize;
     let v = doc["bufferViews"].get(vi).ok_or_else(|| bad(format!("bufferView {vi} does not exist")))?;
-    let buf = buffers.get(v["buffer"].as_u64().unwrap_or(u64::MAX) as usize).ok_or_else(|| bad(format!("bufferView {vi} names no buffer")))?;
-    let (voff, vlen) = (v["byteOffset"].as_u64().unwrap_or(0) as usize, v["byteLength"].as_u64().ok_or_else(|| bad("no byteLength".into()))? as usize);
-    let view = buf.get(voff..voff.checked_add(vlen).ok_or_else(|| bad("bufferView overflows".into()))?).ok_or_else(|| bad(format!("bufferView {vi} lies outside its buffer")))?;
+    let buf =
+        buffers.get(v["buffer"].as_u64().unwrap_or(u64::MAX) as usize).ok_or_else(|| bad(format!("bufferView {vi} names no buffer")))?;
+    let (voff, vlen) =
+        (v["byteOffset"].as_u64().unwrap_or(0) as usize, v["byteLength"].as_u64().ok_or_else(|| bad("no byteLength".into()))? as usize);
+    let view = buf
+        .get(voff..voff.checked_add(vlen).ok_or_else(|| bad("bufferView overflows".into()))?)
+        .ok_or_else(|| bad(format!("bufferView {vi} lies outside its buffer")))?;
     let elem = size * comps;
     let stride = v["byteStride"].as_u64().map_or(elem, |s| s as usize);
     if stride < elem {
         return Err(bad(format!("byteStride {stride} is smaller than an element ({elem} bytes)")));
     }
     let off = a["byteOffset"].as_u64().unwrap_or(0) as usize;
-    let need = if count == 0 { Some(0) } else { (count - 1).checked_mul(stride).and_then(|x| x.checked_add(off)).and_then(|x| x.checked_add(elem)) }
-        .ok_or_else(|| bad(format!("{count} elements overflow")))?;
+    let need = if count == 0 {
+        Some(0)
+    } else {
+        (count - 1).checked_mul(stride).and_then(|x| x.checked_add(off)).and_then(|x| x.checked_add(elem))
+    }
+    .ok_or_else(|| bad(format!("{count} elements overflow")))?;
     if need > view.len() {
         return Err(bad(format!("{count} elements need {need} bytes, bufferView {vi} has {}", view.len())));
     }
@@ -500,8 +509,8 @@ fn read_primitive(doc: &Value, buffers: &[Vec<u8>], prim: &Value, m: &Mat4) -> R
 #[cfg(test)]
 mod tests {
     use super::*;
-    use gscodec_decoder::math::{quat_to_mat3, sh_color_unclamped};
     use glam::Mat3;
+    use gscodec_decoder::math::{quat_to_mat3, sh_color_unclamped};
 
     #[test]
     fn sh_index_maps_to_degree_and_order() {

@@ -226,7 +226,12 @@ fn decode_sog(load: &mut Loader) -> Result<Splats, String> {
                 let lab_name = file(&sh.files, 1, "shN")?;
                 let centroids = texture(cen_name)?;
                 if centroids.width != CENTROIDS_PER_ROW * k {
-                    return Err(format!("{cen_name}: {} texels wide, {} expected for {} bands", centroids.width, CENTROIDS_PER_ROW * k, sh.bands));
+                    return Err(format!(
+                        "{cen_name}: {} texels wide, {} expected for {} bands",
+                        centroids.width,
+                        CENTROIDS_PER_ROW * k,
+                        sh.bands
+                    ));
                 }
                 check_indices(&centroids, centroids.width * centroids.height, 3, sh.codebook.len(), cen_name)?;
                 let labels = per_gaussian(texture(lab_name)?, lab_name)?;
@@ -544,8 +549,10 @@ pub fn encode_sog(splats: &Splats) -> Result<Vec<(String, Vec<u8>)>, String> {
 
     // Positions.
     let lt: Vec<[f64; 3]> = splats.positions.iter().map(|p| p.map(|v| log_transform(f64::from(v)))).collect();
-    let mins: Vec<f64> = (0..3).map(|a| lt.iter().map(|p| p[a]).fold(f64::INFINITY, f64::min)).map(|v| if v.is_finite() { v } else { 0.0 }).collect();
-    let maxs: Vec<f64> = (0..3).map(|a| lt.iter().map(|p| p[a]).fold(f64::NEG_INFINITY, f64::max)).map(|v| if v.is_finite() { v } else { 0.0 }).collect();
+    let mins: Vec<f64> =
+        (0..3).map(|a| lt.iter().map(|p| p[a]).fold(f64::INFINITY, f64::min)).map(|v| if v.is_finite() { v } else { 0.0 }).collect();
+    let maxs: Vec<f64> =
+        (0..3).map(|a| lt.iter().map(|p| p[a]).fold(f64::NEG_INFINITY, f64::max)).map(|v| if v.is_finite() { v } else { 0.0 }).collect();
     let (mut means_l, mut means_u, mut quats) = (image(), image(), image());
     for (t, &g) in order.iter().enumerate() {
         for a in 0..3 {
