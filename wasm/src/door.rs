@@ -1,26 +1,26 @@
 //! The only place this crate calls `gscodec-decoder`: every decoder call the WASM package makes
 //! goes through these functions, so a change of the decoder's API is a change of this file.
 //!
-//! Calls used: [`gscodec_decoder::decode`], [`gscodec_decoder::decode_prefix`],
-//! [`gscodec_decoder::peek_header`], [`gscodec_decoder::inspect`] (with [`DecodeOptions`],
-//! [`Splats`], [`FileInfo`], [`DecodeError`]), `bitstream::parse_prefix` +
-//! `bitstream::layout::Group` (which SH bands of a prefix have arrived) and `math::sigmoid` /
+//! Calls used: [`gscodec_decoder::decode_with`], [`gscodec_decoder::decode_prefix`],
+//! [`gscodec_decoder::peek_header`], [`gscodec_decoder::inspect`] (with [`Limits`], [`Splats`],
+//! [`FileInfo`], [`Header`], [`DecodeError`] and its `class()`), `bitstream::sections::parse_prefix`
+//! + [`Group`] (which SH bands of a prefix have arrived) and `math::sigmoid` /
 //! `math::normalize_quat` (unit conversion).
 
-pub use gscodec_decoder::bitstream::Header;
-use gscodec_decoder::bitstream::{self, layout::Group};
-use gscodec_decoder::DecodeOptions;
-pub use gscodec_decoder::{math, DecodeError, FileInfo, Splats};
+use gscodec_decoder::bitstream::sections;
+pub use gscodec_decoder::{math, DecodeError, FileInfo, Header, Splats};
+use gscodec_decoder::{FormatErrorKind, Group, Limits};
 
-/// Decoding options: SH bands above `max_sh_degree` are skipped. The browser has one thread, so
-/// decoding runs on the calling thread (rayon falls back to it on `wasm32-unknown-unknown`).
-fn options(max_sh_degree: u8) -> DecodeOptions {
-    DecodeOptions { max_sh_degree, threads: 0 }
+/// The decoder's default limits, SH bands above `max_sh_degree` skipped. The browser has one
+/// thread: the decode runs on the calling thread (rayon falls back to it on
+/// `wasm32-unknown-unknown`).
+fn limits(max_sh_degree: u8) -> Limits {
+    Limits { max_sh_degree, ..Limits::default() }
 }
 
 /// A whole `.gsc` file to a scene.
 pub fn decode(bytes: &[u8], max_sh_degree: u8) -> Result<Splats, DecodeError> {
-    gscodec_decoder::decode(bytes, &options(max_sh_degree))
+    gscodec_decoder::decode_with(bytes, &limits(max_sh_degree))
 }
 
 /// What a file holds (header, sections, sizes), checked but not decoded.
@@ -35,7 +35,12 @@ pub fn peek(bytes: &[u8]) -> Result<Header, DecodeError> {
 
 /// The scene a prefix of a file can show: `None` until the base groups have arrived.
 pub fn decode_prefix(bytes: &[u8], max_sh_degree: u8) -> Result<Option<Splats>, DecodeError> {
-    gscodec_decoder::decode_prefix(bytes, &options(max_sh_degree))
+    gscodec_decoder::decode_prefix(bytes, &limits(max_sh_degree))
+}
+
+/// Whether an error says that bytes are missing (the file may be fine, only cut short).
+pub fn is_truncation(e: &DecodeError) -> bool {
+    e.format_error().is_some_and(|f| f.kind() == FormatErrorKind::Truncated)
 }
 
 /// The SH degree [`decode_prefix`] would give for this prefix, without decoding: `None` until the
@@ -43,36 +48,18 @@ pub fn decode_prefix(bytes: &[u8], max_sh_degree: u8) -> Result<Option<Splats>, 
 /// CRCs of the arrived sections. This is `decode_prefix`'s own rule; a decoder call that reports
 /// it would replace this function.
 pub fn arrived_degree(bytes: &[u8], max_sh_degree: u8) -> Result<Option<u8>, DecodeError> {
-    if bitstream::MAGIC.starts_with(bytes) {
+    if gscodec_decoder::bitstream::MAGIC.starts_with(bytes) {
         return Ok(None);
     }
-    let c = match bitstream::parse_prefix(bytes) {
+    let c = match sections::parse_prefix(bytes) {
         Ok(c) => c,
-        Err(DecodeError::Truncated(_)) => return Ok(None),
+        Err(e) if is_truncation(&e) => return Ok(None),
         Err(e) => return Err(e),
     };
-    let arrived = |g: Group| !c.pending.iter().any(|&(kind, _)| kind == g.params_kind() || kind == g.data_kind());
+    let arrived = |g: Group| !c.pending.iter().any(|id| id.kind == g.params_kind() || id.kind == g.data_kind());
     if !Group::present(0).all(arrived) {
         return Ok(None);
     }
     let wanted = c.header.sh_degree.min(max_sh_degree);
     Ok(Some((1..=wanted).take_while(|&b| arrived(Group::for_band(b))).last().unwrap_or(0)))
-}
-
-/// The class of an error, for callers that branch on it: `format` (not a valid file), `truncated`
-/// (more bytes needed), `unsupported` (a newer format version), `limit` (over a decoder limit),
-/// `io`.
-pub fn error_kind(e: &DecodeError) -> &'static str {
-    match e {
-        DecodeError::Truncated(_) => "truncated",
-        DecodeError::UnsupportedVersion { .. } => "unsupported",
-        DecodeError::Limit(_) => "limit",
-        DecodeError::Io(_) => "io",
-        DecodeError::BadMagic
-        | DecodeError::Checksum(_)
-        | DecodeError::Corrupt(_)
-        | DecodeError::UnknownSection(_)
-        | DecodeError::MissingSection(_)
-        | DecodeError::TrailingData(_) => "format",
-    }
 }

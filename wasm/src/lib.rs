@@ -77,7 +77,11 @@ export interface FileInfo extends Header {
 /** What the functions throw: an Error with a class to branch on. */
 export interface GscodecError extends Error {
   name: "GscodecError";
-  kind: "format" | "truncated" | "unsupported" | "limit" | "io" | "argument";
+  /** The decoder's error class, or "argument" for a caller's mistake (a bad option, a call on a
+   *  finished stream). */
+  kind: "format" | "checksum" | "unsupported" | "limits" | "io" | "argument";
+  /** A "format" error that only says bytes are missing (a cut download). */
+  truncated: boolean;
 }
 "#;
 
@@ -88,11 +92,12 @@ extern "C" {
     pub type Options;
 }
 
-/// The error as a JavaScript `Error` named `GscodecError` with a `kind` property.
+/// The error as a JavaScript `Error` named `GscodecError` with `kind` and `truncated` properties.
 fn js_error(e: Error) -> JsValue {
     let err = js_sys::Error::new(&e.message);
     err.set_name("GscodecError");
     let _ = Reflect::set(&err, &"kind".into(), &e.kind.into());
+    let _ = Reflect::set(&err, &"truncated".into(), &e.truncated.into());
     err.into()
 }
 
@@ -158,10 +163,10 @@ pub fn decode(bytes: &[u8], options: Option<Options>) -> Result<JsValue, JsValue
 #[wasm_bindgen(unchecked_return_type = "FileInfo")]
 pub fn info(bytes: &[u8]) -> Result<JsValue, JsValue> {
     let fi = door::info(bytes).map_err(|e| js_error(e.into()))?;
-    let obj = header_object(&fi.header);
-    set(&obj, "fileBytes", fi.file_bytes as f64);
+    let obj = header_object(&fi.info.header);
+    set(&obj, "fileBytes", fi.info.file_bytes as f64);
     let sections = Array::new();
-    for s in &fi.sections {
+    for s in &fi.info.sections {
         let o = Object::new();
         set(&o, "name", s.name);
         set(&o, "kind", s.kind);
@@ -171,11 +176,9 @@ pub fn info(bytes: &[u8]) -> Result<JsValue, JsValue> {
         sections.push(&o);
     }
     set(&obj, "sections", sections);
-    if let Some(n) = fi.input_gaussians {
-        set(&obj, "inputGaussians", n);
-    }
-    if let Some(d) = fi.input_sh_degree {
-        set(&obj, "inputShDegree", d);
+    if let Some(e) = fi.encoder {
+        set(&obj, "inputGaussians", e.input_gaussians);
+        set(&obj, "inputShDegree", e.input_sh_degree);
     }
     let strings = |v: &[String]| v.iter().map(|s| JsValue::from_str(s)).collect::<Array>();
     set(&obj, "constantChannels", strings(&fi.constant_channels));

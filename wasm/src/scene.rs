@@ -78,21 +78,23 @@ impl WebScene {
 /// The package's error: a class (`kind`) to branch on and a message.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Error {
-    /// `format`, `truncated`, `unsupported`, `limit`, `io` (see [`door::error_kind`]) or
-    /// `argument` (the caller's mistake: a bad option, a call out of order).
+    /// The decoder's class (`DecodeError::class`: `io`, `format`, `checksum`, `unsupported`,
+    /// `limits`) or `argument` (the caller's mistake: a bad option, a call out of order).
     pub kind: &'static str,
+    /// A `format` error that only says bytes are missing.
+    pub truncated: bool,
     pub message: String,
 }
 
 impl Error {
     pub fn argument(message: impl Into<String>) -> Error {
-        Error { kind: "argument", message: message.into() }
+        Error { kind: "argument", truncated: false, message: message.into() }
     }
 }
 
 impl From<DecodeError> for Error {
     fn from(e: DecodeError) -> Error {
-        Error { kind: door::error_kind(&e), message: e.to_string() }
+        Error { kind: e.class(), truncated: door::is_truncation(&e), message: e.to_string() }
     }
 }
 
@@ -321,19 +323,20 @@ mod tests {
         assert!(st.push(&bytes[..bytes.len() - 1]).is_ok());
         assert_eq!(st.header().map(|h| (h.gaussians, h.sh_degree)), Some((1000, 3)));
         let e = st.finish().unwrap_err();
-        assert_eq!(e.kind, "truncated");
+        assert_eq!((e.kind, e.truncated), ("format", true), "{e}");
         assert_eq!(st.push(&bytes[bytes.len() - 1..]).unwrap_err(), e);
         // Not a .gsc: known once the header has arrived, and final.
         let mut st = Stream::new(3);
-        assert_eq!(st.push(b"ply\nformat binary").unwrap_err().kind, "format");
-        assert_eq!(st.push(&bytes).unwrap_err().kind, "format");
+        let e = st.push(b"ply\nformat binary").unwrap_err();
+        assert_eq!((e.kind, e.truncated), ("format", false), "{e}");
+        assert_eq!(st.push(&bytes).unwrap_err(), e);
         // A flipped payload byte fails its CRC, on push (when the section is looked at) or finish.
         let mut bad = bytes.clone();
         let at = bad.len() - 10;
         bad[at] ^= 0x40;
         let mut st = Stream::with_check_step(3, 1);
         let e = bad.chunks(500).map(|c| st.push(c)).find_map(Result::err).or_else(|| st.finish().err()).unwrap();
-        assert_eq!(e.kind, "format");
+        assert_eq!(e.kind, "checksum", "{e}");
         // Finishing twice is the caller's mistake.
         let mut st = Stream::new(3);
         st.push(&bytes).unwrap();

@@ -112,7 +112,7 @@ test('decode in the browser equals the Rust decode', async () => {
         f();
         errors.push([what, 'no error']);
       } catch (e) {
-        errors.push([what, e.name, e.kind]);
+        errors.push([what, e.name, e.kind, e.truncated]);
       }
     }
     const v = window.viewer.scene;
@@ -161,10 +161,10 @@ test('decode in the browser equals the Rust decode', async () => {
   assert.ok(got.streamSame, 'the streamed scene differs from decode()');
   assert.ok(got.coarse.every((d, i) => d < 3 && (i === 0 || d > got.coarse[i - 1])), `coarse scenes ${got.coarse}`);
   assert.deepEqual(got.errors, [
-    ['truncated', 'GscodecError', 'truncated'],
-    ['not a .gsc', 'GscodecError', 'format'],
-    ['bad option', 'GscodecError', 'argument'],
-    ['finished stream', 'GscodecError', 'argument'],
+    ['truncated', 'GscodecError', 'format', true],
+    ['not a .gsc', 'GscodecError', 'format', false],
+    ['bad option', 'GscodecError', 'argument', false],
+    ['finished stream', 'GscodecError', 'argument', false],
   ]);
   console.log(`browser decode (gscodec-wasm ${got.version}) equals gscodec decode: ${n} Gaussians, ${coeffs} SH coefficients each`);
 });
