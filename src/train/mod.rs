@@ -12,9 +12,10 @@ pub mod targets;
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::ImageLoss;
 use crate::raster;
+use crate::rate::group::Group;
 use crate::rng::Rng;
 use crate::{Error, Result};
-use adam::{first_non_finite, Adam, Group};
+use adam::{first_non_finite, Adam};
 use densify::{DensifyParams, DensifyStats};
 use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
@@ -22,17 +23,7 @@ use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// A rate (or any regulariser) term added to the image loss; the codec plugs quantisation and λ·R
-/// in through this.
-pub trait RdTerm: Send {
-    /// Parameters to render with at this iteration (e.g. quantised, straight-through); None = as is.
-    fn render_params(&mut self, _params: &Splats, _iter: usize) -> Option<Splats> {
-        None
-    }
-    /// Adds λ·R (in loss units) and its gradient w.r.t. the raw params into `grad`
-    /// (a Splats of the same shape used as a gradient buffer); returns the value.
-    fn rate_and_grad(&mut self, params: &Splats, grad: &mut Splats, iter: usize) -> f64;
-}
+pub use crate::rate::term::{RateOutcome, RdTerm};
 
 /// Training settings. Schedules are the reference 30k-iteration recipe scaled to `iters`.
 #[derive(Debug, Clone, Serialize)]
@@ -157,6 +148,8 @@ pub struct Progress {
     pub gaussians: usize,
     /// Held-out PSNR when it was evaluated at this iteration.
     pub test_psnr: Option<f64>,
+    /// The rate term's bit estimate at this iteration (None without a rate term, or before it starts).
+    pub rate_bits: Option<f64>,
 }
 
 /// One point of the error-against-run-time record.
@@ -187,6 +180,8 @@ pub struct StageTimes {
 /// What a training run did.
 #[derive(Debug, Clone, Serialize)]
 pub struct TrainReport {
+    /// The training backend that ran (`cpu`, `gpu`).
+    pub backend: &'static str,
     pub loss: String,
     pub config: TrainConfig,
     pub schedule: Schedule,
@@ -199,6 +194,8 @@ pub struct TrainReport {
     pub test_psnr: Option<f64>,
     pub test_ssim: Option<f64>,
     pub stages: StageTimes,
+    /// What the rate term learned (steps) and estimated (bits); None without one.
+    pub rate: Option<RateOutcome>,
 }
 
 /// Mean held-out PSNR and SSIM of `splats` over `frames` (None without frames).
@@ -345,7 +342,7 @@ pub fn train_with(
         params = st.params.into_splats();
         adam.m = st.adam_m.into_splats();
         adam.v = st.adam_v.into_splats();
-        adam.step = st.adam_step;
+        adam.rule.step = st.adam_step;
         rng = Rng::from_state(st.rng);
         order = st.order.iter().map(|&o| o as usize).collect();
         degree = st.degree.min(max_degree);
@@ -363,6 +360,7 @@ pub fn train_with(
     let mut last_report = Instant::now();
     let loss_name = loss.name().to_string();
     let partial = |points: &Vec<ReportPoint>, n: usize, train_seconds: f64, stages: StageTimes| TrainReport {
+        backend: "cpu",
         loss: loss_name.clone(),
         config: cfg.clone(),
         schedule: sched,
@@ -374,6 +372,7 @@ pub fn train_with(
         test_psnr: None,
         test_ssim: None,
         stages,
+        rate: None,
     };
     let log_every = (cfg.iters / 500).max(1);
     let lr = |g: Group, it: usize| -> f32 {
@@ -383,11 +382,11 @@ pub fn train_with(
                 let l = ((LR_POSITION_INIT as f64).ln() * (1.0 - t) + (LR_POSITION_FINAL as f64).ln() * t).exp();
                 (l * extent as f64) as f32
             }
-            Group::LogScale => LR_SCALE,
+            Group::Scale => LR_SCALE,
             Group::Rotation => LR_ROTATION,
             Group::Opacity => LR_OPACITY,
             Group::ShDc => LR_SH_DC,
-            Group::ShRest => LR_SH_REST,
+            Group::Sh1 | Group::Sh2 | Group::Sh3 => LR_SH_REST,
         };
         base * cfg.lr_scale
     };
@@ -416,8 +415,10 @@ pub fn train_with(
         let t1 = Instant::now();
         let grads = raster::backward(render_from, &state, &dl);
         let raster::Gradients { params: mut grad, mean2d_ndc_norm } = grads;
+        let mut rate_bits = None;
         if let Some(r) = rd.as_mut() {
             l += r.rate_and_grad(&params, &mut grad, it);
+            rate_bits = r.outcome().and_then(|o| o.estimated_bits);
         }
         let t2 = Instant::now();
         stages.loss += (t1 - t0).as_secs_f64();
@@ -492,7 +493,7 @@ pub fn train_with(
             });
             (loss_sum, loss_n) = (0.0, 0);
         }
-        progress(&Progress { iteration: it, iters: cfg.iters, loss: l, gaussians: params.len(), test_psnr });
+        progress(&Progress { iteration: it, iters: cfg.iters, loss: l, gaussians: params.len(), test_psnr, rate_bits });
 
         // Checkpoint (periodic, or stopping), then the live report.
         let stop = it < cfg.iters && (run.stop_after == Some(it) || (run.catch_interrupt && checkpoint::interrupted()));
@@ -508,7 +509,7 @@ pub fn train_with(
                 params: (&params).into(),
                 adam_m: (&adam.m).into(),
                 adam_v: (&adam.v).into(),
-                adam_step: adam.step,
+                adam_step: adam.rule.step,
                 rng: rng.state(),
                 order: order.iter().map(|&o| o as u64).collect(),
                 degree,
@@ -545,6 +546,7 @@ pub fn train_with(
         last.test_psnr = Some(p);
     }
     let report = TrainReport {
+        backend: "cpu",
         loss: loss_name.clone(),
         config: cfg.clone(),
         schedule: sched,
@@ -556,6 +558,7 @@ pub fn train_with(
         test_psnr: final_eval.map(|e| e.0),
         test_ssim: final_eval.map(|e| e.1),
         stages,
+        rate: rd.as_ref().and_then(|r| r.outcome()),
     };
     Ok((params, report))
 }
