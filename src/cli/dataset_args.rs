@@ -76,3 +76,26 @@ impl CheckpointArgs {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        d: DatasetArgs,
+    }
+
+    #[test]
+    fn to_args_parses_back_to_the_same_options() {
+        for words in [&[][..], &["--downscale", "4", "--max-size", "1600", "--background", "0.5,0,1", "--no-cache"][..]] {
+            let a = Cli::try_parse_from(std::iter::once("x").chain(words.iter().copied())).unwrap().d;
+            let b = Cli::try_parse_from(std::iter::once("x".to_string()).chain(a.to_args())).unwrap().d;
+            assert_eq!(a, b);
+        }
+        assert!(Cli::try_parse_from(["x", "--downscale", "0"]).is_err());
+        assert!(Cli::try_parse_from(["x", "--max-size", "0"]).is_err());
+    }
+}
