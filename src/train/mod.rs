@@ -5,6 +5,9 @@
 pub mod adam;
 pub mod densify;
 pub mod init;
+/// The GPU trainer (wgpu), feature `gpu`.
+#[cfg(feature = "gpu")]
+pub mod gpu;
 
 pub mod targets;
 
