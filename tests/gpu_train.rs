@@ -186,7 +186,7 @@ fn training_matches_cpu_psnr() {
     let Some(gpu) = device() else { return };
     let ds = tiny_dataset();
     assert!(!ds.split(Split::Test).is_empty());
-    let cfg = TrainConfig { iters: 300, seed: 3, init_points: 2000, eval_interval: 0, ..Default::default() };
+    let cfg = TrainConfig { iters: 300, seed: 3, init_points: 500, eval_interval: 100, ..Default::default() };
     let (cpu_s, cpu_r): (Splats, TrainReport) =
         gscodec::train::train(&ds, None, &cfg, Box::new(L1Ssim::default()), None, &mut |_| {}).unwrap();
     let (gpu_s, gpu_r) = gpu::train_on(&gpu, &ds, None, &cfg, &GpuLoss::default(), &mut |_| {}).unwrap();
@@ -200,7 +200,12 @@ fn training_matches_cpu_psnr() {
         gpu_r.stages
     );
     assert!((pc - pg).abs() <= 0.3, "GPU {pg:.2} dB vs CPU {pc:.2} dB");
-    assert!(gpu_r.points.iter().all(|p| p.loss.is_finite()));
+    assert!(gpu_r.points.iter().all(|p| p.loss.is_finite()), "{:?}", gpu_r.points);
+    assert_eq!(gpu_r.points.len(), cpu_r.points.len());
+    assert!(gpu_r.points.iter().filter(|p| p.test_psnr.is_some()).count() == 3, "evaluations at 100, 200 and the end");
+    // Same schedule, same densification rules: similar scene sizes.
+    let (a, b) = (cpu_s.len() as f64, gpu_s.len() as f64);
+    assert!((a - b).abs() <= 0.1 * a, "{a} vs {b} Gaussians");
     assert_eq!(gpu_r.loss, "l1ssim");
 }
 

@@ -210,6 +210,7 @@ pub fn train_on(
     let mut train_seconds = 0.0;
     let log_every = (cfg.iters / 500).max(1);
     let mut last_loss = f64::NAN;
+    let mut pending: Option<ReportPoint> = None;
     let mut n = session.scene.n;
     let stride = session.scene.stride;
 
@@ -256,6 +257,11 @@ pub fn train_on(
             last_loss = account(&sc, it - 1, &mut stages)?;
             loss_sum += last_loss;
             loss_n += 1;
+            if let Some(mut p) = pending.take() {
+                p.loss = loss_sum / loss_n as f64;
+                points.push(p);
+                (loss_sum, loss_n) = (0.0, 0);
+            }
         }
         let t1 = Instant::now();
         let mut enc = gpu.device.create_command_encoder(&Default::default());
@@ -313,15 +319,9 @@ pub fn train_on(
         stages.densify += t_dens.elapsed().as_secs_f64() - eval_seconds;
         train_seconds += t_iter.elapsed().as_secs_f64() - eval_seconds;
 
+        // The point's mean loss is completed when this iteration's loss arrives (next iteration).
         if it % log_every == 0 || eval_now || it == cfg.iters {
-            points.push(ReportPoint {
-                iteration: it,
-                seconds: train_seconds,
-                loss: if loss_n > 0 { loss_sum / loss_n as f64 } else { f64::NAN },
-                gaussians: n,
-                test_psnr,
-            });
-            (loss_sum, loss_n) = (0.0, 0);
+            pending = Some(ReportPoint { iteration: it, seconds: train_seconds, loss: f64::NAN, gaussians: n, test_psnr });
         }
         progress(&Progress { iteration: it, iters: cfg.iters, loss: last_loss, gaussians: n, test_psnr });
     }
@@ -329,8 +329,9 @@ pub fn train_on(
     let t_end = Instant::now();
     let sc = session.project(&train_frames[0].camera, dataset.background, degree)?;
     let l = account(&sc, cfg.iters, &mut stages)?;
-    if let Some(last) = points.last_mut() {
-        last.loss = if loss_n > 0 { (loss_sum + l) / (loss_n + 1) as f64 } else { l };
+    if let Some(mut p) = pending.take() {
+        p.loss = (loss_sum + l) / (loss_n + 1) as f64;
+        points.push(p);
     }
     let params = session.download_params()?;
     train_seconds += t_end.elapsed().as_secs_f64();
