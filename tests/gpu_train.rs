@@ -5,7 +5,8 @@
 //!   extreme cases (tiny and view-filling Gaussians, Gaussians at the near plane, opacity logits
 //!   ±100); the CPU backward is itself checked against f64 finite differences in raster_grad.rs;
 //! - L1 + SSIM loss value and gradient against `gscodec::loss::L1Ssim`;
-//! - 300 training iterations on a sample dataset: held-out PSNR within 0.3 dB of the CPU trainer.
+//! - 300 training iterations on a small synthetic dataset: held-out PSNR within 0.3 dB of the CPU
+//!   trainer, the same report shape (points, evaluations), similar scene size.
 //!
 //! Tolerances: per value `|gpu − cpu| ≤ ATOL·max|cpu over the group| + RTOL·|cpu|` with
 //! ATOL = 1e-3, RTOL = 1e-3. The GPU sums per-pixel terms with float atomics in any order and
@@ -18,6 +19,7 @@ use gscodec::io::{load_dataset, LoadOptions, Split};
 use gscodec::loss::L1Ssim;
 use gscodec::raster;
 use gscodec::train::gpu::{self, Gpu, GpuLoss};
+use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
 use gscodec::train::{TrainConfig, TrainReport};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
 use std::path::Path;
@@ -181,15 +183,27 @@ fn tiny_dataset() -> gscodec::io::Dataset {
     load_dataset(&root, &LoadOptions::default()).unwrap()
 }
 
+/// 16 views (32×32, white background) of a 120-Gaussian toy scene: small enough for lavapipe.
+fn toy_dataset() -> gscodec::io::Dataset {
+    let scene = toy_scene(120, 3);
+    render_targets(&scene, &orbit_cameras(16, 3.5, 32, 32), [1.0; 3])
+}
+
 #[test]
 fn training_matches_cpu_psnr() {
     let Some(gpu) = device() else { return };
-    let ds = tiny_dataset();
+    let ds = toy_dataset();
     assert!(!ds.split(Split::Test).is_empty());
     let cfg = TrainConfig { iters: 300, seed: 3, init_points: 500, eval_interval: 100, ..Default::default() };
     let (cpu_s, cpu_r): (Splats, TrainReport) =
         gscodec::train::train(&ds, None, &cfg, Box::new(L1Ssim::default()), None, &mut |_| {}).unwrap();
-    let (gpu_s, gpu_r) = gpu::train_on(&gpu, &ds, None, &cfg, &GpuLoss::default(), &mut |_| {}).unwrap();
+    let mut calls = 0;
+    let (gpu_s, gpu_r) = gpu::train_on(&gpu, &ds, None, &cfg, &GpuLoss::default(), &mut |p| {
+        calls += 1;
+        assert_eq!(p.iteration, calls);
+    })
+    .unwrap();
+    assert_eq!(calls, 300);
     let (pc, pg) = (cpu_r.test_psnr.unwrap(), gpu_r.test_psnr.unwrap());
     eprintln!(
         "held-out PSNR: CPU {pc:.2} dB ({} Gaussians, {:.1} s), GPU {pg:.2} dB ({} Gaussians, {:.1} s, stages {:?})",
@@ -199,6 +213,7 @@ fn training_matches_cpu_psnr() {
         gpu_r.train_seconds,
         gpu_r.stages
     );
+    assert!(pc > 20.0, "the CPU run learned little ({pc:.2} dB): the comparison would say nothing");
     assert!((pc - pg).abs() <= 0.3, "GPU {pg:.2} dB vs CPU {pc:.2} dB");
     assert!(gpu_r.points.iter().all(|p| p.loss.is_finite()), "{:?}", gpu_r.points);
     assert_eq!(gpu_r.points.len(), cpu_r.points.len());
@@ -207,6 +222,9 @@ fn training_matches_cpu_psnr() {
     let (a, b) = (cpu_s.len() as f64, gpu_s.len() as f64);
     assert!((a - b).abs() <= 0.1 * a, "{a} vs {b} Gaussians");
     assert_eq!(gpu_r.loss, "l1ssim");
+    // Stage times are measured (timestamps or wall time).
+    let st = gpu_r.stages;
+    assert!(st.rasterize > 0.0 && st.project + st.sort + st.rasterize + st.loss + st.backward + st.optimiser <= gpu_r.train_seconds * 1.5);
 }
 
 #[test]
