@@ -222,6 +222,7 @@ fn training_matches_cpu_psnr() {
     let (a, b) = (cpu_s.len() as f64, gpu_s.len() as f64);
     assert!((a - b).abs() <= 0.1 * a, "{a} vs {b} Gaussians");
     assert_eq!(gpu_r.loss, "l1ssim");
+    assert_eq!((cpu_r.backend, gpu_r.backend), ("cpu", "gpu"));
     // Stage times are measured (timestamps or wall time).
     let st = gpu_r.stages;
     assert!(st.rasterize > 0.0 && st.project + st.sort + st.rasterize + st.loss + st.backward + st.optimiser <= gpu_r.train_seconds * 1.5);

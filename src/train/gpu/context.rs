@@ -12,10 +12,7 @@ use gscodec_decoder::Camera;
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
-const COMMON: &str = include_str!("../../../shaders/common.wgsl");
-const PROJECT: &str = include_str!("../../../shaders/project.wgsl");
-const EMIT: &str = include_str!("../../../shaders/emit.wgsl");
-const RASTERIZE: &str = include_str!("../../../shaders/rasterize.wgsl");
+use gscodec_decoder::shaders::{COMMON, EMIT, PROJECT, RASTERIZE};
 const TRAIN_RASTER: &str = include_str!("../../../shaders/train_raster.wgsl");
 const TRAIN_PROJECT: &str = include_str!("../../../shaders/train_project.wgsl");
 const TRAIN_LOSS: &str = include_str!("../../../shaders/train_loss.wgsl");

@@ -21,10 +21,12 @@ pub mod session;
 pub use context::{hardware_adapter_available, Gpu};
 pub use session::Session;
 
-use super::adam::{Adam, Group};
+use super::adam::Adam;
 use super::densify::{self, DensifyParams, DensifyStats};
-use super::{init, evaluate, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
-use super::{LR_OPACITY, LR_POSITION_FINAL, LR_POSITION_INIT, LR_ROTATION, LR_SCALE, LR_SH_DC, LR_SH_REST};
+use super::{evaluate, init, learning_rate, non_finite_error, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
+use super::MIN_KEEP_FRACTION;
+use crate::optim::AdamRule;
+use crate::rate::group::Group;
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::LossKind;
 use crate::rng::Rng;
@@ -122,30 +124,19 @@ pub fn loss_and_grad(gpu: &Gpu, rendered: &Image, target: &Image, ssim_weight: f
     Ok((l as f64, dl))
 }
 
-fn lr_of(g: Group, it: usize, cfg: &TrainConfig, extent: f32) -> f32 {
-    let base = match g {
-        Group::Position => {
-            let t = (it as f64 / cfg.iters.max(1) as f64).clamp(0.0, 1.0);
-            let l = ((LR_POSITION_INIT as f64).ln() * (1.0 - t) + (LR_POSITION_FINAL as f64).ln() * t).exp();
-            (l * extent as f64) as f32
-        }
-        Group::LogScale => LR_SCALE,
-        Group::Rotation => LR_ROTATION,
-        Group::Opacity => LR_OPACITY,
-        Group::ShDc => LR_SH_DC,
-        Group::ShRest => LR_SH_REST,
-    };
-    base * cfg.lr_scale
-}
-
+/// The parameter group of offset `k` in a parameter record.
 fn group_of_offset(k: usize) -> Group {
     match k {
         0..3 => Group::Position,
-        3..6 => Group::LogScale,
+        3..6 => Group::Scale,
         6..10 => Group::Rotation,
         10 => Group::Opacity,
         11..14 => Group::ShDc,
-        _ => Group::ShRest,
+        _ => match (k - 14) / 3 {
+            0..3 => Group::Sh1,
+            3..8 => Group::Sh2,
+            _ => Group::Sh3,
+        },
     }
 }
 
@@ -212,17 +203,14 @@ pub fn train_on(
     let mut last_loss = f64::NAN;
     let mut pending: Option<ReportPoint> = None;
     let mut n = session.scene.n;
+    let mut peak = n;
     let stride = session.scene.stride;
 
     // Scalars of iteration `it - 1` arrive with iteration `it`'s projection.
     let account = |sc: &session::Scalars, it: usize, stages: &mut StageTimes| -> Result<f64> {
         if sc.bad_grad != u32::MAX || sc.bad_value != u32::MAX {
             let (what, idx) = if sc.bad_grad != u32::MAX { ("gradient", sc.bad_grad) } else { ("value", sc.bad_value) };
-            let (i, k) = (idx as usize / stride, idx as usize % stride);
-            return Err(Error::Failure(format!(
-                "training diverged at iteration {it}: non-finite {what} in parameter group `{}` (Gaussian {i})",
-                group_of_offset(k).name()
-            )));
+            return Err(non_finite_error(what, it, idx as usize / stride, group_of_offset(idx as usize % stride)));
         }
         if let Some(t) = sc.stage_seconds {
             stages.project += t[0];
@@ -269,7 +257,8 @@ pub fn train_on(
         session.loss(&mut enc, &targets[fi], loss.ssim_weight);
         let stats_on = cfg.densify && it < sched.densify_until;
         session.backward(&mut enc, &frame.camera, stats_on);
-        let lr = [Group::Position, Group::LogScale, Group::Rotation, Group::Opacity, Group::ShDc, Group::ShRest].map(|g| lr_of(g, it, cfg, extent));
+        // One rate per record section; the three SH rest bands share theirs.
+        let lr = [Group::Position, Group::Scale, Group::Rotation, Group::Opacity, Group::ShDc, Group::Sh1].map(|g| learning_rate(g, it, cfg, extent));
         session.adam(&mut enc, lr);
         session.submit(enc);
         if sc.stage_seconds.is_none() && !gpu.timestamps {
@@ -286,8 +275,8 @@ pub fn train_on(
         let test_psnr =
             if eval_now && !test_frames.is_empty() { evaluate(&session.download_params()?, &test_frames, dataset.background).map(|e| e.0) } else { None };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
-        if cfg.densify && it < sched.densify_until {
-            if it > sched.densify_from && it % sched.densify_every == 0 {
+        if cfg.densify {
+            if sched.densifies(it) {
                 let (mut p, m, v) = session.download()?;
                 let raw = session.download_stats()?;
                 let stats = DensifyStats {
@@ -295,27 +284,29 @@ pub fn train_on(
                     count: raw.chunks_exact(3).map(|s| s[1] as u32).collect(),
                     max_radius: raw.chunks_exact(3).map(|s| s[2]).collect(),
                 };
-                let mut adam = Adam { m, v, step: session.step, beta1: 0.9, beta2: 0.999, eps: 1e-15 };
+                let mut adam = Adam { m, v, rule: AdamRule { step: session.step, ..AdamRule::default() } };
                 let dp = DensifyParams {
                     grad_threshold: cfg.densify_grad_threshold,
                     percent_dense: 0.01,
                     extent,
                     min_opacity: 0.005,
-                    max_screen_radius: (it > sched.opacity_reset_every).then_some(20.0),
+                    max_screen_radius: sched.prunes_screen_size(it).then_some(20.0),
                     max_world_fraction: 0.1,
                     max_gaussians: cfg.max_gaussians,
                 };
-                densify::densify_and_prune(&mut p, &mut adam, &stats, &dp, &mut rng);
+                let floor = (peak as f64 * MIN_KEEP_FRACTION).ceil() as usize;
+                densify::densify_and_prune_keeping(&mut p, &mut adam, &stats, &dp, &mut rng, floor);
                 if p.is_empty() {
                     return Err(Error::Failure(format!("training collapsed at iteration {it}: every Gaussian was pruned")));
                 }
                 session.replace_scene(&p, &adam.m, &adam.v)?;
                 n = p.len();
             }
-            if it % sched.opacity_reset_every == 0 || (dataset.background == [1.0; 3] && it == sched.densify_from) {
+            if sched.resets_opacity(it, dataset.background == [1.0; 3]) {
                 session.reset_opacity(0.01);
             }
         }
+        peak = peak.max(n);
         stages.densify += t_dens.elapsed().as_secs_f64() - eval_seconds;
         train_seconds += t_iter.elapsed().as_secs_f64() - eval_seconds;
 
@@ -323,7 +314,7 @@ pub fn train_on(
         if it % log_every == 0 || eval_now || it == cfg.iters {
             pending = Some(ReportPoint { iteration: it, seconds: train_seconds, loss: f64::NAN, gaussians: n, test_psnr });
         }
-        progress(&Progress { iteration: it, iters: cfg.iters, loss: last_loss, gaussians: n, test_psnr });
+        progress(&Progress { iteration: it, iters: cfg.iters, loss: last_loss, gaussians: n, test_psnr, rate_bits: None });
     }
     // The last iteration's scalars.
     let t_end = Instant::now();
@@ -341,6 +332,7 @@ pub fn train_on(
         last.test_psnr = Some(p);
     }
     let report = TrainReport {
+        backend: "gpu",
         loss: "l1ssim".to_string(),
         config: cfg.clone(),
         schedule: sched,
@@ -352,6 +344,7 @@ pub fn train_on(
         test_psnr: final_eval.map(|e| e.0),
         test_ssim: final_eval.map(|e| e.1),
         stages,
+        rate: None,
     };
     Ok((params, report))
 }

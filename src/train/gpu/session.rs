@@ -335,12 +335,12 @@ impl<'g> Session<'g> {
     }
 
     /// Step 5: one Adam step with per-group learning rates `lr` (position, scale, rotation,
-    /// opacity, dc, rest), as [`crate::train::adam::Adam::step`].
+    /// opacity, dc, rest), with [`crate::optim::AdamRule`]'s hyper-parameters and update.
     pub fn adam(&mut self, enc: &mut wgpu::CommandEncoder, lr: [f32; 6]) {
         let g = self.gpu;
         let sc = &self.scene;
         self.step += 1;
-        let (beta1, beta2, eps) = (0.9f32, 0.999f32, 1e-15f32);
+        let crate::optim::AdamRule { beta1, beta2, eps, .. } = crate::optim::AdamRule::default();
         let bc1 = 1.0 - (beta1 as f64).powf(self.step as f64);
         let bc2 = 1.0 - (beta2 as f64).powf(self.step as f64);
         let total = (sc.n * sc.stride) as u32;
