@@ -23,12 +23,12 @@ pub use session::Session;
 
 use super::adam::Adam;
 use super::densify::{self, DensifyParams, DensifyStats};
-use super::{evaluate, init, learning_rate, non_finite_error, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
 use super::MIN_KEEP_FRACTION;
-use crate::optim::AdamRule;
-use crate::rate::group::Group;
+use super::{evaluate, init, learning_rate, non_finite_error, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::LossKind;
+use crate::optim::AdamRule;
+use crate::rate::group::Group;
 use crate::rng::Rng;
 use crate::{Error, Result};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
@@ -81,7 +81,13 @@ fn gpu_or_error() -> Result<Gpu> {
 /// returns `(image, parameter gradients, |dL/dmean2d| in NDC units)` like
 /// [`crate::raster::forward`] + [`crate::raster::backward`] (the test oracle).
 #[doc(hidden)]
-pub fn render_backward(gpu: &Gpu, splats: &Splats, cam: &Camera, opts: &RenderOptions, dl_dimg: &[f32]) -> Result<(Image, Splats, Vec<f32>)> {
+pub fn render_backward(
+    gpu: &Gpu,
+    splats: &Splats,
+    cam: &Camera,
+    opts: &RenderOptions,
+    dl_dimg: &[f32],
+) -> Result<(Image, Splats, Vec<f32>)> {
     let mut s = Session::new(gpu, splats)?;
     let sc = s.project(cam, opts.background, opts.max_sh_degree)?;
     let mut enc = gpu.device.create_command_encoder(&Default::default());
@@ -258,7 +264,8 @@ pub fn train_on(
         let stats_on = cfg.densify && it < sched.densify_until;
         session.backward(&mut enc, &frame.camera, stats_on);
         // One rate per record section; the three SH rest bands share theirs.
-        let lr = [Group::Position, Group::Scale, Group::Rotation, Group::Opacity, Group::ShDc, Group::Sh1].map(|g| learning_rate(g, it, cfg, extent));
+        let lr = [Group::Position, Group::Scale, Group::Rotation, Group::Opacity, Group::ShDc, Group::Sh1]
+            .map(|g| learning_rate(g, it, cfg, extent));
         session.adam(&mut enc, lr);
         session.submit(enc);
         if sc.stage_seconds.is_none() && !gpu.timestamps {
@@ -272,8 +279,11 @@ pub fn train_on(
         // Held-out evaluation before densification (as the CPU trainer); not training time.
         let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
         let t_eval = Instant::now();
-        let test_psnr =
-            if eval_now && !test_frames.is_empty() { evaluate(&session.download_params()?, &test_frames, dataset.background).map(|e| e.0) } else { None };
+        let test_psnr = if eval_now && !test_frames.is_empty() {
+            evaluate(&session.download_params()?, &test_frames, dataset.background).map(|e| e.0)
+        } else {
+            None
+        };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
         if cfg.densify {
             if sched.densifies(it) {

@@ -208,7 +208,14 @@ impl<'g> Session<'g> {
         Ok(())
     }
 
-    fn pass(&self, enc: &mut wgpu::CommandEncoder, p: &wgpu::ComputePipeline, bg: &wgpu::BindGroup, groups: (u32, u32), ts: (Option<u32>, Option<u32>)) {
+    fn pass(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        p: &wgpu::ComputePipeline,
+        bg: &wgpu::BindGroup,
+        groups: (u32, u32),
+        ts: (Option<u32>, Option<u32>),
+    ) {
         let timestamp_writes = match (&self.query, ts) {
             (Some(q), (b, e)) if b.is_some() || e.is_some() => {
                 Some(wgpu::ComputePassTimestampWrites { query_set: q, beginning_of_pass_write_index: b, end_of_pass_write_index: e })
@@ -268,7 +275,10 @@ impl<'g> Session<'g> {
         let (tiles_x, tiles_y) = (cam.width.div_ceil(TILE), cam.height.div_ceil(TILE));
         enc.clear_buffer(&img.ranges, 0, None);
         if pairs > 0 {
-            let bg = g.bind(&g.emit, &[(0, &self.frame), (1, &sc.projected), (2, &sc.counts), (3, &self.keys_a[0]), (4, &self.keys_a[1]), (5, &self.keys_a[2])]);
+            let bg = g.bind(
+                &g.emit,
+                &[(0, &self.frame), (1, &sc.projected), (2, &sc.counts), (3, &self.keys_a[0]), (4, &self.keys_a[1]), (5, &self.keys_a[2])],
+            );
             self.pass(enc, &g.emit, &bg, dims((sc.n as u32).div_ceil(256)), (Some(2), None));
             let tile_bits = 32 - (tiles_x * tiles_y - 1).leading_zeros();
             g.renderer.record_radix_sort(enc, &mut self.keys_a, &mut self.keys_b, pairs, tile_bits);
@@ -278,7 +288,15 @@ impl<'g> Session<'g> {
         }
         let bg = g.bind(
             &g.raster_forward,
-            &[(0, &self.frame), (1, &img.ranges), (2, &self.keys_a[2]), (3, &sc.projected), (4, &img.image), (5, &img.final_t), (6, &img.last)],
+            &[
+                (0, &self.frame),
+                (1, &img.ranges),
+                (2, &self.keys_a[2]),
+                (3, &sc.projected),
+                (4, &img.image),
+                (5, &img.final_t),
+                (6, &img.last),
+            ],
         );
         self.pass(enc, &g.raster_forward, &bg, (tiles_x, tiles_y), (Some(4), Some(5)));
         Ok(())
@@ -373,12 +391,8 @@ impl<'g> Session<'g> {
     pub fn reset_opacity(&self, max_opacity: f32) {
         let g = self.gpu;
         let sc = &self.scene;
-        let u = AdamUniform {
-            cap: (max_opacity / (1.0 - max_opacity)).ln(),
-            stride: sc.stride as u32,
-            n: sc.n as u32,
-            ..Default::default()
-        };
+        let u =
+            AdamUniform { cap: (max_opacity / (1.0 - max_opacity)).ln(), stride: sc.stride as u32, n: sc.n as u32, ..Default::default() };
         let ub = g.uniform(&u);
         let mut enc = g.device.create_command_encoder(&Default::default());
         let bg = g.bind(&g.reset_opacity, &[(0, &ub), (1, &sc.params), (3, &sc.m), (4, &sc.v)]);
@@ -425,7 +439,10 @@ fn scene_bufs(gpu: &Gpu, splats: &Splats, moments: Option<(&Splats, &Splats)>) -
     u32::try_from(n * stride).map_err(|_| Error::Input(format!("GPU training: {n} Gaussians are too many")))?;
     let records = to_records(splats);
     let (m, v) = match moments {
-        Some((m, v)) => (gpu.storage_init("adam m", bytemuck::cast_slice(&to_records(m))), gpu.storage_init("adam v", bytemuck::cast_slice(&to_records(v)))),
+        Some((m, v)) => (
+            gpu.storage_init("adam m", bytemuck::cast_slice(&to_records(m))),
+            gpu.storage_init("adam v", bytemuck::cast_slice(&to_records(v))),
+        ),
         None => (gpu.storage("adam m", bytes), gpu.storage("adam v", bytes)),
     };
     Ok(SceneBufs {
