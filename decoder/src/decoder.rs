@@ -74,8 +74,7 @@ pub struct SectionInfo {
 
 impl SectionInfo {
     fn new(id: SectionId, flags: u32, bytes: usize) -> SectionInfo {
-        let group = Group::ALL.into_iter().find(|g| g.params_kind() == id.kind || g.data_kind() == id.kind);
-        let name = group.map(|g| g.name()).unwrap_or(match id.kind {
+        let name = Group::of_kind(id.kind).map(|g| g.name()).unwrap_or(match id.kind {
             INFO_KIND => "info",
             bitstream::layout::PADDING_KIND => "padding",
             _ => "unknown",

@@ -23,11 +23,8 @@ impl SectionId {
     /// What the section holds: a group name with `parameters` or `data`, `info`, `padding` or
     /// `unknown`.
     pub fn name(self) -> String {
-        if let Some(g) = Group::ALL.into_iter().find(|g| g.params_kind() == self.kind) {
-            return format!("{} parameters", g.name());
-        }
-        if let Some(g) = Group::ALL.into_iter().find(|g| g.data_kind() == self.kind) {
-            return format!("{} data", g.name());
+        if let Some(g) = Group::of_kind(self.kind) {
+            return format!("{} {}", g.name(), if g.params_kind() == self.kind { "parameters" } else { "data" });
         }
         match self.kind {
             INFO_KIND => "info".into(),
