@@ -202,9 +202,7 @@ impl GpuRenderer {
         self.info.device_type == wgpu::DeviceType::Cpu
     }
 
-    /// Takes the first wgpu error reported since the last check.
-    #[doc(hidden)]
-    pub fn check(&self) -> Result<(), GpuError> {
+    fn check(&self) -> Result<(), GpuError> {
         match self.errors.lock().unwrap_or_else(|p| p.into_inner()).take() {
             Some(e) => Err(GpuError::Backend(e)),
             None => Ok(()),
