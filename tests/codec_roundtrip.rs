@@ -111,10 +111,8 @@ fn empty_and_huge_lambda_give_valid_files() {
     let (bytes, report, _) = rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(1e12).unwrap())).unwrap();
     assert_eq!(report.gaussians, 0);
     assert!(decode(&bytes).unwrap().is_empty());
-    let sizes: Vec<usize> = [0.0, 1.0, 10.0, 100.0]
-        .iter()
-        .map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(l).unwrap())).unwrap().0.len())
-        .collect();
+    let sizes: Vec<usize> =
+        [0.0, 1.0, 10.0, 100.0].iter().map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(l).unwrap())).unwrap().0.len()).collect();
     assert!(sizes.windows(2).all(|w| w[1] < w[0]), "{sizes:?}");
 }
 
@@ -172,7 +170,9 @@ fn typed_errors_for_bad_files() {
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::BadMagic));
     let mut newer = bytes.clone();
     newer[4] = VERSION_MAJOR + 1;
-    assert!(matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR + 1, 0))));
+    assert!(
+        matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR + 1, 0)))
+    );
     let e = decode(&bytes[..bytes.len() - 1]).unwrap_err();
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::Truncated));
     // Hostile Gaussian count: refused before anything is allocated.

@@ -136,13 +136,7 @@ pub unsafe extern "C" fn gsc_decode(data: *const u8, len: usize, max_sh_degree: 
 /// `data` must point to `len` readable bytes; `limits` is NULL or readable; `out` must be a
 /// valid pointer to write to.
 #[no_mangle]
-pub unsafe extern "C" fn gsc_decode_limited(
-    data: *const u8,
-    len: usize,
-    limits: *const GscLimits,
-    threads: c_int,
-    out: *mut *mut GscScene,
-) -> c_int {
+pub unsafe extern "C" fn gsc_decode_limited(data: *const u8, len: usize, limits: *const GscLimits, threads: c_int, out: *mut *mut GscScene) -> c_int {
     guarded(|| {
         if out.is_null() {
             set_error("gsc_decode: `out` is NULL");

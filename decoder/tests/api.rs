@@ -2,7 +2,9 @@
 //! any reader, caller-owned output), progressive decoding of a file that is still arriving, and
 //! `to_ply`.
 
-use gscodec_decoder::{decode, decode_prefix, decode_with, DecodeError, Decoder, FormatErrorKind, Limit, Limits, SectionId, Splats};
+use gscodec_decoder::{
+    decode, decode_prefix, decode_with, DecodeError, Decoder, FormatErrorKind, Limit, Limits, SectionId, Splats,
+};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
@@ -72,14 +74,11 @@ fn readers_and_slices_decode_alike_and_to_ply_is_the_vector() {
     for name in ["hand", "tiny", "empty", "chunks"] {
         let bytes = vector(&format!("{name}.gsc"));
         let from_slice = decode(&bytes).unwrap();
-        let from_file = Decoder::new(
-            std::fs::File::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("../bitstream-spec/vectors").join(format!("{name}.gsc")))
-                .unwrap(),
-        )
-        .read_info()
-        .unwrap()
-        .decode()
-        .unwrap();
+        let from_file = Decoder::new(std::fs::File::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("../bitstream-spec/vectors").join(format!("{name}.gsc"))).unwrap())
+            .read_info()
+            .unwrap()
+            .decode()
+            .unwrap();
         assert_eq!(from_file, from_slice, "{name}");
         if bytes.len() < 100_000 {
             let r = Decoder::new(OneByte(&bytes)).read_info().unwrap();
