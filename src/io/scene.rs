@@ -9,7 +9,7 @@
 use super::spz::{self, SpzVersion};
 use super::{compressed_ply, gltf, ply, sog, splat};
 use crate::{Error, Result};
-use gscodec_decoder::{decode, DecodeOptions, Splats};
+use gscodec_decoder::{Decoder, Limits, Splats};
 use std::path::Path;
 
 /// The formats `read_scene` / `write_scene` know, for error messages.
@@ -25,12 +25,12 @@ fn extension(path: &Path) -> String {
 /// # Errors
 /// [`Error::input`] for an unknown extension or a bad file.
 pub fn read_scene(path: &Path) -> Result<Splats> {
-    read_scene_with(path, &DecodeOptions::default())
+    read_scene_with(path, &Limits::default())
 }
 
-/// As [`read_scene`], with decode options for `.gsc` (e.g. a maximum SH degree; other formats
-/// are truncated to it too).
-pub fn read_scene_with(path: &Path, opts: &DecodeOptions) -> Result<Splats> {
+/// As [`read_scene`], with decoder limits for `.gsc` (their maximum SH degree truncates the other
+/// formats' scenes too).
+pub fn read_scene_with(path: &Path, limits: &Limits) -> Result<Splats> {
     let s = match extension(path).as_str() {
         "ply" => {
             let bytes = std::fs::read(path).map_err(|e| Error::input(path, format!("cannot read: {e}")))?;
@@ -46,12 +46,13 @@ pub fn read_scene_with(path: &Path, opts: &DecodeOptions) -> Result<Splats> {
         "json" if sog::is_sog_meta(path) => sog::read_sog(path)?,
         "glb" | "gltf" => gltf::read_gltf(path)?,
         "gsc" => {
-            let bytes = std::fs::read(path).map_err(|e| Error::input(path, e))?;
-            decode(&bytes, opts).map_err(|e| Error::input(path, e))?
+            let file = std::fs::File::open(path).map_err(|e| Error::input(path, e))?;
+            let decoder = Decoder::with_limits(std::io::BufReader::new(file), *limits);
+            decoder.read_info().and_then(|r| r.decode()).map_err(|e| Error::input(path, e))?
         }
         e => return Err(Error::input(path, format!("unsupported scene format `.{e}` (supported: {SUPPORTED})"))),
     };
-    Ok(if s.sh_degree > opts.max_sh_degree { s.with_sh_degree(opts.max_sh_degree) } else { s })
+    Ok(if s.sh_degree > limits.max_sh_degree { s.with_sh_degree(limits.max_sh_degree) } else { s })
 }
 
 /// Writes a scene, choosing the format by extension (atomically): `.ply`, `.spz`, `.splat`

@@ -29,7 +29,7 @@
 use crate::io::atomic::{write_bytes_atomic, write_dir_atomic};
 use crate::io::spz::alpha_to_logit;
 use crate::{Error, Result};
-use gscodec_decoder::bitstream::layout::morton_encode;
+use gscodec_decoder::bitstream::positions::morton_encode;
 use gscodec_decoder::math::{normalize_quat, sh_rest_coeffs, sigmoid};
 use gscodec_decoder::Splats;
 use rayon::prelude::*;
