@@ -5,6 +5,9 @@
 pub mod adam;
 pub mod densify;
 pub mod init;
+/// The GPU trainer (wgpu), feature `gpu`.
+#[cfg(feature = "gpu")]
+pub mod gpu;
 
 pub mod targets;
 
@@ -212,7 +215,26 @@ pub fn evaluate(splats: &Splats, frames: &[&Frame], background: [f32; 3]) -> Opt
     Some((p / n, s / n))
 }
 
-fn non_finite_error(what: &str, iter: usize, i: usize, g: Group) -> Error {
+/// The learning rate of group `g` at iteration `it` (1-based): the reference recipe, the position
+/// rate decaying log-linearly over `cfg.iters` and relative to the scene `extent`, all times
+/// `cfg.lr_scale`. Shared by the CPU and GPU trainers.
+pub fn learning_rate(g: Group, it: usize, cfg: &TrainConfig, extent: f32) -> f32 {
+    let base = match g {
+        Group::Position => {
+            let t = (it as f64 / cfg.iters.max(1) as f64).clamp(0.0, 1.0);
+            let l = ((LR_POSITION_INIT as f64).ln() * (1.0 - t) + (LR_POSITION_FINAL as f64).ln() * t).exp();
+            (l * extent as f64) as f32
+        }
+        Group::Scale => LR_SCALE,
+        Group::Rotation => LR_ROTATION,
+        Group::Opacity => LR_OPACITY,
+        Group::ShDc => LR_SH_DC,
+        Group::Sh1 | Group::Sh2 | Group::Sh3 => LR_SH_REST,
+    };
+    base * cfg.lr_scale
+}
+
+pub(crate) fn non_finite_error(what: &str, iter: usize, i: usize, g: Group) -> Error {
     Error::Failure(format!("training diverged at iteration {iter}: non-finite {what} in parameter group `{}` (Gaussian {i})", g.name()))
 }
 
@@ -262,21 +284,7 @@ pub fn train(
     let (mut loss_sum, mut loss_n) = (0.0f64, 0usize);
     let mut train_seconds = 0.0;
     let log_every = (cfg.iters / 500).max(1);
-    let lr = |g: Group, it: usize| -> f32 {
-        let base = match g {
-            Group::Position => {
-                let t = (it as f64 / cfg.iters.max(1) as f64).clamp(0.0, 1.0);
-                let l = ((LR_POSITION_INIT as f64).ln() * (1.0 - t) + (LR_POSITION_FINAL as f64).ln() * t).exp();
-                (l * extent as f64) as f32
-            }
-            Group::Scale => LR_SCALE,
-            Group::Rotation => LR_ROTATION,
-            Group::Opacity => LR_OPACITY,
-            Group::ShDc => LR_SH_DC,
-            Group::Sh1 | Group::Sh2 | Group::Sh3 => LR_SH_REST,
-        };
-        base * cfg.lr_scale
-    };
+    let lr = |g: Group, it: usize| learning_rate(g, it, cfg, extent);
 
     for it in 1..=cfg.iters {
         let t_iter = Instant::now();
