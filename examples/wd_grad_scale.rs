@@ -56,12 +56,11 @@ fn main() {
         let comb: Vec<f32> = g_wd.iter().zip(&g_l1).map(|(w, o)| w + beta as f32 * o).collect();
         so += norm(&g_l1);
         sc += norm(&comb);
-        per_view.push((img, state, g_l1, g_wd));
+        per_view.push((state, g_l1, g_wd));
     }
     let gamma_norm = so / sc;
     println!("normalised gamma = {gamma_norm:.5} (paper gamma {gamma})");
-    for (img, state, g_l1, g_wd) in &per_view {
-        let _ = img;
+    for (state, g_l1, g_wd) in &per_view {
         let grads: Vec<Vec<f32>> = vec![
             g_l1.clone(),
             g_wd.iter().map(|w| gamma as f32 * w).collect(),
