@@ -412,7 +412,7 @@ fn wdr_gradient_matches_finite_differences_and_composition() {
     let (ti, xi) = (to_image(&target), to_image(&x));
 
     let total = 1000;
-    let mut loss = WdrLoss::new(Box::new(Pyramid), total);
+    let mut loss = WdrLoss::new(Box::new(Pyramid), total).with_fixed_gamma(wdr::DEFAULT_GAMMA_WDR);
     assert_eq!(loss.warmup, 100);
     // warm-up: L_orig alone
     let (lw, gw) = loss.loss_and_grad(&xi, &ti, 0, 99);
@@ -440,6 +440,57 @@ fn wdr_gradient_matches_finite_differences_and_composition() {
     let idx = some_indices(&mut rng, x.data.len(), 12);
     // eps 2^-10 keeps the perturbed values exact in f32
     check_grad(&x, &gt, &idx, 1.0 / 1024.0, 2e-3, &f);
+}
+
+#[test]
+fn wdr_normalised_gamma_matches_the_l1ssim_gradient_scale_then_freezes() {
+    let mut rng = Rng(77);
+    let (h, w) = (24, 20);
+    let views: Vec<(Image, Image)> = (0..wdr::NORMALISE_VIEWS + 3)
+        .map(|_| {
+            let t = random_image::<f64>(&mut rng, h, w);
+            let mut x = t.clone();
+            x.data.iter_mut().for_each(|v| *v = (*v + 0.3 * (rng.next() - 0.5)).clamp(0.0, 1.0));
+            (to_image(&x), to_image(&t))
+        })
+        .collect();
+    let l2 = |g: &[f32]| g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+    let mut loss = WdrLoss::new(Box::new(Pyramid), 100);
+    assert!(loss.normalise && !loss.gamma_settled());
+    // warm-up iterations do not touch γ
+    loss.loss_and_grad(&views[0].0, &views[0].1, 0, 0);
+    assert_eq!(loss.gamma, wdr::DEFAULT_GAMMA_WDR);
+    // first WD iteration: the gradient has exactly the norm of L_orig's (= L1-SSIM's)
+    let (x, t) = &views[0];
+    let (l, g) = loss.loss_and_grad(x, t, 0, loss.warmup);
+    let (lo, go) = wdr::l_orig(x, t);
+    assert!((l2(&g) / l2(&go) - 1.0).abs() < 1e-5, "{} vs {}", l2(&g), l2(&go));
+    let mut plain = WdDistortion::new(Box::new(Pyramid));
+    let (d, gd) = plain.value_and_grad(x, t, None);
+    assert!((l - loss.gamma * (d + wdr::BETA * lo)).abs() < 1e-9 * l);
+    // γ is the ratio of the summed norms over NORMALISE_VIEWS views, then frozen
+    let (mut so, mut sc) = (l2(&go), l2(&gd.iter().zip(&go).map(|(a, b)| a + wdr::BETA as f32 * b).collect::<Vec<_>>()));
+    for (i, (x, t)) in views.iter().enumerate().skip(1) {
+        let before = loss.gamma;
+        let settled = loss.gamma_settled();
+        let (_, g) = loss.loss_and_grad(x, t, i, loss.warmup + i);
+        let (_, go) = wdr::l_orig(x, t);
+        let (_, gd) = plain.value_and_grad(x, t, None);
+        let comb: Vec<f32> = gd.iter().zip(&go).map(|(a, b)| a + wdr::BETA as f32 * b).collect();
+        if settled {
+            assert_eq!(loss.gamma, before, "γ changed after {} views", wdr::NORMALISE_VIEWS);
+        } else {
+            so += l2(&go);
+            sc += l2(&comb);
+            assert!((loss.gamma - so / sc).abs() < 1e-6 * loss.gamma);
+        }
+        assert!((l2(&g) - loss.gamma * l2(&comb)).abs() < 1e-4 * l2(&g));
+    }
+    assert!(loss.gamma_settled());
+    // a fixed γ is never changed
+    let mut fixed = WdrLoss::new(Box::new(Pyramid), 100).with_fixed_gamma(0.5);
+    fixed.loss_and_grad(x, t, 0, 50);
+    assert_eq!(fixed.gamma, 0.5);
 }
 
 #[test]
