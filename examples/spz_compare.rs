@@ -13,7 +13,7 @@ use gscodec_decoder::{decode, DecodeOptions, RenderOptions};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let data = args.get(1).cloned().unwrap_or_else(|| "../shared/data".into());
+    let data = args.get(1).cloned().unwrap_or_else(|| gscodec::testkit::data_dir().display().to_string());
     let lambdas: Vec<f64> = args.get(2).map_or(vec![0.0, 1.0, 3.0, 10.0], |s| s.split(',').map(|x| x.parse().expect("λ")).collect());
     let only = args.get(3).cloned();
     let opts = RenderOptions::default();

@@ -1,27 +1,23 @@
 //! Encoder ⇄ decoder: bit-exact round trips, determinism, leave-out and refusal of bad input.
 
 use gscodec::rate::{self, quantise, EncodeConfig};
+use gscodec::rng::Rng;
+use gscodec::testkit::{random_splats_in, SceneRanges};
 use gscodec_decoder::bitstream::VERSION_MAJOR;
 use gscodec_decoder::{decode, DecodeError, DecodeOptions, Splats};
 
-/// A deterministic random scene of `n` Gaussians (SH degree `d`) spread over `extent`.
+/// A deterministic random scene of `n` Gaussians (SH degree `d`) spread over `extent`, its
+/// scales, flat ones included, in proportion.
 fn scene(n: usize, d: u8, extent: f32, seed: u64) -> Splats {
-    let mut state = seed;
-    let mut r = move || {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+    let e = extent.max(1e-3).ln();
+    let ranges = SceneRanges {
+        extent: [extent, extent, 0.5 * extent],
+        log_scale: [e - 8.0, e - 3.0],
+        opacity: [-6.0, 6.0],
+        sh_dc: 1.0,
+        sh_rest: 0.2,
     };
-    let mut s = Splats::new(d);
-    let k3 = s.rest_coeffs() * 3;
-    for _ in 0..n {
-        let pos = [r() * extent, r() * extent, r() * extent * 0.5];
-        let e = extent.max(1e-3).ln();
-        let ls = [r() - 4.0 + e, r() - 4.0 + e, r() * 3.0 - 5.0 + e];
-        let rot = [r(), r(), r(), r() + 0.01];
-        let rest: Vec<f32> = (0..k3).map(|_| r() * 0.2).collect();
-        s.push(pos, ls, rot, r() * 6.0, [r(), r(), r()], &rest);
-    }
-    s
+    random_splats_in(n, d, seed, &ranges)
 }
 
 #[test]
@@ -130,11 +126,8 @@ fn nan_input_is_refused() {
 fn mutated_files_never_panic() {
     let s = scene(300, 3, 1.0, 13);
     let (bytes, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
-    let mut state = 99u64;
-    let mut rnd = move |m: usize| {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((state >> 33) as usize) % m.max(1)
-    };
+    let mut rng = Rng::new(99);
+    let mut rnd = move |m: usize| rng.below(m.max(1));
     let opts = DecodeOptions { threads: 1, ..Default::default() };
     let mut errors = 0;
     for _ in 0..3000 {

@@ -2,20 +2,14 @@
 
 use gscodec::decoder::Splats;
 use gscodec::io::ply::{read_ply, read_ply_bytes, write_ply};
+use gscodec::rng::Rng;
 use std::path::Path;
-
-mod common;
 
 /// A small seeded scene of the given SH degree with values of every magnitude.
 fn scene(degree: u8, n: usize) -> Splats {
     let mut s = Splats::new(degree);
-    let mut x = 0x9e37_79b9_u32;
-    let mut rnd = move || {
-        x ^= x << 13;
-        x ^= x >> 17;
-        x ^= x << 5;
-        (x as f32 / u32::MAX as f32 - 0.5) * 10f32.powi((x % 7) as i32 - 3)
-    };
+    let mut rng = Rng::new(0x9e37_79b9);
+    let mut rnd = move || (rng.uniform() - 0.5) * 10f32.powi(rng.below(7) as i32 - 3);
     let k3 = s.rest_coeffs() * 3;
     for _ in 0..n {
         let rest: Vec<f32> = (0..k3).map(|_| rnd()).collect();
@@ -219,7 +213,7 @@ fn bad_files_are_input_errors() {
 
 #[test]
 fn shared_scenes_load() {
-    let Some(dir) = common::shared_data("scenes") else { return };
+    let Some(dir) = gscodec::testkit::shared_data("scenes") else { return };
     for (name, n) in [("k7000.ply", 9080), ("fruit-drops.ply", 4721), ("playbot-lod3.ply", 31000)] {
         let s = read_ply(&dir.join(name)).unwrap();
         assert_eq!((s.len(), s.sh_degree), (n, 3), "{name}");

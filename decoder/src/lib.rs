@@ -19,7 +19,11 @@ mod decode;
 pub mod entropy;
 pub mod math;
 pub mod render;
+#[doc(hidden)]
+pub mod rng;
 pub mod splats;
+#[doc(hidden)]
+pub mod testkit;
 
 pub use bitstream::DecodeError;
 pub use camera::Camera;

@@ -10,12 +10,12 @@ pub mod targets;
 
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::ImageLoss;
+use crate::metrics::view::mean_psnr_ssim;
 use crate::raster;
 use crate::rng::Rng;
 use crate::{Error, Result};
 use adam::{first_non_finite, Adam, Group};
 use densify::{DensifyParams, DensifyStats};
-use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
 use serde::Serialize;
 use std::time::Instant;
@@ -156,22 +156,6 @@ pub struct TrainReport {
     pub stages: StageTimes,
 }
 
-/// Mean held-out PSNR and SSIM of `splats` over `frames` (None without frames).
-pub fn evaluate(splats: &Splats, frames: &[&Frame], background: [f32; 3]) -> Option<(f64, f64)> {
-    if frames.is_empty() {
-        return None;
-    }
-    let opts = RenderOptions { background, max_sh_degree: 3 };
-    let (mut p, mut s) = (0.0, 0.0);
-    for f in frames {
-        let img = render(splats, &f.camera, &opts);
-        p += crate::metrics::psnr(&img, &f.image);
-        s += crate::metrics::ssim(&img, &f.image);
-    }
-    let n = frames.len() as f64;
-    Some((p / n, s / n))
-}
-
 fn non_finite_error(what: &str, iter: usize, i: usize, g: Group) -> Error {
     Error::Failure(format!("training diverged at iteration {iter}: non-finite {what} in parameter group `{}` (Gaussian {i})", g.name()))
 }
@@ -297,7 +281,7 @@ pub fn train(
         // otherwise make the scene read as nearly empty. Its time is not training time.
         let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
         let t_eval = Instant::now();
-        let test_psnr = if eval_now { evaluate(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
+        let test_psnr = if eval_now { mean_psnr_ssim(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
         if cfg.densify && it < sched.densify_until {
             if it > sched.densify_from && it % sched.densify_every == 0 {
@@ -337,7 +321,7 @@ pub fn train(
         }
         progress(&Progress { iteration: it, iters: cfg.iters, loss: l, gaussians: params.len(), test_psnr });
     }
-    let final_eval = evaluate(&params, &test_frames, dataset.background);
+    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
         last.test_psnr = Some(p);
     }
