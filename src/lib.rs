@@ -7,6 +7,7 @@ pub mod error;
 pub mod io;
 pub mod loss;
 pub mod metrics;
+pub mod optim;
 pub mod raster;
 pub mod rate;
 pub mod rng;

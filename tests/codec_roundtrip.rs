@@ -106,11 +106,11 @@ fn empty_and_huge_lambda_give_valid_files() {
     let (bytes, _, _) = rate::encode(&empty, &EncodeConfig::default()).unwrap();
     assert!(decode(&bytes, &DecodeOptions::default()).unwrap().is_empty());
     let s = scene(300, 3, 1.0, 9);
-    let (bytes, report, _) = rate::encode(&s, &EncodeConfig::for_lambda(1e12)).unwrap();
+    let (bytes, report, _) = rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(1e12).unwrap())).unwrap();
     assert_eq!(report.gaussians, 0);
     assert!(decode(&bytes, &DecodeOptions::default()).unwrap().is_empty());
     let sizes: Vec<usize> =
-        [0.0, 1.0, 10.0, 100.0].iter().map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(l)).unwrap().0.len()).collect();
+        [0.0, 1.0, 10.0, 100.0].iter().map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(l).unwrap())).unwrap().0.len()).collect();
     assert!(sizes.windows(2).all(|w| w[1] < w[0]), "{sizes:?}");
 }
 

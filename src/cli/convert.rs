@@ -17,5 +17,11 @@ pub struct Args {
 
 pub fn run(args: Args) -> crate::Result<()> {
     let scene = read_scene(&args.input)?;
+    if args.output.extension().is_some_and(|e| e.eq_ignore_ascii_case("gsc")) {
+        // Fine default quantisation, no rendering-based RD search (that is `gscodec encode`).
+        let (bytes, _, _) =
+            crate::rate::encode(&scene, &crate::rate::EncodeConfig::default()).map_err(|e| crate::Error::input(&args.input, e))?;
+        return crate::io::atomic::write_bytes_atomic(&args.output, &bytes);
+    }
     write_scene(&args.output, &scene)
 }

@@ -21,8 +21,8 @@ pub struct Args {
     pub output: PathBuf,
     /// Rate–distortion trade-off λ in J = D + λ·R, D = 255²·MSE of orbit renders, R = megabits.
     /// Larger gives smaller files; 0 = finest.
-    #[arg(long, default_value_t = 20.0)]
-    pub lambda: f64,
+    #[arg(long, default_value_t = rate::Lambda::DEFAULT)]
+    pub lambda: rate::Lambda,
     /// Training distortion and its options.
     #[command(flatten)]
     pub loss: crate::loss::LossArgs,
@@ -38,6 +38,9 @@ pub struct Args {
     /// Write a JSON report (sizes per attribute group, estimated vs actual, time series).
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Dataset image options.
+    #[command(flatten)]
+    pub dataset: super::dataset_args::DatasetArgs,
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
@@ -55,9 +58,6 @@ pub const DEFAULT_DATASET_ITERS: usize = 3000;
 
 pub fn run(args: Args) -> crate::Result<()> {
     let start = Instant::now();
-    if !(args.lambda >= 0.0 && args.lambda.is_finite()) {
-        return Err(Error::Input(format!("--lambda {}: must be a finite number >= 0", args.lambda)));
-    }
     let input_is_dir = args.input.is_dir();
     let iters = args.iters.unwrap_or(if input_is_dir { DEFAULT_DATASET_ITERS } else { 0 });
     if input_is_dir && iters == 0 {
@@ -142,10 +142,6 @@ pub fn run(args: Args) -> crate::Result<()> {
     Ok(())
 }
 
-/// Scale from the RD search's λ (D = 255²·MSE) to the trainer's loss units (L1+SSIM ≈ MSE·10³/255²·…):
-/// the rate term during training is `λ·TRAIN_LAMBDA_SCALE·R_Mbit`.
-pub const TRAIN_LAMBDA_SCALE: f64 = 1e-3;
-
 /// Fine-tunes `scene` (or trains from the dataset at `args.input`) with the rate term.
 fn fine_tune(
     args: &Args,
@@ -158,7 +154,7 @@ fn fine_tune(
     use crate::rate::term::Shared;
     use crate::train::{train, TrainConfig};
     let (dataset, init) = if args.input.is_dir() {
-        (crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?, None)
+        (crate::io::load_dataset(&args.input, &args.dataset.load_options())?, None)
     } else {
         // Training views avoid the 8 orbit views `orbit_psnr` evaluates on (held out).
         let cams = training_cameras(scene, 8, 256, 256, UpAxis::NegY.vector());
@@ -171,7 +167,7 @@ fn fine_tune(
         eval_interval: (iters / 10).max(1),
         ..Default::default()
     };
-    let mut term = rate::term::RateTerm::new(args.lambda * TRAIN_LAMBDA_SCALE, config.steps, config.min_opacity);
+    let mut term = rate::term::RateTerm::new(args.lambda, config.steps, config.min_opacity);
     // From images, the rate term starts when densification ends (half way): with it from the
     // start, lego-200 at λ = 4 stalled at 23.7 dB held-out with 9k Gaussians; with the warm-up it
     // reaches 30.6 dB (docs/codec.md). A .ply already has its structure: the term runs throughout.

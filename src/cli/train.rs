@@ -1,6 +1,6 @@
 //! `gscodec train DATA -o OUT.ply`: train Gaussians on a posed-image dataset.
 
-use crate::io::{self, LoadOptions};
+use crate::io;
 use crate::loss::{build_loss, LossArgs};
 use crate::train::{train, TrainConfig};
 use crate::{Error, Result};
@@ -44,6 +44,9 @@ pub struct Args {
     /// Write the training record (JSON: time series of loss, Gaussians, held-out PSNR).
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Dataset image options.
+    #[command(flatten)]
+    pub dataset: super::dataset_args::DatasetArgs,
     /// No progress bar or summary.
     #[arg(long)]
     pub quiet: bool,
@@ -56,7 +59,7 @@ pub fn run(args: Args) -> Result<()> {
     check_output(&args.output, "ply")?;
     // Before the dataset, so a bad --features file fails fast.
     let loss = build_loss(&args.loss, args.iters, crate::loss::LossKind::L1ssim)?;
-    let ds = io::load_dataset(&args.data, &LoadOptions::default())?;
+    let ds = io::load_dataset(&args.data, &args.dataset.load_options())?;
     let init = args.init.as_deref().map(io::read_ply).transpose()?;
     let cfg = TrainConfig {
         iters: args.iters,

@@ -38,15 +38,12 @@ pub fn read_scene_with(path: &Path, opts: &DecodeOptions) -> Result<Splats> {
     Ok(if s.sh_degree > opts.max_sh_degree { s.with_sh_degree(opts.max_sh_degree) } else { s })
 }
 
-/// Writes a scene, choosing the format by extension (atomically).
+/// Writes a scene, choosing the format by extension (atomically): `.ply`, `.spz`, `.splat`
+/// (`.gsc` needs the encoder: `crate::rate::encode`).
 pub fn write_scene(path: &Path, splats: &Splats) -> Result<()> {
     match extension(path).as_str() {
         "ply" => ply::write_ply(path, splats),
-        "gsc" => {
-            // Fine default quantisation, no rendering-based RD search (that is `gscodec encode`).
-            let (bytes, _, _) = crate::rate::encode(splats, &crate::rate::EncodeConfig::default()).map_err(|e| Error::input(path, e))?;
-            super::atomic::write_bytes_atomic(path, &bytes)
-        }
+        "gsc" => Err(Error::input(path, "a .gsc file is written by the encoder (`gscodec encode`), not by scene I/O")),
         "spz" => spz::write_spz(path, splats, SpzVersion::V4),
         "splat" => splat::write_splat(path, splats),
         e => Err(Error::input(path, format!("unsupported output format `.{e}` (supported: .ply, .gsc, .spz, .splat)"))),

@@ -2,10 +2,14 @@
 //!
 //! * [`quantise`] — scene ⇄ integer channels (Morton-ordered position grid, smallest-three
 //!   rotations, per-channel steps) and pruning.
+//! * [`group`] — the one attribute-group type ([`group::Group`]) and per-group maps.
+//! * [`lambda`] — [`Lambda`], the one unit of the rate–distortion trade-off, and its conversions.
 //! * [`tables`] — the integer tables written to the file and their exact cost.
 //! * [`encode`] — streams per (group, chunk) and the container.
 
 pub mod encode;
+pub mod group;
+pub mod lambda;
 pub mod model;
 pub mod quantise;
 pub mod rd;
@@ -15,6 +19,7 @@ pub mod term;
 use gscodec_decoder::{SceneError, Splats};
 
 pub use encode::{EncodeReport, GroupReport};
+pub use lambda::Lambda;
 pub use quantise::{Quantised, Steps};
 
 /// Everything the encoder decides besides the Gaussians themselves.
@@ -40,14 +45,13 @@ impl Default for EncodeConfig {
 }
 
 impl EncodeConfig {
-    /// The configuration for rate–distortion trade-off `lambda` ≥ 0 when the Gaussians are not
-    /// retrained: steps grow as `(1 + λ)^½` and the pruning threshold as `(1 + λ)/255`.
+    /// The fixed ladder for trade-off `lambda` when there is no scene to search on (training
+    /// from images): [`Lambda::ladder_step_multiplier`] and [`Lambda::ladder_min_opacity`].
     /// λ = 0 is the finest setting; a huge λ prunes everything (an empty, valid file).
-    pub fn for_lambda(lambda: f64) -> EncodeConfig {
-        let m = (1.0 + lambda.max(0.0)).sqrt() as f32;
+    pub fn for_lambda(lambda: Lambda) -> EncodeConfig {
         EncodeConfig {
-            steps: Steps::default().scaled(m),
-            min_opacity: ((1.0 + lambda.max(0.0)) / 255.0).min(2.0) as f32,
+            steps: Steps::default().scaled(lambda.ladder_step_multiplier()),
+            min_opacity: lambda.ladder_min_opacity(),
             ..EncodeConfig::default()
         }
     }

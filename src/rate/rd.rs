@@ -3,12 +3,14 @@
 //!
 //! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
 //!   ([`crate::views::orbit_cameras`], up −y as `eval --orbit`, 8 views at 96×96) against the views of the input scene.
-//! * `R` = file size in megabits (bits / 10⁶): a fixed constant, so λ means the same everywhere.
+//! * `R` = file size in megabits (bits / 10⁶): λ is a [`Lambda`], whose docs hold the unit.
 
 use gscodec_decoder::render::render;
 use gscodec_decoder::{Image, RenderOptions, SceneError, Splats};
 use serde::Serialize;
 
+use super::group::Group;
+use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
 use super::{encode, EncodeConfig};
 use crate::views::{orbit_cameras, UpAxis};
@@ -63,8 +65,6 @@ fn psnr_of(d: f64) -> f64 {
     10.0 * (255.0f64 * 255.0 / d.max(1e-12)).log10()
 }
 
-/// Knobs of the search: one step multiplier per group.
-const KNOBS: [&str; 8] = ["position", "scale", "rotation", "opacity", "sh_dc", "sh_band1", "sh_band2", "sh_band3"];
 const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 /// Pruning thresholds tried, in units of 1/255 opacity.
 const PRUNE_THRESHOLDS: [f32; 12] = [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 64.0, 512.0];
@@ -76,17 +76,10 @@ const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts
 /// Quarter-octave moves of the last pass.
 const REFINE_FINE: [f32; 3] = [0.840_896_4, 1.0, 1.189_207_1];
 
-fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
+/// `c` with group `g`'s step multiplied by `m` (the knobs of the search: one per group).
+fn with_knob(c: &EncodeConfig, g: Group, m: f32) -> EncodeConfig {
     let mut c = *c;
-    let s = &mut c.steps;
-    match knob {
-        0 => s.position_rel *= m,
-        1 => s.scale *= m,
-        2 => s.rotation *= m,
-        3 => s.opacity *= m,
-        4 => s.sh_dc *= m,
-        k => s.sh_rest[k - 5] *= m,
-    }
+    *c.steps.of_mut(g) *= m;
     c
 }
 
@@ -94,7 +87,7 @@ fn with_knob(c: &EncodeConfig, knob: usize, m: f32) -> EncodeConfig {
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the pruning threshold, then the SH degree, then per group
 /// the multiplier of the fine step minimising `ΔD_g + λ·R_g`. `on_step` sees each trial.
-pub fn search(scene: &Splats, lambda: f64, on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
+pub fn search(scene: &Splats, lambda: Lambda, on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
     search_from(scene, lambda, Steps::default().scaled(0.7), on_step)
 }
 
@@ -102,13 +95,13 @@ pub fn search(scene: &Splats, lambda: f64, on_step: impl FnMut(&RdPoint)) -> Res
 /// training) instead of the default fine steps; multiplier 1 keeps a step as it is.
 pub fn search_from(
     scene: &Splats,
-    lambda: f64,
+    lambda: Lambda,
     fine: Steps,
     mut on_step: impl FnMut(&RdPoint),
 ) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
     scene.validate()?;
     let ev = Evaluator::new(scene);
-    let j = |bytes: usize, d: f64| d + lambda * bytes as f64 * 8.0 / 1e6;
+    let j = |bytes: usize, d: f64| d + lambda.rate_cost(bytes);
     let mut path = Vec::new();
     let mut record = |change: String, bytes: usize, d: f64, path: &mut Vec<RdPoint>| {
         let p = RdPoint { step: path.len(), change, bytes, d, psnr: psnr_of(d), j: j(bytes, d) };
@@ -158,14 +151,14 @@ pub fn search_from(
     let base = best.1;
     let (b0, d0, r0) = ev.eval_report(&base)?;
     let group_bytes =
-        |r: &super::EncodeReport, k: usize| r.groups.iter().find(|g| g.group == KNOBS[k]).map_or(0, |g| g.stream_bytes + g.table_bytes);
+        |r: &super::EncodeReport, k: Group| r.groups.iter().find(|g| g.group == k.name()).map_or(0, |g| g.stream_bytes + g.table_bytes);
     // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
     //    (half-octave moves around the first choice), then quarter-octave moves.
     let mut chosen = base;
     for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
         let start = chosen;
         let (b0, d0, r0) = if pass == 0 { (b0, d0, r0.clone()) } else { ev.eval_report(&start)? };
-        for k in 0..KNOBS.len() {
+        for k in Group::ALL {
             if group_bytes(&r0, k) == 0 {
                 continue;
             }
@@ -178,8 +171,8 @@ pub fn search_from(
                     let (b, d, r) = ev.eval_report(&c)?;
                     (b, d, group_bytes(&r, k))
                 };
-                record(format!("pass{pass} {}x{m}", KNOBS[k]), b, d, &mut path);
-                let cost = (d - d0) + lambda * gb as f64 * 8.0 / 1e6;
+                record(format!("pass{pass} {}x{m}", k.name()), b, d, &mut path);
+                let cost = (d - d0) + lambda.rate_cost(gb);
                 if cost < best_k.0 {
                     best_k = (cost, m);
                 }
@@ -203,4 +196,28 @@ pub fn search_from(
         chosen = best.1;
     }
     Ok((EncodeConfig { learned_tables: true, ..chosen }, path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// λ measured end to end: the search's chosen file shrinks and its distortion grows as λ
+    /// grows (replaces a test that only checked the final multiply by λ).
+    #[test]
+    fn larger_lambda_gives_smaller_files_and_more_distortion() {
+        let scene = crate::sample::scene(300, 1);
+        let ev = Evaluator::new(&scene);
+        let mut last: Option<(usize, f64)> = None;
+        for l in [0.0, 20.0, 2000.0] {
+            let (cfg, path) = search(&scene, Lambda::new(l).unwrap(), |_| {}).unwrap();
+            let (bytes, d) = ev.eval(&cfg).unwrap();
+            assert!(path.iter().all(|p| (p.j - (p.d + Lambda::new(l).unwrap().rate_cost(p.bytes))).abs() < 1e-9));
+            if let Some((b0, d0)) = last {
+                assert!(bytes < b0, "λ {l}: {bytes} bytes, not fewer than {b0}");
+                assert!(d >= d0, "λ {l}: D {d} below {d0}");
+            }
+            last = Some((bytes, d));
+        }
+    }
 }

@@ -1,67 +1,10 @@
-//! Adam with one learning rate per parameter group, over `Splats`-shaped moment buffers.
+//! Adam over the Gaussian parameters, one learning rate per attribute [`Group`], with the one
+//! update rule [`AdamRule`] (which the rate term's learned log steps use too).
 
 use gscodec_decoder::Splats;
 
-/// The parameter groups of a scene, in `Splats` field order.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Group {
-    Position,
-    LogScale,
-    Rotation,
-    Opacity,
-    ShDc,
-    ShRest,
-}
-
-impl Group {
-    pub const ALL: [Group; 6] = [Group::Position, Group::LogScale, Group::Rotation, Group::Opacity, Group::ShDc, Group::ShRest];
-
-    /// Name used in messages (matches the `.ply` property families).
-    pub fn name(self) -> &'static str {
-        match self {
-            Group::Position => "position",
-            Group::LogScale => "scale",
-            Group::Rotation => "rotation",
-            Group::Opacity => "opacity",
-            Group::ShDc => "f_dc",
-            Group::ShRest => "f_rest",
-        }
-    }
-
-    /// Values per Gaussian in this group for a scene of `s`'s SH degree.
-    pub fn width(self, s: &Splats) -> usize {
-        match self {
-            Group::Position | Group::LogScale | Group::ShDc => 3,
-            Group::Rotation => 4,
-            Group::Opacity => 1,
-            Group::ShRest => s.rest_coeffs() * 3,
-        }
-    }
-}
-
-/// The flat values of one group.
-pub fn group(s: &Splats, g: Group) -> &[f32] {
-    match g {
-        Group::Position => s.positions.as_flattened(),
-        Group::LogScale => s.log_scales.as_flattened(),
-        Group::Rotation => s.rotations.as_flattened(),
-        Group::Opacity => &s.opacity_logits,
-        Group::ShDc => s.sh_dc.as_flattened(),
-        Group::ShRest => &s.sh_rest,
-    }
-}
-
-/// The flat values of one group, mutable.
-pub fn group_mut(s: &mut Splats, g: Group) -> &mut [f32] {
-    match g {
-        Group::Position => s.positions.as_flattened_mut(),
-        Group::LogScale => s.log_scales.as_flattened_mut(),
-        Group::Rotation => s.rotations.as_flattened_mut(),
-        Group::Opacity => &mut s.opacity_logits,
-        Group::ShDc => s.sh_dc.as_flattened_mut(),
-        Group::ShRest => &mut s.sh_rest,
-    }
-}
+pub use crate::optim::AdamRule;
+use crate::rate::group::{self, Group};
 
 /// A zero-filled scene of the same shape as `s` (a gradient or moment buffer).
 pub fn zeros_like(s: &Splats) -> Splats {
@@ -77,52 +20,81 @@ pub fn zeros_like(s: &Splats) -> Splats {
     }
 }
 
-/// First index of a non-finite value in a group, as `(gaussian, group)`.
+/// First non-finite value, as `(gaussian, group)`.
 pub fn first_non_finite(s: &Splats) -> Option<(usize, Group)> {
-    for g in Group::ALL {
-        let w = g.width(s).max(1);
-        if let Some(i) = group(s, g).iter().position(|v| !v.is_finite()) {
-            return Some((i / w, g));
+    for g in group::present(s.sh_degree) {
+        let (stride, r) = group::layout(g, s.sh_degree);
+        let bad = group::values(s, g).chunks_exact(stride).position(|v| v[r.clone()].iter().any(|x| !x.is_finite()));
+        if let Some(i) = bad {
+            return Some((i, g));
         }
     }
     None
 }
 
-/// Adam state (moments shaped like the scene) with the reference hyper-parameters.
+/// Adam state for the Gaussian parameters (moments shaped like the scene).
 #[derive(Debug, Clone)]
 pub struct Adam {
     pub m: Splats,
     pub v: Splats,
-    pub step: u64,
-    pub beta1: f32,
-    pub beta2: f32,
-    pub eps: f32,
+    pub rule: AdamRule,
 }
 
 impl Adam {
     pub fn new(params: &Splats) -> Self {
-        Adam { m: zeros_like(params), v: zeros_like(params), step: 0, beta1: 0.9, beta2: 0.999, eps: 1e-15 }
+        Adam { m: zeros_like(params), v: zeros_like(params), rule: AdamRule::default() }
     }
 
-    /// One step: `lr(group)` gives each group's learning rate.
+    /// One step: `lr(group)` gives each attribute group's learning rate.
     pub fn step(&mut self, params: &mut Splats, grad: &Splats, lr: impl Fn(Group) -> f32) {
-        self.step += 1;
-        let bc1 = 1.0 - (self.beta1 as f64).powf(self.step as f64);
-        let bc2 = 1.0 - (self.beta2 as f64).powf(self.step as f64);
-        let (b1, b2, eps) = (self.beta1, self.beta2, self.eps);
-        for g in Group::ALL {
-            let step_size = (lr(g) as f64 / bc1) as f32;
-            let sqrt_bc2 = bc2.sqrt() as f32;
-            let p = group_mut(params, g);
-            let gr = group(grad, g);
-            let m = group_mut(&mut self.m, g);
-            let v = group_mut(&mut self.v, g);
-            for i in 0..p.len() {
-                let gi = gr[i];
-                m[i] = b1 * m[i] + (1.0 - b1) * gi;
-                v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
-                p[i] -= step_size * m[i] / (v[i].sqrt() / sqrt_bc2 + eps);
+        let c = self.rule.begin_step();
+        let degree = params.sh_degree;
+        for g in group::present(degree) {
+            let (stride, r) = group::layout(g, degree);
+            let lr = lr(g);
+            let (p, gr) = (group::values_mut(params, g), group::values(grad, g));
+            let (m, v) = (group::values_mut(&mut self.m, g), group::values_mut(&mut self.v, g));
+            if r.len() == stride {
+                self.rule.update(c, lr, p, gr, m, v); // the whole field: one pass
+                continue;
+            }
+            for (((p, gr), m), v) in
+                p.chunks_exact_mut(stride).zip(gr.chunks_exact(stride)).zip(m.chunks_exact_mut(stride)).zip(v.chunks_exact_mut(stride))
+            {
+                let r = r.clone();
+                self.rule.update(c, lr, &mut p[r.clone()], &gr[r.clone()], &mut m[r.clone()], &mut v[r]);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn first_steps_move_by_the_learning_rate_against_the_gradient_sign() {
+        // Adam's first step is lr·sign(g) (m̂ = g, v̂ = g²), whatever the gradient's size.
+        let mut s = Splats::new(2);
+        s.push([0.0; 3], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[0.0; 24]);
+        let mut g = zeros_like(&s);
+        g.positions[0] = [3.0, -1e-3, 0.0];
+        g.sh_rest[0] = 5.0; // band 1
+        g.sh_rest[9] = -7.0; // band 2
+        let mut adam = Adam::new(&s);
+        let lr = |g: Group| match g {
+            Group::Position => 0.1,
+            Group::Sh1 => 0.01,
+            Group::Sh2 => 0.02,
+            _ => 1.0,
+        };
+        adam.step(&mut s, &g, lr);
+        let close = |a: f32, b: f32| (a - b).abs() < 1e-6;
+        assert!(close(s.positions[0][0], -0.1) && close(s.positions[0][1], 0.1) && s.positions[0][2] == 0.0, "{:?}", s.positions);
+        assert!(close(s.sh_rest[0], -0.01) && close(s.sh_rest[9], 0.02), "{:?}", &s.sh_rest[..12]);
+        assert_eq!(s.log_scales[0], [0.0; 3]);
+        assert_eq!(first_non_finite(&s), None);
+        s.sh_rest[20] = f32::NAN; // coefficient 6: band 2
+        assert_eq!(first_non_finite(&s), Some((0, Group::Sh2)));
     }
 }
