@@ -109,8 +109,10 @@ fn empty_and_huge_lambda_give_valid_files() {
     let (bytes, report, _) = rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(1e12).unwrap())).unwrap();
     assert_eq!(report.gaussians, 0);
     assert!(decode(&bytes, &DecodeOptions::default()).unwrap().is_empty());
-    let sizes: Vec<usize> =
-        [0.0, 1.0, 10.0, 100.0].iter().map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(l).unwrap())).unwrap().0.len()).collect();
+    let sizes: Vec<usize> = [0.0, 1.0, 10.0, 100.0]
+        .iter()
+        .map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(l).unwrap())).unwrap().0.len())
+        .collect();
     assert!(sizes.windows(2).all(|w| w[1] < w[0]), "{sizes:?}");
 }
 
