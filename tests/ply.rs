@@ -189,18 +189,14 @@ fn bad_files_are_input_errors() {
     }
     cases.push(("zero norm", zq));
     cases.push(("truncated", good[..good.len() - 3].to_vec()));
-    let lie = String::from_utf8_lossy(&good[..header_len]).replace("vertex 4", "vertex 5");
-    cases.push(("truncated", [lie.as_bytes(), &good[header_len..]].concat()));
-    let lie = String::from_utf8_lossy(&good[..header_len]).replace("vertex 4", "vertex 3");
-    cases.push(("extra bytes", [lie.as_bytes(), &good[header_len..]].concat()));
-    let huge = String::from_utf8_lossy(&good[..header_len]).replace("vertex 4", "vertex 18446744073709551615");
-    cases.push(("truncated", [huge.as_bytes(), &good[header_len..]].concat()));
-    let missing = String::from_utf8_lossy(&good[..header_len]).replace("property float opacity\n", "");
-    cases.push(("`opacity` is missing", [missing.as_bytes(), &good[header_len..]].concat()));
-    let badrest = String::from_utf8_lossy(&good[..header_len]).replace("property float f_rest_8\n", "");
-    cases.push(("8 `f_rest_*`", [badrest.as_bytes(), &good[header_len..]].concat()));
-    let badtype = String::from_utf8_lossy(&good[..header_len]).replace("property float x\n", "property quux x\n");
-    cases.push(("unknown property type", [badtype.as_bytes(), &good[header_len..]].concat()));
+    // The good file with one header edit.
+    let edited = |from: &str, to: &str| [String::from_utf8_lossy(&good[..header_len]).replace(from, to).as_bytes(), &good[header_len..]].concat();
+    cases.push(("truncated", edited("vertex 4", "vertex 5")));
+    cases.push(("extra bytes", edited("vertex 4", "vertex 3")));
+    cases.push(("truncated", edited("vertex 4", "vertex 18446744073709551615")));
+    cases.push(("`opacity` is missing", edited("property float opacity\n", "")));
+    cases.push(("8 `f_rest_*`", edited("property float f_rest_8\n", "")));
+    cases.push(("unknown property type", edited("property float x\n", "property quux x\n")));
     cases.push(("magic", b"PK\x03\x04garbage".to_vec()));
     cases.push(("end_header", b"ply\nformat ascii 1.0\nelement vertex 1\n".to_vec()));
     for (want, bytes) in cases {
