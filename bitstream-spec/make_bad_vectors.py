@@ -1,14 +1,16 @@
 #!/usr/bin/env python3
 """Writes the bad conformance vectors `vectors/bad/bad-*.gsc` and `vectors/bad/EXPECTED`
-(SPEC §9.2) deterministically from the good vector `vectors/hand.gsc`.
+(SPEC §9.2), and the good vector `vectors/quirks.gsc` with its `quirks.ply` (SPEC §9.3),
+deterministically from the good vector `vectors/hand.gsc`.
 
 Each bad vector breaks exactly one rule of SPEC.md; every other byte, including every CRC that
 is not the point of the vector, is kept valid, so that a decoder has to reach the broken rule
 to refuse the file. Streams are re-coded with the encoder of SPEC §5.4, written here from the
 SPEC text. Parsing uses specdec.py (the SPEC's second decoder), so this needs numpy.
 
-Usage: python3 make_bad_vectors.py [--out DIR]   (no argument: rewrites vectors/bad/ and its
-       lines in SHA256SUMS; --out: writes the vectors and EXPECTED to DIR only)
+Usage: python3 make_bad_vectors.py [--out DIR]   (no argument: rewrites vectors/bad/,
+       quirks.gsc, quirks.ply and their lines in SHA256SUMS; --out: writes the bad vectors,
+       EXPECTED and quirks.gsc to DIR only)
 """
 import hashlib
 import os
@@ -97,15 +99,21 @@ def raw_intervals(value, bits):
 
 
 def value_intervals(table, values):
-    """§5.2: the intervals coding `values` with a coded (mode 1) table."""
-    assert table.mode == 1
-    cdf, out = table.cdfs[0], []
+    """§5.2: the intervals coding the values of one stream with a coded or context table."""
+    out, prev = [], table.centre
     for v in values:
+        cdf = specdec.table_for(table, prev)
         s = v - table.lo if 0 <= v - table.lo < table.n else table.n
         out.append((cdf[s], cdf[s + 1] - cdf[s]))
         if s == table.n:
             out += raw_intervals(zigzag(v), 32)
+        prev = v
     return out
+
+
+def overlong(v):
+    """`v` as a 5-byte varint (§1: valid, though encoders write the shortest form)."""
+    return bytes([(v >> (7 * i)) & 0x7F | (0x80 if i < 4 else 0) for i in range(5)])
 
 
 def streams_of(payload, count):
@@ -304,6 +312,43 @@ def make(good):
     return out
 
 
+def make_quirks(good):
+    """quirks.gsc: a valid file that uses what the SPEC allows and our encoder never writes, so
+    a decoder MUST accept it and decode it to quirks.ply."""
+    f, k = File(good), 3
+    # Opacity (group 3): all-zero weights, i.e. the uniform table (§4.2), `lo` and the stream's
+    # length as overlong varints (§1); its data section carries the optional bit (§3).
+    params = f.section(0x13)
+    table = specdec.parse_group_params(3, params[3])[0][1]
+    values = decoded_values(streams_of(f.section(0x23)[3], 1)[0], table, k)
+    params[3] = replace_table(params[3], 0, bytes([1]) + overlong(zigzag(table.lo)) + varint(table.n) + bytes(table.n + 1))
+    table = specdec.parse_group_params(3, params[3])[0][1]
+    stream = ans_encode(value_intervals(table, values))
+    data = f.section(0x23)
+    data[2], data[3] = 1, overlong(len(stream)) + stream
+    # SH band 1 (group 5) channel 0: a context table (§4.1, §5.2) whose centre is -2^31, far
+    # outside the values (the distance needs more than 32 bits), with four different weight lists.
+    params, data = f.section(0x15), f.section(0x25)
+    channels = specdec.parse_group_params(5, params[3])
+    coded = [j for j, (_, t) in enumerate(channels) if t.mode != 0]
+    streams = streams_of(data[3], len(coded))
+    table = channels[0][1]
+    values = decoded_values(streams[0], table, k)
+    m = table.n + 1
+    lists = [[1 + s for s in range(m)], [m - s for s in range(m)], [1] * m, [7 if s % 2 else 0 for s in range(m)]]
+    weights = b"".join(varint(w) for ws in lists for w in ws)
+    params[3] = replace_table(params[3], 0, bytes([2]) + varint(zigzag(-(1 << 31))) + varint(zigzag(table.lo)) + varint(table.n) + weights)
+    table = specdec.parse_group_params(5, params[3])[0][1]
+    data[3] = section_of([ans_encode(value_intervals(table, values))] + streams[1:])
+    # Steps (§1): a subnormal scale step (subnormal results) and a -0.0 colour step (signed zeros).
+    f.section(0x11)[3] = replace_step(f.section(0x11)[3], 0, 1e-40)
+    f.section(0x14)[3] = replace_step(f.section(0x14)[3], 2, -0.0)
+    # An unknown section with the optional bit (skipped, §2) and an info section of 3 bytes (§3).
+    f.section(0x100)[3] = b"odd"
+    f.sections.append([0x102, 0, 1, b"a later minor's section", None])
+    return f.write()
+
+
 def main(argv):
     """No argument: rewrite vectors/bad/ and its lines in SHA256SUMS. `--out DIR`: write the
     vectors and EXPECTED to DIR only (the test suite compares them with the committed ones)."""
@@ -321,10 +366,18 @@ def main(argv):
         lines.append(f"bad-{name}.gsc {cls} {reason}")
     with open(os.path.join(out_dir, "EXPECTED"), "w") as fh:
         fh.write("\n".join(lines) + "\n")
+    quirks = make_quirks(good)
+    with open(os.path.join(out_dir if out_dir != BAD else VECTORS, "quirks.gsc"), "wb") as fh:
+        fh.write(quirks)
     if out_dir == BAD:
-        # SHA256SUMS: the good vectors' outputs, then the bad vectors' bytes.
+        # quirks.ply is what specdec.py decodes quirks.gsc to (the Rust decoder is tested against it).
+        n, degree, cols = specdec.decode(quirks)
+        specdec.write_ply(os.path.join(VECTORS, "quirks.ply"), n, degree, cols)
+        ply = open(os.path.join(VECTORS, "quirks.ply"), "rb").read()
+        # SHA256SUMS: the encoder's vectors' lines (tests/vectors.rs `regenerate`), then ours.
         sums_path = os.path.join(VECTORS, "SHA256SUMS")
-        kept = [l for l in open(sums_path).read().splitlines() if not l.endswith(".gsc")]
+        kept = [l for l in open(sums_path).read().splitlines() if not l.endswith((".gsc", "quirks.ply"))]
+        kept.append(f"{hashlib.sha256(ply).hexdigest()}  quirks.ply")
         for name, (data, _, _) in sorted(vectors.items()):
             kept.append(f"{hashlib.sha256(data).hexdigest()}  bad/bad-{name}.gsc")
         with open(sums_path, "w") as fh:

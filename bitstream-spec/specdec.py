@@ -240,17 +240,19 @@ class AnsDecoder:
                           f"({len(self.words) - self.next} words left, x={self.x:#x})")
 
 
+def table_for(table, prev):
+    """§5.2: the cdf a coded or context table uses for a value whose predecessor is `prev`."""
+    if table.mode == 1:
+        return table.cdfs[0]
+    d = abs(prev - table.centre)  # Python integers: no overflow
+    return table.cdfs[0 if d == 0 else 1 if d == 1 else 2 if d <= 3 else 3]
+
+
 def read_value(dec, table, state):
     """§5.2. state is a one-element list holding `prev`, set to `centre` when the stream starts."""
     if table.mode == 0:
         return table.value
-    if table.mode == 1:
-        cdf = table.cdfs[0]
-    else:
-        d = abs(state[0] - table.centre)
-        k = 0 if d == 0 else 1 if d == 1 else 2 if d <= 3 else 3
-        cdf = table.cdfs[k]
-    s = dec.symbol(cdf)
+    s = dec.symbol(table_for(table, state[0]))
     v = table.lo + s if s < table.n else unzigzag(dec.raw_bits(32))
     state[0] = v
     return v

@@ -90,5 +90,5 @@ fn fine_tuning_encode_writes_a_decodable_file_and_report() {
     assert!((est - bytes.len() as f64).abs() / (bytes.len() as f64) < 0.05, "{est} vs {}", bytes.len());
     assert!(r["orbit_psnr"].as_f64().unwrap() > 25.0);
     assert!(r["series"].as_array().unwrap().iter().any(|p| p["trial"] == "train"));
-    gscodec_decoder::decode(&bytes, &Default::default()).unwrap();
+    gscodec_decoder::decode(&bytes).unwrap();
 }

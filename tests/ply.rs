@@ -190,7 +190,8 @@ fn bad_files_are_input_errors() {
     cases.push(("zero norm", zq));
     cases.push(("truncated", good[..good.len() - 3].to_vec()));
     // The good file with one header edit.
-    let edited = |from: &str, to: &str| [String::from_utf8_lossy(&good[..header_len]).replace(from, to).as_bytes(), &good[header_len..]].concat();
+    let edited =
+        |from: &str, to: &str| [String::from_utf8_lossy(&good[..header_len]).replace(from, to).as_bytes(), &good[header_len..]].concat();
     cases.push(("truncated", edited("vertex 4", "vertex 5")));
     cases.push(("extra bytes", edited("vertex 4", "vertex 3")));
     cases.push(("truncated", edited("vertex 4", "vertex 18446744073709551615")));

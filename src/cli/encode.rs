@@ -63,7 +63,7 @@ pub fn run(args: Args) -> crate::Result<()> {
     if input_is_dir && iters == 0 {
         return Err(Error::input(&args.input, "encoding a dataset needs training: pass --iters N"));
     }
-    let mut scene = if input_is_dir { Splats::new(3) } else { crate::io::read_ply(&args.input)? };
+    let mut scene = if input_is_dir { Splats::new(3) } else { crate::io::read_scene(&args.input)? };
     scene.validate().map_err(|e| Error::input(&args.input, e))?;
     let mut series = Vec::new();
     // A .ply: the RD search's PSNR is against the input scene's own renders, the error the user

@@ -2,13 +2,16 @@
 
 pub mod atomic;
 pub mod colmap;
+pub mod compressed_ply;
 pub mod dataset;
+pub mod gltf;
 pub mod image;
 pub mod lens;
 pub mod nerf;
 pub mod ply;
 pub mod prepare;
 pub mod scene;
+pub mod sog;
 pub mod splat;
 pub mod spz;
 
