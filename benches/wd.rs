@@ -44,8 +44,9 @@ fn bench(c: &mut Criterion) {
 
 fn bench_iteration(c: &mut Criterion) {
     use gscodec::raster;
+    use gscodec::rate::group::Group;
     use gscodec::testkit::{random_splats, rig_cameras};
-    use gscodec::train::adam::{Adam, Group};
+    use gscodec::train::adam::Adam;
     use gscodec::train::targets::render_targets;
     use gscodec_decoder::RenderOptions;
     let n = 10_000;

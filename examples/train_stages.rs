@@ -8,8 +8,9 @@
 
 use gscodec::loss::L1Ssim;
 use gscodec::raster;
+use gscodec::rate::group::Group;
 use gscodec::testkit::{random_splats, rig_cameras};
-use gscodec::train::adam::{Adam, Group};
+use gscodec::train::adam::Adam;
 use gscodec::train::targets::render_targets;
 use gscodec_decoder::RenderOptions;
 use std::time::Instant;
