@@ -3,7 +3,7 @@
 //! splat-transform from samples/tiny/truth.ply) read back to the source, and bad input through
 //! `gscodec convert`.
 
-use gscodec::decoder::math::{covariance_3d, normalize_quat, sh_rest_coeffs, sigmoid, SH_C0};
+use gscodec::decoder::math::{covariance_3d, normalize_quat, sigmoid, SH_C0};
 use gscodec::decoder::Splats;
 use gscodec::io::compressed_ply::{decode_compressed_ply, encode_compressed_ply, CHUNK_SIZE};
 use gscodec::io::gltf::{decode_gltf, encode_glb, encode_gltf};
