@@ -113,7 +113,7 @@ pub fn run(args: Args) -> crate::Result<()> {
         if let Some(ds) = &heldout {
             // The final point of the series: the coded scene on the held-out images.
             let test = ds.split(crate::io::Split::Test);
-            if let Some((psnr, _)) = crate::train::evaluate(&decoded, &test, ds.background) {
+            if let Some((psnr, _)) = crate::metrics::view::mean_psnr_ssim(&decoded, &test, ds.background) {
                 series.push(json!({"iteration": iters, "trial": "coded", "wall_s": start.elapsed().as_secs_f64(), "estimated_bits": 8.0 * bytes.len() as f64, "d": null, "heldout_psnr": psnr}));
             }
         }
