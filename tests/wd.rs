@@ -433,13 +433,13 @@ fn wdr_gradient_matches_finite_differences_and_composition() {
 
 #[test]
 fn wdr_normalised_gamma_matches_the_l1ssim_gradient_scale_then_freezes() {
-    let mut rng = Rng(77);
+    let mut rng = Rng::new(77);
     let (h, w) = (24, 20);
     let views: Vec<(Image, Image)> = (0..wdr::NORMALISE_VIEWS + 3)
         .map(|_| {
             let t = random_image::<f64>(&mut rng, h, w);
             let mut x = t.clone();
-            x.data.iter_mut().for_each(|v| *v = (*v + 0.3 * (rng.next() - 0.5)).clamp(0.0, 1.0));
+            x.data.iter_mut().for_each(|v| *v = (*v + 0.3 * (rng.uniform_f64() - 0.5)).clamp(0.0, 1.0));
             (to_image(&x), to_image(&t))
         })
         .collect();
