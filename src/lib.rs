@@ -3,6 +3,7 @@
 pub use gscodec_decoder as decoder;
 
 pub mod cli;
+pub mod encoder;
 pub mod error;
 pub mod io;
 pub mod loss;

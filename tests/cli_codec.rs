@@ -90,5 +90,24 @@ fn fine_tuning_encode_writes_a_decodable_file_and_report() {
     assert!((est - bytes.len() as f64).abs() / (bytes.len() as f64) < 0.05, "{est} vs {}", bytes.len());
     assert!(r["orbit_psnr"].as_f64().unwrap() > 25.0);
     assert!(r["series"].as_array().unwrap().iter().any(|p| p["trial"] == "train"));
+    assert_eq!((&r["backend"], &r["train"]["backend"], &r["loss"], &r["lambda"]), (&"cpu".into(), &"cpu".into(), &"wdr".into(), &20.0.into()));
+    let stages = &r["stages"];
+    assert!(stages["train_s"].as_f64().unwrap() > 0.0 && stages["total_s"].as_f64().unwrap() >= stages["rd_search_s"].as_f64().unwrap());
+    assert!(r["steps"]["sh_dc"].as_f64().unwrap() > 0.0);
     gscodec_decoder::decode(&bytes, &Default::default()).unwrap();
+}
+
+/// Without the `gpu` feature, `--backend gpu` is bad input (one line, exit 2, no output file);
+/// `cpu` and `auto` train.
+#[cfg(not(feature = "gpu"))]
+#[test]
+fn backend_gpu_is_refused_without_a_gpu_trainer() {
+    let dir = tempfile::tempdir().unwrap();
+    let gsc = dir.path().join("g.gsc");
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let o = gscodec(&["encode", input.to_str().unwrap(), "-o", gsc.to_str().unwrap(), "--iters", "2", "--backend", "gpu"]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.lines().count() == 1 && err.contains("GPU training not available"), "{err}");
+    assert!(!gsc.exists());
 }
