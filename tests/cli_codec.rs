@@ -111,3 +111,30 @@ fn backend_gpu_is_refused_without_a_gpu_trainer() {
     assert!(err.lines().count() == 1 && err.contains("GPU training not available"), "{err}");
     assert!(!gsc.exists());
 }
+
+/// `--target-psnr`: the file `eval --reference INPUT --orbit 8` measures reaches the target, and
+/// the report lists the bisection's encodes; an unreachable target is bad input.
+#[test]
+fn target_psnr_is_reached_as_eval_measures_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let gsc = dir.path().join("t.gsc");
+    let report = dir.path().join("r.json");
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let (inp, out, rep) = (input.to_str().unwrap(), gsc.to_str().unwrap(), report.to_str().unwrap());
+    let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "38", "--report", rep, "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = gscodec(&["eval", out, "--reference", inp, "--orbit", "8", "--json", "--quiet"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let psnr = v["psnr"].as_f64().unwrap();
+    assert!(psnr >= 38.0 - 0.01, "{psnr}");
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert!((r["orbit_psnr"].as_f64().unwrap() - psnr).abs() < 0.01, "report {} vs eval {psnr}", r["orbit_psnr"]);
+    let probes = r["target"]["probes"].as_array().unwrap();
+    assert!(probes.len() > 2);
+    let bytes = std::fs::metadata(&gsc).unwrap().len();
+    assert!(probes.iter().filter(|p| p["psnr"].as_f64().unwrap() >= 38.0).all(|p| p["bytes"].as_u64().unwrap() >= bytes));
+    let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "190", "--quiet"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "30", "--lambda", "3"]);
+    assert_eq!(o.status.code(), Some(2), "a target and a λ conflict");
+}

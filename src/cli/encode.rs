@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::encoder::{Backend, Encoded, Encoder, EncoderConfig, Lambda, LossSpec};
+use crate::encoder::{Backend, Encoded, Encoder, EncoderConfig, Lambda, LossSpec, Target};
 use crate::loss::LossKind;
 use crate::Error;
 use gscodec_decoder::Splats;
@@ -20,6 +20,15 @@ pub struct Args {
     /// Larger gives smaller files; 0 = finest.
     #[arg(long, default_value_t = Lambda::DEFAULT)]
     pub lambda: Lambda,
+    /// Instead of a λ: the smallest file whose PSNR reaches DB, found by bisection on λ (about
+    /// ten encodes). The PSNR is measured as `gscodec eval OUTPUT --reference INPUT --orbit 8`
+    /// measures it (8 orbit views at 256×256, up −y, black background). A .ply input only.
+    #[arg(long, value_name = "DB", conflicts_with_all = ["lambda", "target_bytes"])]
+    pub target_psnr: Option<f64>,
+    /// Instead of a λ: the best PSNR (measured as for --target-psnr) among files of at most N
+    /// bytes, found by bisection on λ. A .ply input only.
+    #[arg(long, value_name = "N", conflicts_with = "lambda")]
+    pub target_bytes: Option<u64>,
     /// Training distortion and its options.
     #[command(flatten)]
     pub loss: crate::loss::LossArgs,
@@ -45,6 +54,11 @@ pub struct Args {
 }
 
 impl Args {
+    /// The target these flags ask for, if any.
+    pub fn target(&self) -> Option<Target> {
+        self.target_psnr.map(Target::Psnr).or(self.target_bytes.map(Target::Bytes))
+    }
+
     /// The encoder settings these flags ask for.
     pub fn config(&self) -> EncoderConfig {
         EncoderConfig::default()
@@ -69,7 +83,14 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
     let iters = encoder.config().iters_for(dataset);
     let pb = super::progress::bar(iters as u64, "train", args.quiet || iters == 0);
     let mut progress = |p: &crate::train::Progress| pb.set_position(p.iteration as u64);
-    let out = if dataset {
+    let out = if let Some(target) = args.target() {
+        target.validate()?;
+        if dataset {
+            return Err(Error::input(&args.input, "--target-psnr / --target-bytes need a .ply input (a dataset is encoded at one λ)"));
+        }
+        let scene: Splats = crate::io::read_ply(&args.input)?;
+        encoder.encode_scene_to(&scene, target, &mut progress)
+    } else if dataset {
         encoder.config().validate_for_dataset().map_err(|e| name(e.into()))?;
         let ds = crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?;
         encoder.encode_dataset(&ds, &mut progress)
@@ -102,6 +123,9 @@ pub fn run(args: Args) -> crate::Result<()> {
             r.sh_degree,
             r.file_bytes,
         );
+        if let Some(t) = &r.target {
+            eprintln!("λ = {} (orbit PSNR {:.2} dB), chosen among {} encodes", r.lambda, r.orbit_psnr, t.probes.len());
+        }
     }
     if let Some(path) = &args.report {
         let text = serde_json::to_string_pretty(r).map_err(|e| Error::failure(path, e))?;

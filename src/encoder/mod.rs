@@ -6,6 +6,7 @@
 //! | [`EncoderConfig`] | settings, `with_*` setters, `validate()` → [`InvalidConfig`] |
 //! | [`Lambda`] | the trade-off λ, its one unit and every conversion |
 //! | [`Encoder`] | RD search, training through a backend, coding, measuring |
+//! | [`Target`], [`Encoder::encode_scene_to`] | the smallest file at a PSNR, the best PSNR within a size |
 //! | [`EncodeReport`] | what an encode did, typed (`encode --report`, `sweep`) |
 //! | [`Backend`], [`TrainBackend`], [`TrainJob`], [`CpuBackend`] | the training-backend seam |
 //!
@@ -21,6 +22,7 @@
 mod backend;
 mod config;
 mod report;
+mod target;
 
 use std::time::Instant;
 
@@ -31,6 +33,7 @@ pub use crate::rate::Lambda;
 pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, TrainJob};
 pub use config::{EncoderConfig, InvalidConfig, DEFAULT_DATASET_ITERS, MAX_ITERS};
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
+pub use target::{Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 
 use crate::io::{Dataset, Split};
 use crate::rate::group::Group;
@@ -259,6 +262,7 @@ impl Encoder {
             stages,
             train,
             series,
+            target: None,
         };
         Ok(Encoded { bytes, decoded, report })
     }

@@ -6,6 +6,8 @@ use crate::rate::group::GroupMap;
 use crate::rate::{GroupReport, Lambda};
 use crate::train::TrainReport;
 
+use super::TargetSearch;
+
 /// Wall time per encoder stage, seconds.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct EncodeStages {
@@ -78,4 +80,6 @@ pub struct EncodeReport {
     pub train: Option<TrainReport>,
     /// RD-search trials and training evaluations against wall time.
     pub series: Vec<SeriesPoint>,
+    /// With a target (`--target-psnr`, `--target-bytes`): the target and every λ tried.
+    pub target: Option<TargetSearch>,
 }
