@@ -32,6 +32,7 @@ fn main() {
         let spz_psnr = score(&spz_scene);
         println!("{name}: spz {spz_bytes} bytes, PSNR {spz_psnr:.2} dB");
         for &l in &lambdas {
+            let l = rate::Lambda::new(l).expect("lambda >= 0");
             let config = if std::env::var("RD").is_ok() {
                 rate::rd::search(&orig, l, |p| {
                     if std::env::var("RD").as_deref() == Ok("v") {
