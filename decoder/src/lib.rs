@@ -21,6 +21,7 @@ pub mod math;
 pub mod render;
 pub mod splats;
 
+pub use bitstream::layout::Group;
 pub use bitstream::DecodeError;
 pub use camera::Camera;
 pub use decode::{decode, decode_prefix, decode_reader, inspect, peek_header, DecodeOptions, FileInfo, SectionInfo};
