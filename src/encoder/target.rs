@@ -126,7 +126,6 @@ impl Encoder {
                 }
             }
         }
-        drop(probe);
         let search = TargetSearch { target, probes };
         match best {
             Some(mut e) => {
