@@ -5,7 +5,7 @@
 //! `cargo bench --bench decode`
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use gscodec::decoder::{decode, DecodeOptions, Splats};
+use gscodec::decoder::{Decoder, Splats};
 use gscodec::io::ply::read_ply;
 use gscodec::io::spz::{decode_spz, encode_spz, SpzVersion};
 use gscodec::rate;
@@ -37,9 +37,13 @@ fn bench_decode(c: &mut Criterion) {
         eprintln!("{name} {label}: {n} Gaussians, .gsc {} bytes, .spz {} bytes", gsc.len(), spz.len());
         g.throughput(Throughput::Elements(n));
         for threads in [1usize, 0] {
-            let opts = DecodeOptions { threads, ..DecodeOptions::default() };
             let id = if threads == 1 { "gsc_1_thread" } else { "gsc_all_threads" };
-            g.bench_with_input(BenchmarkId::new(id, format!("{name}_{label}")), &gsc, |b, bytes| b.iter(|| decode(bytes, &opts).unwrap()));
+            let decode = |bytes: &[u8]| {
+                let mut d = Decoder::new(bytes);
+                d.set_threads(threads);
+                d.read_info().and_then(|r| r.decode()).unwrap()
+            };
+            g.bench_with_input(BenchmarkId::new(id, format!("{name}_{label}")), &gsc, |b, bytes| b.iter(|| decode(bytes)));
         }
         g.bench_with_input(BenchmarkId::new("spz_v4", format!("{name}_{label}")), &spz, |b, bytes| b.iter(|| decode_spz(bytes).unwrap()));
     }

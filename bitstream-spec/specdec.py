@@ -3,8 +3,9 @@
 from bitstream-spec/SPEC.md alone (without reading the Rust decoder), as a check
 that the spec is complete.  Usage: python3 specdec.py IN.gsc OUT.ply
 
-Writes the reference .ply of SPEC §7.2.  Exit code 1 and a one-line message on
-stderr for a malformed file.  Needs numpy.
+Writes the reference .ply of SPEC §7.2.  For a file that breaks the SPEC: exit code 1,
+no output file, and one line on stderr, `specdec: error: IN: CLASS: error: detail`, with
+the error and its class as in SPEC §9.1.  Needs numpy.
 """
 import struct
 import sys
@@ -28,12 +29,27 @@ KIND_INFO = 0x100
 KIND_PADDING = 0x101
 
 
+# SPEC §9.1: each error of the SPEC and its class.
+CLASSES = {
+    "bad magic": "format",
+    "truncation": "format",
+    "corrupt data": "format",
+    "missing section": "format",
+    "trailing data": "format",
+    "checksum mismatch": "checksum",
+    "unsupported major version": "unsupported",
+    "unknown required section": "unsupported",
+    "limit exceeded": "limits",
+}
+
+
 class DecodeError(Exception):
-    """kind is one of the error classes listed in SPEC §9."""
+    """kind is one of the errors listed in SPEC §9.1; cls its class."""
 
     def __init__(self, kind, msg):
-        super().__init__(f"{kind}: {msg}")
         self.kind = kind
+        self.cls = CLASSES[kind]
+        super().__init__(f"{self.cls}: {kind}: {msg}")
 
 
 def corrupt(msg):
@@ -162,7 +178,7 @@ def read_channel_table(rd, allow_context):
 
 
 # ----------------------------------------------------------------------------
-# ANS decoder (§5)
+# Entropy decoder (§5: init and decode step; §5.1 raw bits; §5.3 end check)
 # ----------------------------------------------------------------------------
 class AnsDecoder:
     def __init__(self, data, what):
@@ -224,17 +240,19 @@ class AnsDecoder:
                           f"({len(self.words) - self.next} words left, x={self.x:#x})")
 
 
+def table_for(table, prev):
+    """§5.2: the cdf a coded or context table uses for a value whose predecessor is `prev`."""
+    if table.mode == 1:
+        return table.cdfs[0]
+    d = abs(prev - table.centre)  # Python integers: no overflow
+    return table.cdfs[0 if d == 0 else 1 if d == 1 else 2 if d <= 3 else 3]
+
+
 def read_value(dec, table, state):
-    """§5.2. state is a one-element list holding `prev` (context tables)."""
+    """§5.2. state is a one-element list holding `prev`, set to `centre` when the stream starts."""
     if table.mode == 0:
         return table.value
-    if table.mode == 1:
-        cdf = table.cdfs[0]
-    else:
-        d = abs(state[0] - table.centre)
-        k = 0 if d == 0 else 1 if d == 1 else 2 if d <= 3 else 3
-        cdf = table.cdfs[k]
-    s = dec.symbol(cdf)
+    s = dec.symbol(table_for(table, state[0]))
     v = table.lo + s if s < table.n else unzigzag(dec.raw_bits(32))
     state[0] = v
     return v
@@ -318,7 +336,7 @@ def parse_position_params(payload):
     step = [rd.f32() for _ in range(3)]
     bits = rd.u8()
     if bits > MAX_BITS:
-        raise DecodeError("limit exceeded", f"grid bits {bits}")
+        raise corrupt(f"grid bits {bits}")
     table = read_channel_table(rd, allow_context=False)
     rd.expect_end()
     return origin, step, bits, table
@@ -454,9 +472,8 @@ def decode(data):
         cols["rot"] = rot
         cols["opacity"] = deq[3]
         cols["dc"] = deq[4]
-        # §7: band b's coefficients m go to rest coefficients b²-1+m; each
-        # colour's coefficients are stored contiguously (INRIA f_rest layout,
-        # inferred from the vectors).
+        # §7: band b's coefficients m go to rest coefficients b²-1+m; §7.2: each
+        # colour's coefficients are stored contiguously (INRIA f_rest layout).
         ncoef = (degree + 1) ** 2 - 1
         rest = np.zeros((n, 3, ncoef), np.float32)
         for b in range(1, degree + 1):
@@ -469,7 +486,7 @@ def decode(data):
 
 
 # ----------------------------------------------------------------------------
-# PLY output (layout inferred from the vectors; not in SPEC.md)
+# PLY output (§7.2)
 # ----------------------------------------------------------------------------
 def write_ply(path, n, degree, cols):
     names = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
@@ -497,12 +514,16 @@ def main(argv):
     if len(argv) != 3:
         print("usage: specdec.py IN.gsc OUT.ply", file=sys.stderr)
         return 2
-    with open(argv[1], "rb") as f:
-        data = f.read()
+    try:
+        with open(argv[1], "rb") as f:
+            data = f.read()
+    except OSError as e:
+        print(f"specdec: error: {argv[1]}: io: {e.strerror}", file=sys.stderr)
+        return 1
     try:
         n, degree, cols = decode(data)
     except DecodeError as e:
-        print(f"specdec: error: {e}", file=sys.stderr)
+        print(f"specdec: error: {argv[1]}: {e}", file=sys.stderr)
         return 1
     write_ply(argv[2], n, degree, cols)
     return 0

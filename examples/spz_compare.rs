@@ -9,7 +9,7 @@ use gscodec::metrics::psnr;
 use gscodec::rate::{self, EncodeConfig};
 use gscodec::views::{orbit_cameras, UpAxis};
 use gscodec_decoder::render::render;
-use gscodec_decoder::{decode, DecodeOptions, RenderOptions};
+use gscodec_decoder::{decode, RenderOptions};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -45,7 +45,7 @@ fn main() {
                 EncodeConfig::for_lambda(l)
             };
             let (bytes, report, _) = rate::encode(&orig, &config).expect("encode");
-            let dec = decode(&bytes, &DecodeOptions::default()).expect("decode");
+            let dec = decode(&bytes).expect("decode");
             let p = score(&dec);
             let groups: Vec<String> = report
                 .groups

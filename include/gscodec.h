@@ -28,20 +28,41 @@
 extern "C" {
 #endif
 
-/* Result codes. */
+/* Result codes: one per error class of the Rust decoder (DecodeError::class), plus argument
+ * and internal errors. gsc_error_class(code) names a code. */
 #define GSC_OK 0
-#define GSC_ERR_ARGUMENT (-1)            /* NULL pointer or argument out of range */
-#define GSC_ERR_INVALID_DATA (-2)        /* not a valid .gsc file (magic, truncation, checksum, ...) */
-#define GSC_ERR_UNSUPPORTED_VERSION (-3) /* format version newer than this decoder */
-#define GSC_ERR_INTERNAL (-4)            /* a decoder bug (caught panic) */
+#define GSC_ERR_ARGUMENT (-1)    /* NULL pointer or argument out of range */
+#define GSC_ERR_FORMAT (-2)      /* "format": bad magic, truncated, corrupt, missing section, trailing data */
+#define GSC_ERR_UNSUPPORTED (-3) /* "unsupported": another major version or an unknown required section */
+#define GSC_ERR_INTERNAL (-4)    /* a decoder bug (caught panic) */
+#define GSC_ERR_CHECKSUM (-5)    /* "checksum": a CRC-32 does not match */
+#define GSC_ERR_LIMITS (-6)      /* "limits": beyond the format's bounds or the caller's GscLimits */
+#define GSC_ERR_IO (-7)          /* "io": reading the input failed */
 
 /* A decoded scene (opaque). */
 typedef struct GscScene GscScene;
 
-/* Decodes `len` bytes at `data`. `max_sh_degree` (0..3) skips higher SH bands; `threads` = 0 uses
- * all cores (the result is identical for every thread count). On success *out owns a new scene;
- * on failure *out is NULL. */
+/* Limits of a decode, checked before anything they bound is allocated. */
+typedef struct GscLimits {
+    uint32_t max_gaussians; /* most Gaussians a file may hold */
+    uint64_t max_bytes;     /* byte budget: file + decoded values + scene */
+    int max_sh_degree;      /* 0..3: higher SH bands are not decoded */
+} GscLimits;
+
+/* The default limits (16.7 M Gaussians, 4 GiB, SH degree 3). */
+GscLimits gsc_default_limits(void);
+
+/* Decodes `len` bytes at `data` with the default limits. `max_sh_degree` (0..3) skips higher SH
+ * bands; `threads` = 0 uses all cores (the result is identical for every thread count). On
+ * success *out owns a new scene; on failure *out is NULL. */
 int gsc_decode(const uint8_t *data, size_t len, int max_sh_degree, int threads, GscScene **out);
+
+/* As gsc_decode, with *limits (NULL: the defaults). */
+int gsc_decode_limited(const uint8_t *data, size_t len, const GscLimits *limits, int threads, GscScene **out);
+
+/* The class name of a result code: "ok", "argument", "format", "checksum", "unsupported",
+ * "limits", "io", "internal" or "unknown" (a static string). */
+const char *gsc_error_class(int code);
 
 /* Reads only the fixed header (no checksum of the payload). Either output may be NULL. */
 int gsc_peek_header(const uint8_t *data, size_t len, uint32_t *count, int *sh_degree);

@@ -94,7 +94,7 @@ fn fine_tuning_encode_writes_a_decodable_file_and_report() {
     let stages = &r["stages"];
     assert!(stages["train_s"].as_f64().unwrap() > 0.0 && stages["total_s"].as_f64().unwrap() >= stages["rd_search_s"].as_f64().unwrap());
     assert!(r["steps"]["sh_dc"].as_f64().unwrap() > 0.0);
-    gscodec_decoder::decode(&bytes, &Default::default()).unwrap();
+    gscodec_decoder::decode(&bytes).unwrap();
 }
 
 /// Without the `gpu` feature, `--backend gpu` is bad input (one line, exit 2, no output file);

@@ -2,7 +2,7 @@
 
 use gscodec::rate::{self, quantise, EncodeConfig};
 use gscodec_decoder::bitstream::VERSION_MAJOR;
-use gscodec_decoder::{decode, DecodeError, DecodeOptions, Splats};
+use gscodec_decoder::{decode, decode_with, DecodeError, FormatErrorKind, Limits, Splats};
 
 /// A deterministic random scene of `n` Gaussians (SH degree `d`) spread over `extent`.
 fn scene(n: usize, d: u8, extent: f32, seed: u64) -> Splats {
@@ -29,7 +29,7 @@ fn decode_of_encode_is_the_dequantised_scene_bit_exactly() {
     for (n, d, extent) in [(1, 0, 1.0), (500, 3, 1.0), (300, 1, 1e-4), (300, 2, 1e5), (2, 3, 0.0)] {
         let s = scene(n, d, extent, n as u64);
         let (bytes, report, q) = rate::encode(&s, &EncodeConfig::default()).unwrap();
-        let decoded = decode(&bytes, &DecodeOptions::default()).unwrap();
+        let decoded = decode(&bytes).unwrap();
         let expected = quantise::dequantise(&q);
         assert_eq!(decoded, expected, "n={n} d={d} extent={extent}");
         assert_eq!(report.file_bytes, bytes.len());
@@ -61,9 +61,9 @@ fn rate_estimate_matches_file_size() {
 fn decode_is_identical_across_thread_counts_and_runs() {
     let s = scene(2000, 3, 3.0, 11);
     let (bytes, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
-    let one = decode(&bytes, &DecodeOptions { threads: 1, ..Default::default() }).unwrap();
-    let four = decode(&bytes, &DecodeOptions { threads: 4, ..Default::default() }).unwrap();
-    let again = decode(&bytes, &DecodeOptions { threads: 4, ..Default::default() }).unwrap();
+    let one = decode_threads(&bytes, 1).unwrap();
+    let four = decode_threads(&bytes, 4).unwrap();
+    let again = decode_threads(&bytes, 4).unwrap();
     let bits = |s: &Splats| s.positions.iter().flatten().chain(s.sh_rest.iter()).map(|x| x.to_bits()).collect::<Vec<_>>();
     assert_eq!(bits(&one), bits(&four));
     assert_eq!(one, again);
@@ -75,8 +75,8 @@ fn decode_is_identical_across_thread_counts_and_runs() {
 fn max_sh_degree_skips_bands() {
     let s = scene(200, 3, 1.0, 3);
     let (bytes, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
-    let full = decode(&bytes, &DecodeOptions::default()).unwrap();
-    let d1 = decode(&bytes, &DecodeOptions { max_sh_degree: 1, threads: 0 }).unwrap();
+    let full = decode(&bytes).unwrap();
+    let d1 = decode_with(&bytes, &Limits { max_sh_degree: 1, ..Limits::default() }).unwrap();
     assert_eq!(d1.sh_degree, 1);
     assert_eq!(d1, full.with_sh_degree(1));
 }
@@ -98,19 +98,19 @@ fn leave_out_constant_channels_zero_bands_and_transparent_gaussians() {
     assert_eq!(report.gaussians, 50);
     let info = gscodec_decoder::inspect(&bytes).unwrap();
     assert!(info.constant_channels.contains(&"opacity/0".to_string()));
-    assert!(!info.sections.iter().any(|x| x.name == "opacity" && x.kind >= 0x20), "constant group has no stream");
-    assert_eq!(info.input_gaussians, Some(100));
+    assert!(!info.info.sections.iter().any(|x| x.name == "opacity" && x.kind >= 0x20), "constant group has no stream");
+    assert_eq!(info.encoder.map(|e| e.input_gaussians), Some(100));
 }
 
 #[test]
 fn empty_and_huge_lambda_give_valid_files() {
     let empty = Splats::new(3);
     let (bytes, _, _) = rate::encode(&empty, &EncodeConfig::default()).unwrap();
-    assert!(decode(&bytes, &DecodeOptions::default()).unwrap().is_empty());
+    assert!(decode(&bytes).unwrap().is_empty());
     let s = scene(300, 3, 1.0, 9);
     let (bytes, report, _) = rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(1e12).unwrap())).unwrap();
     assert_eq!(report.gaussians, 0);
-    assert!(decode(&bytes, &DecodeOptions::default()).unwrap().is_empty());
+    assert!(decode(&bytes).unwrap().is_empty());
     let sizes: Vec<usize> =
         [0.0, 1.0, 10.0, 100.0].iter().map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(l).unwrap())).unwrap().0.len()).collect();
     assert!(sizes.windows(2).all(|w| w[1] < w[0]), "{sizes:?}");
@@ -135,7 +135,6 @@ fn mutated_files_never_panic() {
         state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         ((state >> 33) as usize) % m.max(1)
     };
-    let opts = DecodeOptions { threads: 1, ..Default::default() };
     let mut errors = 0;
     for _ in 0..3000 {
         let mut b = bytes.clone();
@@ -155,7 +154,7 @@ fn mutated_files_never_panic() {
                 break;
             }
         }
-        if decode(&b, &opts).is_err() {
+        if decode_threads(&b, 1).is_err() {
             errors += 1;
         }
     }
@@ -167,17 +166,19 @@ fn mutated_files_never_panic() {
 fn typed_errors_for_bad_files() {
     let s = scene(20, 0, 1.0, 2);
     let (bytes, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
-    assert_eq!(decode(b"PK\x03\x04", &DecodeOptions::default()).unwrap_err(), DecodeError::BadMagic);
+    let e = decode(b"PK\x03\x04").unwrap_err();
+    assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::BadMagic));
     let mut newer = bytes.clone();
     newer[4] = VERSION_MAJOR + 1;
     assert!(
-        matches!(decode(&newer, &DecodeOptions::default()), Err(DecodeError::UnsupportedVersion { major, .. }) if major == VERSION_MAJOR + 1)
+        matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR + 1, 0)))
     );
-    assert!(matches!(decode(&bytes[..bytes.len() - 1], &DecodeOptions::default()), Err(DecodeError::Truncated(_))));
+    let e = decode(&bytes[..bytes.len() - 1]).unwrap_err();
+    assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::Truncated));
     // Hostile Gaussian count: refused before anything is allocated.
     let mut hostile = bytes.clone();
     hostile[8..12].copy_from_slice(&u32::MAX.to_le_bytes());
-    assert!(matches!(decode(&hostile, &DecodeOptions::default()), Err(DecodeError::Limit(_))));
+    assert_eq!(decode(&hostile).unwrap_err().class(), "limits");
 }
 
 #[test]
@@ -200,8 +201,15 @@ fn context_coded_channels_round_trip_across_chunk_boundaries() {
     assert!(band1.context_bits < band1.histogram_bits);
     let expected = quantise::dequantise(&q);
     for threads in [1, 3] {
-        assert_eq!(decode(&bytes, &DecodeOptions { threads, ..Default::default() }).unwrap(), expected, "{threads} threads");
+        assert_eq!(decode_threads(&bytes, threads).unwrap(), expected, "{threads} threads");
     }
     let est = report.estimated_bits() / 8.0;
     assert!((est - bytes.len() as f64).abs() / (bytes.len() as f64) < 0.01, "estimated {est} actual {}", bytes.len());
+}
+
+/// Decodes with `threads` worker threads (0: the global pool) through the reader door.
+fn decode_threads(bytes: &[u8], threads: usize) -> Result<Splats, gscodec_decoder::DecodeError> {
+    let mut d = gscodec_decoder::Decoder::new(bytes);
+    d.set_threads(threads);
+    d.read_info()?.decode()
 }

@@ -1,17 +1,21 @@
 //! Conformance vectors (`bitstream-spec/vectors/`): each `NAME.gsc` decodes to exactly
 //! `NAME.ply`, whose SHA-256 is listed in `SHA256SUMS` (for `chunks`, whose 4.8 MB output is not
 //! stored, the hash alone). Regenerate (after a deliberate format change only) with
-//! `cargo test --test vectors -- --ignored regenerate`.
+//! `cargo test --test vectors -- --ignored regenerate`, then `python3
+//! bitstream-spec/make_bad_vectors.py`, which makes `quirks` and the bad vectors (SPEC §9.2, §9.3)
+//! from `hand` and adds their lines to `SHA256SUMS`.
 
 use std::path::{Path, PathBuf};
 
 use gscodec::rate::{self, EncodeConfig};
 use gscodec::rng::Rng;
 use gscodec_decoder::bitstream::{self, Header, VERSION_MAJOR, VERSION_MINOR};
-use gscodec_decoder::{decode, DecodeOptions, Splats};
+use gscodec_decoder::{decode, Decoder, Limits, Splats};
 use sha2::{Digest, Sha256};
 
-const NAMES: [&str; 7] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks"];
+const NAMES: [&str; 8] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks"];
+/// Vectors made by `bitstream-spec/make_bad_vectors.py`, not by our encoder.
+const SCRIPTED: [&str; 1] = ["quirks"];
 /// Vectors whose expected `.ply` is given by its SHA-256 only.
 const HASH_ONLY: [&str; 1] = ["chunks"];
 
@@ -131,7 +135,7 @@ fn vector_scene(name: &str) -> Splats {
 #[ignore]
 fn regenerate() {
     let mut sums = String::new();
-    for name in NAMES {
+    for name in NAMES.into_iter().filter(|n| !SCRIPTED.contains(n)) {
         let bytes = if name == "empty3" {
             // No Gaussians but SH degree 3 (our encoder writes D = 0 for an empty scene): the
             // output still lists the 45 rest properties.
@@ -141,7 +145,7 @@ fn regenerate() {
             rate::encode(&vector_scene(name), &EncodeConfig::default()).unwrap().0
         };
         std::fs::write(dir().join(format!("{name}.gsc")), &bytes).unwrap();
-        let ply = decode(&bytes, &DecodeOptions::default()).unwrap().to_ply();
+        let ply = decode(&bytes).unwrap().to_ply();
         if !HASH_ONLY.contains(&name) {
             std::fs::write(dir().join(format!("{name}.ply")), &ply).unwrap();
         }
@@ -156,7 +160,11 @@ fn vectors_decode_to_their_expected_output() {
     for name in NAMES {
         let bytes = std::fs::read(dir().join(format!("{name}.gsc"))).unwrap();
         for threads in [1, 4] {
-            let ply = decode(&bytes, &DecodeOptions { threads, ..Default::default() }).unwrap().to_ply();
+            let ply = {
+                let mut d = Decoder::new(&bytes[..]);
+                d.set_threads(threads);
+                d.read_info().and_then(|r| r.decode())
+            }.unwrap().to_ply();
             assert_eq!(expected_hash(&sums, name), hex(&Sha256::digest(&ply)), "{name}");
             if !HASH_ONLY.contains(&name) {
                 assert_eq!(ply, std::fs::read(dir().join(format!("{name}.ply"))).unwrap(), "{name}");
@@ -165,19 +173,29 @@ fn vectors_decode_to_their_expected_output() {
     }
 }
 
+/// Whether python3 with numpy is there to run `bitstream-spec/*.py`; says so when it is not.
+fn python_with_numpy(what: &str) -> bool {
+    let python = std::process::Command::new("python3").args(["-c", "import numpy"]).output();
+    let found = python.is_ok_and(|o| o.status.success());
+    if !found {
+        eprintln!("SKIPPED: python3 with numpy not found; {what} was not run");
+    }
+    found
+}
+
+/// Runs `bitstream-spec/specdec.py INPUT OUTPUT`.
+fn specdec(input: &Path, output: &Path) -> std::process::Output {
+    std::process::Command::new("python3").arg(dir().join("../specdec.py")).arg(input).arg(output).output().unwrap()
+}
+
 /// `bitstream-spec/specdec.py`, a decoder written from SPEC.md alone, decodes every vector to
 /// the same expected output: the spec, not just our code, defines the format. Needs python3
 /// with numpy (`.ci/run` installs them); without them the test says so and checks nothing.
 #[test]
 fn independent_python_decoder_agrees() {
-    let python = std::process::Command::new("python3").args(["-c", "import numpy"]).output();
-    if !python.is_ok_and(|o| o.status.success()) {
-        eprintln!("SKIPPED: python3 with numpy not found; the independent decoder was not run");
+    if !python_with_numpy("the independent decoder") {
         return;
     }
-    let specdec = |input: &Path, output: &Path| {
-        std::process::Command::new("python3").arg(dir().join("../specdec.py")).arg(input).arg(output).output().unwrap()
-    };
     let sums = std::fs::read_to_string(dir().join("SHA256SUMS")).unwrap();
     let out = tempfile::tempdir().unwrap();
     for name in NAMES {
@@ -186,17 +204,81 @@ fn independent_python_decoder_agrees() {
         assert!(run.status.success(), "{name}: {}", String::from_utf8_lossy(&run.stderr));
         assert_eq!(expected_hash(&sums, name), hex(&Sha256::digest(std::fs::read(&ply).unwrap())), "{name}");
     }
-    // And it rejects what the spec says to reject: a flipped payload byte, a newer major version.
-    let mut bad = std::fs::read(dir().join("hand.gsc")).unwrap();
-    let last = bad.len() - 1;
-    bad[last] ^= 1;
-    let mut newer = std::fs::read(dir().join("hand.gsc")).unwrap();
-    newer[4] += 1;
-    for (what, bytes) in [("flipped byte", bad), ("newer major", newer)] {
-        let f = out.path().join("bad.gsc");
-        std::fs::write(&f, bytes).unwrap();
-        assert!(!specdec(&f, &out.path().join("bad.ply")).status.success(), "{what} accepted");
+}
+
+/// `bitstream-spec/vectors/bad/EXPECTED`: (file name, error class, reason) per bad vector.
+fn bad_vectors() -> Vec<(String, String, String)> {
+    let expected = std::fs::read_to_string(dir().join("bad/EXPECTED")).unwrap();
+    let rows: Vec<(String, String, String)> = expected
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| {
+            let mut f = l.splitn(3, ' ');
+            let (name, class, reason) = (f.next().unwrap(), f.next().unwrap(), f.next().unwrap_or_default());
+            assert!(["io", "format", "checksum", "unsupported", "limits"].contains(&class), "{l}");
+            (name.to_string(), class.to_string(), reason.to_string())
+        })
+        .collect();
+    assert!(rows.len() >= 8, "EXPECTED lists {} bad vectors", rows.len());
+    rows
+}
+
+/// The bad vectors (SPEC §9.2) are the committed files, and every one is refused by the CLI: exit
+/// code 2, one line `error: FILE: …` on stderr, no output file. The library's error class must be the
+/// one `EXPECTED` lists (SPEC §9.1).
+#[test]
+fn bad_vectors_are_refused_by_the_cli() {
+    let sums = std::fs::read_to_string(dir().join("SHA256SUMS")).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let ply = out.path().join("out.ply");
+    for (name, class, reason) in bad_vectors() {
+        let path = dir().join("bad").join(&name);
+        let bytes = std::fs::read(&path).unwrap();
+        let listed = sums.lines().find(|l| l.ends_with(&format!("  bad/{name}"))).unwrap_or_else(|| panic!("{name} not in SHA256SUMS"));
+        assert_eq!(&listed[..64], hex(&Sha256::digest(&bytes)), "{name} differs from SHA256SUMS");
+        let err = decode(&bytes).expect_err(&format!("{name} ({reason}) decoded"));
+        assert_eq!(err.class(), class, "{name} ({reason}): {err}");
+        let run = std::process::Command::new(env!("CARGO_BIN_EXE_gscodec"))
+            .args(["decode", "--quiet"])
+            .arg(&path)
+            .arg("-o")
+            .arg(&ply)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{name} ({reason}): {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{name}: {stderr}");
+        assert!(stderr.starts_with("error: ") && stderr.contains(&name), "{name}: {stderr}");
+        assert!(!ply.exists(), "{name}: output written");
     }
+}
+
+/// `specdec.py` refuses every bad vector with the class EXPECTED lists (exit 1, one line naming
+/// the class, no output), and `make_bad_vectors.py` still makes exactly the committed vectors.
+#[test]
+fn bad_vectors_are_refused_by_the_independent_decoder() {
+    if !python_with_numpy("the bad vectors' check with the independent decoder") {
+        return;
+    }
+    let out = tempfile::tempdir().unwrap();
+    let ply = out.path().join("out.ply");
+    for (name, class, reason) in bad_vectors() {
+        let run = specdec(&dir().join("bad").join(&name), &ply);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(1), "{name} ({reason}): {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{name}: {stderr}");
+        assert!(stderr.contains(&format!("{name}: {class}: ")), "{name}: expected class {class}: {stderr}");
+        assert!(!ply.exists(), "{name}: output written");
+    }
+    let made = out.path().join("made");
+    let run = std::process::Command::new("python3").arg(dir().join("../make_bad_vectors.py")).arg("--out").arg(&made).output().unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let committed = std::fs::read_to_string(dir().join("bad/EXPECTED")).unwrap();
+    assert_eq!(std::fs::read_to_string(made.join("EXPECTED")).unwrap(), committed);
+    for (name, ..) in bad_vectors() {
+        assert!(std::fs::read(made.join(&name)).unwrap() == std::fs::read(dir().join("bad").join(&name)).unwrap(), "{name} is stale");
+    }
+    assert!(std::fs::read(made.join("quirks.gsc")).unwrap() == std::fs::read(dir().join("quirks.gsc")).unwrap(), "quirks.gsc is stale");
 }
 
 #[test]
@@ -206,7 +288,7 @@ fn mutated_vectors_never_panic() {
         state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         ((state >> 33) as usize) % m.max(1)
     };
-    let opts = DecodeOptions { threads: 1, ..Default::default() };
+    let limits = Limits::default();
     for name in NAMES {
         let bytes = std::fs::read(dir().join(format!("{name}.gsc"))).unwrap();
         for _ in 0..1500 {
@@ -225,9 +307,9 @@ fn mutated_vectors_never_panic() {
                     repair_crcs(&mut b);
                 }
             }
-            let _ = decode(&b, &opts);
+            let _ = decode(&b);
             let _ = gscodec_decoder::inspect(&b);
-            let _ = gscodec_decoder::decode_prefix(&b, &opts);
+            let _ = gscodec_decoder::decode_prefix(&b, &limits);
         }
     }
 }

@@ -3,7 +3,7 @@
 //! `cargo run --release -p gscodec-decoder --example decode -- scene.gsc [threads] [repeats]`
 //! (threads 0 = all cores; repeats > 1 reports the fastest run, handy under a profiler).
 
-use gscodec_decoder::{decode, peek_header, DecodeOptions};
+use gscodec_decoder::{peek_header, Decoder, Limits};
 use std::time::Instant;
 
 fn main() {
@@ -25,12 +25,13 @@ fn main() {
             std::process::exit(2);
         }
     };
-    let options = DecodeOptions { threads, ..DecodeOptions::default() };
     let mut best = f64::INFINITY;
     let mut splats = None;
     for _ in 0..repeats {
         let t = Instant::now();
-        match decode(&bytes, &options) {
+        let mut decoder = Decoder::with_limits(&bytes[..], Limits::none());
+        decoder.set_threads(threads);
+        match decoder.read_info().and_then(|r| r.decode()) {
             Ok(s) => splats = Some(s),
             Err(e) => {
                 eprintln!("error: {path}: {e}");

@@ -8,13 +8,21 @@ use glam::{Mat3, Vec3};
 /// `(i + 0.5, j + 0.5)`; a camera-space point projects to `(fx x/z + cx, fy y/z + cy)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Camera {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Focal length along x, in pixels.
     pub fx: f32,
+    /// Focal length along y, in pixels.
     pub fy: f32,
+    /// Principal point x, in continuous pixel coordinates.
     pub cx: f32,
+    /// Principal point y, in continuous pixel coordinates.
     pub cy: f32,
+    /// World-to-camera rotation `R`.
     pub rotation: Mat3,
+    /// World-to-camera translation `t`.
     pub translation: Vec3,
     /// Gaussians whose centre has camera depth `z <= znear` are not drawn.
     pub znear: f32,

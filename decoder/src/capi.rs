@@ -2,13 +2,15 @@
 //!
 //! * Every function catches panics (`catch_unwind`), so no unwinding crosses the boundary; a
 //!   caught panic becomes `GSC_ERR_INTERNAL`.
-//! * Failures return a negative code and set a thread-local message readable with
-//!   [`gsc_last_error`] until the next failing call on the same thread.
+//! * Failures return a negative code, one per [`DecodeError::class`] (plus `GSC_ERR_ARGUMENT`
+//!   and `GSC_ERR_INTERNAL`; [`gsc_error_class`] names a code), and set a thread-local message
+//!   readable with [`gsc_last_error`] until the next failing call on the same thread.
 //! * A decoded scene is an opaque `GscScene*` owned by the caller and released with
 //!   [`gsc_scene_free`]; the array pointers it hands out live exactly as long as the scene.
 
-use crate::bitstream::DecodeError;
-use crate::{decode, peek_header, DecodeOptions, Splats};
+#![allow(unsafe_code)] // the C ABI takes raw pointers; every unsafe block states its contract
+
+use crate::{decode_with, peek_header, DecodeError, Decoder, Limits, Splats};
 use std::cell::RefCell;
 use std::ffi::{c_char, c_int, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -17,12 +19,31 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 pub const GSC_OK: c_int = 0;
 /// A required pointer argument was NULL (or an argument was out of range).
 pub const GSC_ERR_ARGUMENT: c_int = -1;
-/// The bytes are not a valid `.gsc` file (bad magic, truncated, checksum, corrupt, limits).
-pub const GSC_ERR_INVALID_DATA: c_int = -2;
-/// The file's format version is newer than this decoder.
-pub const GSC_ERR_UNSUPPORTED_VERSION: c_int = -3;
+/// Class `format`: not a valid `.gsc` file (bad magic, truncated, corrupt, missing section,
+/// trailing data).
+pub const GSC_ERR_FORMAT: c_int = -2;
+/// Class `unsupported`: another major version, or an unknown required section.
+pub const GSC_ERR_UNSUPPORTED: c_int = -3;
 /// A bug inside the decoder (a caught panic).
 pub const GSC_ERR_INTERNAL: c_int = -4;
+/// Class `checksum`: a CRC-32 does not match.
+pub const GSC_ERR_CHECKSUM: c_int = -5;
+/// Class `limits`: the file exceeds the format's bounds or the caller's limits.
+pub const GSC_ERR_LIMITS: c_int = -6;
+/// Class `io`: reading the input failed.
+pub const GSC_ERR_IO: c_int = -7;
+
+/// Limits of a decode (see [`Limits`]); `gsc_default_limits` gives the defaults.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct GscLimits {
+    /// Most Gaussians a file may hold.
+    pub max_gaussians: u32,
+    /// Byte budget of the decode (file + decoded values + scene).
+    pub max_bytes: u64,
+    /// SH bands above this degree (0..=3) are not decoded.
+    pub max_sh_degree: c_int,
+}
 
 /// A decoded scene (opaque to C).
 pub struct GscScene {
@@ -52,10 +73,39 @@ fn guarded(f: impl FnOnce() -> c_int) -> c_int {
 
 fn decode_error_code(e: &DecodeError) -> c_int {
     set_error(e);
-    match e {
-        DecodeError::UnsupportedVersion { .. } => GSC_ERR_UNSUPPORTED_VERSION,
-        _ => GSC_ERR_INVALID_DATA,
+    match e.class() {
+        "format" => GSC_ERR_FORMAT,
+        "checksum" => GSC_ERR_CHECKSUM,
+        "unsupported" => GSC_ERR_UNSUPPORTED,
+        "limits" => GSC_ERR_LIMITS,
+        "io" => GSC_ERR_IO,
+        _ => GSC_ERR_INTERNAL,
     }
+}
+
+/// The class name of a result code: `"ok"`, `"argument"`, `"format"`, `"checksum"`,
+/// `"unsupported"`, `"limits"`, `"io"`, `"internal"`, or `"unknown"` (a static string).
+#[no_mangle]
+pub extern "C" fn gsc_error_class(code: c_int) -> *const c_char {
+    let name: &'static [u8] = match code {
+        GSC_OK => b"ok\0",
+        GSC_ERR_ARGUMENT => b"argument\0",
+        GSC_ERR_FORMAT => b"format\0",
+        GSC_ERR_CHECKSUM => b"checksum\0",
+        GSC_ERR_UNSUPPORTED => b"unsupported\0",
+        GSC_ERR_LIMITS => b"limits\0",
+        GSC_ERR_IO => b"io\0",
+        GSC_ERR_INTERNAL => b"internal\0",
+        _ => b"unknown\0",
+    };
+    name.as_ptr() as *const c_char
+}
+
+/// The default limits (16.7 M Gaussians, 4 GiB, SH degree 3).
+#[no_mangle]
+pub extern "C" fn gsc_default_limits() -> GscLimits {
+    let l = Limits::default();
+    GscLimits { max_gaussians: l.max_gaussians, max_bytes: l.max_bytes, max_sh_degree: c_int::from(l.max_sh_degree) }
 }
 
 /// # Safety
@@ -68,13 +118,25 @@ unsafe fn bytes<'a>(data: *const u8, len: usize) -> Option<&'a [u8]> {
     Some(unsafe { std::slice::from_raw_parts(data, len) })
 }
 
-/// Decodes `len` bytes at `data` into a new scene stored in `*out` (NULL on failure).
-/// `max_sh_degree` (0..=3) skips higher SH bands; `threads` = 0 uses all cores.
+/// Decodes `len` bytes at `data` into a new scene stored in `*out` (NULL on failure), with the
+/// default limits. `max_sh_degree` (0..=3) skips higher SH bands; `threads` = 0 uses all cores.
 ///
 /// # Safety
 /// `data` must point to `len` readable bytes; `out` must be a valid pointer to write to.
 #[no_mangle]
 pub unsafe extern "C" fn gsc_decode(data: *const u8, len: usize, max_sh_degree: c_int, threads: c_int, out: *mut *mut GscScene) -> c_int {
+    let limits = GscLimits { max_sh_degree, ..gsc_default_limits() };
+    // SAFETY: the caller's guarantees are passed on unchanged.
+    unsafe { gsc_decode_limited(data, len, &limits, threads, out) }
+}
+
+/// As [`gsc_decode`], with `*limits` (NULL: the defaults).
+///
+/// # Safety
+/// `data` must point to `len` readable bytes; `limits` is NULL or readable; `out` must be a
+/// valid pointer to write to.
+#[no_mangle]
+pub unsafe extern "C" fn gsc_decode_limited(data: *const u8, len: usize, limits: *const GscLimits, threads: c_int, out: *mut *mut GscScene) -> c_int {
     guarded(|| {
         if out.is_null() {
             set_error("gsc_decode: `out` is NULL");
@@ -86,12 +148,21 @@ pub unsafe extern "C" fn gsc_decode(data: *const u8, len: usize, max_sh_degree: 
             set_error("gsc_decode: `data` is NULL");
             return GSC_ERR_ARGUMENT;
         };
-        if !(0..=3).contains(&max_sh_degree) || threads < 0 {
-            set_error(format!("gsc_decode: max_sh_degree {max_sh_degree} must be 0..=3 and threads {threads} >= 0"));
+        // SAFETY: NULL or readable per the contract.
+        let l = if limits.is_null() { gsc_default_limits() } else { unsafe { *limits } };
+        if !(0..=3).contains(&l.max_sh_degree) || threads < 0 {
+            set_error(format!("gsc_decode: max_sh_degree {} must be 0..=3 and threads {threads} >= 0", l.max_sh_degree));
             return GSC_ERR_ARGUMENT;
         }
-        let opts = DecodeOptions { max_sh_degree: max_sh_degree as u8, threads: threads as usize };
-        match decode(input, &opts) {
+        let limits = Limits { max_gaussians: l.max_gaussians, max_bytes: l.max_bytes, max_sh_degree: l.max_sh_degree as u8 };
+        let result = if threads == 0 {
+            decode_with(input, &limits)
+        } else {
+            let mut d = Decoder::with_limits(input, limits);
+            d.set_threads(threads as usize);
+            d.read_info().and_then(|r| r.decode())
+        };
+        match result {
             Ok(splats) => {
                 // SAFETY: as above.
                 unsafe { *out = Box::into_raw(Box::new(GscScene { splats })) };

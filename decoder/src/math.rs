@@ -4,10 +4,13 @@
 use crate::camera::Camera;
 use glam::{Mat3, Vec3};
 
-/// Real SH basis constants of the reference 3DGS implementation.
+/// Real SH basis constants of the reference 3DGS implementation: degree 0.
 pub const SH_C0: f32 = 0.282_094_8;
+/// Degree 1.
 pub const SH_C1: f32 = 0.488_602_52;
+/// Degree 2.
 pub const SH_C2: [f32; 5] = [1.092_548_4, -1.092_548_4, 0.315_391_57, -1.092_548_4, 0.546_274_2];
+/// Degree 3.
 pub const SH_C3: [f32; 7] = [-0.590_043_6, 2.890_611_4, -0.457_045_8, 0.373_176_34, -0.457_045_8, 1.445_305_7, -0.590_043_6];
 
 /// Screen-space dilation added to the 2D covariance diagonal (pixels²).

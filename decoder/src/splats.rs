@@ -7,14 +7,33 @@ use crate::math::sh_rest_coeffs;
 /// A problem with the contents of a scene.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SceneError {
+    /// The SH degree is above 3.
     #[error("SH degree {0} is not supported (0..=3)")]
     BadShDegree(u8),
+    /// An array's length does not match the Gaussian count.
     #[error("array `{name}` has {got} entries, expected {expected}")]
-    LengthMismatch { name: &'static str, got: usize, expected: usize },
+    LengthMismatch {
+        /// The array's field name.
+        name: &'static str,
+        /// Its length.
+        got: usize,
+        /// The length it should have.
+        expected: usize,
+    },
+    /// A value is NaN or infinite.
     #[error("Gaussian {index}: `{name}` is not finite")]
-    NonFinite { index: usize, name: &'static str },
+    NonFinite {
+        /// The Gaussian.
+        index: usize,
+        /// The array's field name.
+        name: &'static str,
+    },
+    /// A rotation is the zero quaternion.
     #[error("Gaussian {index}: rotation quaternion has zero norm")]
-    ZeroQuaternion { index: usize },
+    ZeroQuaternion {
+        /// The Gaussian.
+        index: usize,
+    },
 }
 
 /// 3D Gaussians, structure-of-arrays, in the parameterisation of the reference 3DGS trainer.
@@ -28,12 +47,19 @@ pub enum SceneError {
 ///   (coefficient-major, channels interleaved — unlike the channel-major `.ply` layout).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Splats {
+    /// SH degree `d` (0..=3).
     pub sh_degree: u8,
+    /// Centres x y z.
     pub positions: Vec<[f32; 3]>,
+    /// Natural logs of the standard deviations along the local axes.
     pub log_scales: Vec<[f32; 3]>,
+    /// Quaternions `(w, x, y, z)`, not necessarily normalised.
     pub rotations: Vec<[f32; 4]>,
+    /// Opacities before the sigmoid.
     pub opacity_logits: Vec<f32>,
+    /// Degree-0 SH coefficient per colour channel.
     pub sh_dc: Vec<[f32; 3]>,
+    /// Higher SH coefficients, `[(i * K + k) * 3 + c]` (see above).
     pub sh_rest: Vec<f32>,
 }
 
@@ -48,6 +74,7 @@ impl Splats {
         self.positions.len()
     }
 
+    /// Whether the scene has no Gaussians.
     pub fn is_empty(&self) -> bool {
         self.positions.is_empty()
     }

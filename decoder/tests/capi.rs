@@ -3,7 +3,7 @@
 //! dump must equal the Rust decoder's output bit for bit.
 #![cfg(feature = "capi")]
 
-use gscodec_decoder::{decode, DecodeOptions};
+use gscodec_decoder::decode;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -24,7 +24,7 @@ fn static_lib() -> PathBuf {
 }
 
 fn rust_dump(bytes: &[u8]) -> Vec<u8> {
-    let s = decode(bytes, &DecodeOptions::default()).unwrap();
+    let s = decode(bytes).unwrap();
     let mut out = Vec::new();
     out.extend_from_slice(&(s.len() as u32).to_le_bytes());
     out.extend_from_slice(&(s.sh_degree as i32).to_le_bytes());

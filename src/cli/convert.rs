@@ -3,7 +3,8 @@
 use crate::io::{read_scene, write_scene};
 use std::path::PathBuf;
 
-/// Convert a scene between formats, chosen by the files' extensions (.ply, .gsc, .spz, .splat).
+/// Convert a scene between formats, chosen by the files' extensions: .ply, .compressed.ply,
+/// .gsc, .spz, .splat, .sog (SOG bundle), meta.json (unbundled SOG), .glb, .gltf.
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Input scene.

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use gscodec_decoder::DecodeOptions;
+use gscodec_decoder::Limits;
 
 /// Decode a .gsc file to a .ply scene.
 #[derive(Debug, clap::Args)]
@@ -21,7 +21,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> crate::Result<()> {
-    let opts = DecodeOptions { max_sh_degree: args.max_sh_degree, threads: 0 };
-    let scene = crate::io::read_scene_with(&args.input, &opts)?;
+    let limits = Limits { max_sh_degree: args.max_sh_degree, ..Limits::default() };
+    let scene = crate::io::read_scene_with(&args.input, &limits)?;
     crate::io::write_ply(&args.output, &scene)
 }

@@ -11,7 +11,7 @@ use gscodec_decoder::Splats;
 /// Compress a scene into a .gsc bitstream.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A trained .ply scene, or a dataset directory.
+    /// A trained scene (.ply, .spz, .splat, …), or a dataset directory.
     pub input: PathBuf,
     /// Output .gsc file.
     #[arg(short, long)]
@@ -48,6 +48,9 @@ pub struct Args {
     /// Write a JSON report (sizes per attribute group, estimated vs actual, stage times, time series).
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Dataset image options.
+    #[command(flatten)]
+    pub dataset: super::dataset_args::DatasetArgs,
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
@@ -86,16 +89,16 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
     let out = if let Some(target) = args.target() {
         target.validate()?;
         if dataset {
-            return Err(Error::input(&args.input, "--target-psnr / --target-bytes need a .ply input (a dataset is encoded at one λ)"));
+            return Err(Error::input(&args.input, "--target-psnr / --target-bytes need a scene input (a dataset is encoded at one λ)"));
         }
-        let scene: Splats = crate::io::read_ply(&args.input)?;
+        let scene: Splats = crate::io::read_scene(&args.input)?;
         encoder.encode_scene_to(&scene, target, &mut progress)
     } else if dataset {
         encoder.config().validate_for_dataset().map_err(|e| name(e.into()))?;
-        let ds = crate::io::load_dataset(&args.input, &crate::io::LoadOptions::default())?;
+        let ds = crate::io::load_dataset(&args.input, &args.dataset.load_options())?;
         encoder.encode_dataset(&ds, &mut progress)
     } else {
-        let scene: Splats = crate::io::read_ply(&args.input)?;
+        let scene: Splats = crate::io::read_scene(&args.input)?;
         encoder.encode_scene(&scene, &mut progress)
     }
     .map_err(name)?;

@@ -42,6 +42,9 @@ pub struct Args {
     /// Also report every view's metrics (JSON: a `per_view` array).
     #[arg(long)]
     pub per_view: bool,
+    /// Dataset image options.
+    #[command(flatten)]
+    pub dataset: super::dataset_args::DatasetArgs,
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
@@ -82,7 +85,7 @@ pub fn run(args: Args) -> Result<()> {
     let scene = read_scene(&args.scene)?;
     let bytes = std::fs::metadata(&args.scene).map_err(|e| Error::input(&args.scene, e))?.len();
     let (views, background): (Vec<View>, [f32; 3]) = if let Some(data) = &args.data {
-        dataset_views(data, args.split, None)?
+        dataset_views(data, args.split, None, &args.dataset.load_options())?
     } else {
         let path = args.reference.as_ref().expect("clap group");
         if args.orbit == 0 {

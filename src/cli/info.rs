@@ -23,11 +23,13 @@ pub struct Args {
 pub fn run(args: Args) -> crate::Result<()> {
     let bytes = std::fs::read(&args.input).map_err(|e| Error::input(&args.input, e))?;
     let info = inspect(&bytes).map_err(|e| Error::input(&args.input, e))?;
-    let h = info.header;
-    let pruned = info.input_gaussians.map(|g| g.saturating_sub(h.gaussians));
-    let dropped_bands = info.input_sh_degree.map(|d| d.saturating_sub(h.sh_degree));
+    let h = info.info.header;
+    let input_gaussians = info.encoder.map(|e| e.input_gaussians);
+    let input_sh_degree = info.encoder.map(|e| e.input_sh_degree);
+    let pruned = input_gaussians.map(|g| g.saturating_sub(h.gaussians));
+    let dropped_bands = input_sh_degree.map(|d| d.saturating_sub(h.sh_degree));
     let mut groups: Vec<(String, usize)> = Vec::new();
-    for s in &info.sections {
+    for s in &info.info.sections {
         match groups.iter_mut().find(|g| g.0 == s.name) {
             Some(g) => g.1 += s.bytes,
             None => groups.push((s.name.to_string(), s.bytes)),
@@ -35,6 +37,7 @@ pub fn run(args: Args) -> crate::Result<()> {
     }
     if args.json {
         let sections: Vec<_> = info
+            .info
             .sections
             .iter()
             .map(|s| json!({"kind": s.kind, "chunk": s.chunk, "name": s.name, "optional": s.optional, "bytes": s.bytes}))
@@ -43,13 +46,13 @@ pub fn run(args: Args) -> crate::Result<()> {
             "version": format!("{}.{}", h.version_major, h.version_minor),
             "gaussians": h.gaussians,
             "sh_degree": h.sh_degree,
-            "bytes": info.file_bytes,
+            "bytes": info.info.file_bytes,
             "sections": sections,
             "group_bytes": groups.iter().map(|(n, b)| (n.clone(), json!(b))).collect::<serde_json::Map<_, _>>(),
             "left_out": {
                 "pruned_gaussians": pruned,
-                "input_gaussians": info.input_gaussians,
-                "input_sh_degree": info.input_sh_degree,
+                "input_gaussians": input_gaussians,
+                "input_sh_degree": input_sh_degree,
                 "dropped_sh_bands": dropped_bands,
                 "constant_channels": info.constant_channels,
             },
@@ -60,14 +63,14 @@ pub fn run(args: Args) -> crate::Result<()> {
         println!("{}: gscodec bitstream version {}.{}", args.input.display(), h.version_major, h.version_minor);
         println!("gaussians   {}", h.gaussians);
         println!("sh_degree   {}", h.sh_degree);
-        println!("bytes       {}", info.file_bytes);
+        println!("bytes       {}", info.info.file_bytes);
         for (name, b) in &groups {
             println!("  {name:<10} {b:>10} bytes");
         }
         if let Some(p) = pruned {
-            println!("left out: {p} pruned Gaussians of {}", info.input_gaussians.unwrap_or(0));
+            println!("left out: {p} pruned Gaussians of {}", input_gaussians.unwrap_or(0));
         }
-        if let (Some(d), Some(n)) = (info.input_sh_degree, dropped_bands) {
+        if let (Some(d), Some(n)) = (input_sh_degree, dropped_bands) {
             println!("left out: {n} SH band(s) (input degree {d})");
         }
         if !info.context_channels.is_empty() {

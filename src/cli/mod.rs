@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod convert;
+pub mod dataset_args;
 pub mod decode;
 pub mod encode;
 pub mod eval;

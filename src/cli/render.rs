@@ -41,9 +41,9 @@ pub struct Args {
     /// Renderer.
     #[arg(long, value_enum, default_value = "cpu")]
     pub backend: Backend,
-    /// Background colour r,g,b in [0,1] (default: the dataset's for --cameras, black for --orbit).
-    #[arg(long, value_parser = parse_rgb)]
-    pub background: Option<[f32; 3]>,
+    /// Dataset image options (--cameras) and --background (default: the dataset's, black for --orbit).
+    #[command(flatten)]
+    pub dataset: super::dataset_args::DatasetArgs,
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
@@ -81,8 +81,8 @@ pub struct View {
 }
 
 /// The views of a dataset split (at the frames' own size unless `size` is given) and its background.
-pub fn dataset_views(data: &Path, split: Split, size: Option<(u32, u32)>) -> Result<(Vec<View>, [f32; 3])> {
-    let ds = load_dataset(data, &LoadOptions::default())?;
+pub fn dataset_views(data: &Path, split: Split, size: Option<(u32, u32)>, opts: &LoadOptions) -> Result<(Vec<View>, [f32; 3])> {
+    let ds = load_dataset(data, opts)?;
     let views: Vec<View> = ds
         .split(split)
         .into_iter()
@@ -109,13 +109,13 @@ pub fn frame_name(index: usize, max_index: usize, ext: &str) -> String {
 pub fn run(args: Args) -> Result<()> {
     let scene = read_scene(&args.scene)?;
     let (views, default_bg) = match (&args.cameras, args.orbit) {
-        (Some(data), _) => dataset_views(data, args.split, args.size)?,
+        (Some(data), _) => dataset_views(data, args.split, args.size, &args.dataset.load_options())?,
         (None, Some(0)) => return Err(Error::input(&args.scene, "--orbit needs at least one view")),
         (None, Some(n)) => (orbit_views(&scene, n, args.size, args.up), [0.0; 3]),
         (None, None) => unreachable!("clap requires --cameras or --orbit"),
     };
     let renderer = Renderer::new(args.backend, &args.scene)?;
-    let opts = RenderOptions { background: args.background.unwrap_or(default_bg), max_sh_degree: 3 };
+    let opts = RenderOptions { background: args.dataset.background.unwrap_or(default_bg), max_sh_degree: 3 };
     let max_index = views.iter().map(|v| v.index).max().unwrap_or(0);
     let pb = progress::bar(views.len() as u64, "render", args.quiet);
     write_dir_atomic(&args.out, |tmp| {

@@ -1,7 +1,7 @@
 //! `gscodec train DATA -o OUT.ply`: train Gaussians on a posed-image dataset.
 
 use crate::encoder::{Backend, LossSpec, TrainJob};
-use crate::io::{self, LoadOptions};
+use crate::io;
 use crate::loss::LossArgs;
 use crate::train::TrainConfig;
 use crate::{Error, Result};
@@ -49,6 +49,9 @@ pub struct Args {
     /// Write the training record (JSON: time series of loss, Gaussians, held-out PSNR).
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Dataset image options.
+    #[command(flatten)]
+    pub dataset: super::dataset_args::DatasetArgs,
     /// No progress bar or summary.
     #[arg(long)]
     pub quiet: bool,
@@ -63,7 +66,7 @@ pub fn run(args: Args) -> Result<()> {
     let loss = LossSpec::from_args(&args.loss, crate::loss::LossKind::L1ssim);
     loss.build(args.iters)?;
     let mut backend = args.backend.resolve()?;
-    let ds = io::load_dataset(&args.data, &LoadOptions::default())?;
+    let ds = io::load_dataset(&args.data, &args.dataset.load_options())?;
     let init = args.init.as_deref().map(io::read_ply).transpose()?;
     let cfg = TrainConfig {
         iters: args.iters,

@@ -1,14 +1,15 @@
 //! COLMAP sparse models: `sparse/0/{cameras,images,points3D}.{bin,txt}` plus `images/`.
 //!
-//! Only undistorted pinhole cameras can be rendered: `PINHOLE` and `SIMPLE_PINHOLE`, and the
-//! distorted models (`SIMPLE_RADIAL`, `RADIAL`, `OPENCV`, `FULL_OPENCV`, `FOV`) when all their
-//! distortion parameters are zero. Anything else is an input error asking for undistorted images
-//! (`colmap image_undistorter`). Poses are world-to-camera in OpenCV axes. Frames are ordered by
+//! Every camera model COLMAP writes is read (see [`super::lens::COLMAP_MODELS`] for the parameter
+//! orders); distorted images are undistorted to pinhole once, when loading ([`super::prepare`]).
+//! Poses are world-to-camera in OpenCV axes. With `--downscale N`, images come from `images_N/`
+//! when the dataset has it (the 3DGS convention). Frames are ordered by
 //! image name (as the reference 3DGS does), so the `% 8` test split matches it. Images whose file
 //! is missing are skipped with one warning; when an image's size differs from its camera's, the
 //! intrinsics are scaled to the image.
 
-use super::image::{downscale, load_image};
+use super::lens::{Lens, COLMAP_MODELS};
+use super::prepare::{prepare, Source, CACHE_DIR};
 use super::{Dataset, Frame, LoadOptions};
 use crate::{Error, Result};
 use glam::{Mat3, Quat, Vec3};
@@ -47,21 +48,6 @@ pub struct ColmapModel {
     pub images: Vec<ColmapImage>,
     pub points: Vec<([f64; 3], [u8; 3])>,
 }
-
-/// (id, name, number of params) of COLMAP's camera models.
-const MODELS: [(i32, &str, usize); 11] = [
-    (0, "SIMPLE_PINHOLE", 3),
-    (1, "PINHOLE", 4),
-    (2, "SIMPLE_RADIAL", 4),
-    (3, "RADIAL", 5),
-    (4, "OPENCV", 8),
-    (5, "OPENCV_FISHEYE", 8),
-    (6, "FULL_OPENCV", 12),
-    (7, "FOV", 5),
-    (8, "SIMPLE_RADIAL_FISHEYE", 4),
-    (9, "RADIAL_FISHEYE", 5),
-    (10, "THIN_PRISM_FISHEYE", 12),
-];
 
 /// The sparse model directory of a COLMAP dataset directory (`sparse/0`, `sparse`, or itself).
 pub fn find_sparse(dir: &Path) -> Option<PathBuf> {
@@ -105,34 +91,40 @@ pub fn load_colmap(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
     let sparse = find_sparse(dir).ok_or_else(|| Error::input(dir, "no COLMAP model (sparse/0/cameras.{bin,txt})"))?;
     let model = read_model(&sparse)?;
     let cam_file = if sparse.join("cameras.bin").is_file() { sparse.join("cameras.bin") } else { sparse.join("cameras.txt") };
-    let mut intrinsics = HashMap::new();
+    let mut lenses = HashMap::new();
     for (&id, c) in &model.cameras {
-        intrinsics.insert(id, pinhole(c).map_err(|m| Error::input(&cam_file, format!("camera {id}: {m}")))?);
+        let size = |v: u64| u32::try_from(v).map_err(|_| Error::input(&cam_file, format!("camera {id}: image size {v} too large")));
+        let lens = Lens::from_colmap(&c.model, size(c.width)?, size(c.height)?, &c.params)
+            .map_err(|m| Error::input(&cam_file, format!("camera {id}: {m}")))?;
+        lenses.insert(id, lens);
     }
     let mut images = model.images.clone();
     images.sort_by(|a, b| a.name.cmp(&b.name));
     let image_dir = dir.join("images");
+    let k = opts.downscale.max(1);
+    let twin_dir = dir.join(format!("images_{k}"));
+    let use_twin = k > 1 && twin_dir.is_dir();
+    let background = opts.background.unwrap_or(COLMAP_BACKGROUND);
+    let cache = dir.join(CACHE_DIR);
     let total = images.len();
     let loaded: Vec<Option<Frame>> = images
         .into_par_iter()
         .enumerate()
         .map(|(index, im)| {
-            let path = image_dir.join(&im.name);
+            let full = image_dir.join(&im.name);
+            let twin = twin_dir.join(&im.name);
+            let path = if use_twin && twin.is_file() { &twin } else { &full };
             if !path.is_file() {
                 return Ok(None);
             }
-            let img = load_image(&path, COLMAP_BACKGROUND)?;
-            let c = &model.cameras[&im.camera_id];
-            let [fx, fy, cx, cy] = intrinsics[&im.camera_id];
-            let (sx, sy) = (img.width as f64 / c.width as f64, img.height as f64 / c.height as f64);
-            let k = opts.downscale.max(1) as f64;
-            let image = downscale(&img, opts.downscale);
+            let src = Source { path, lens: lenses[&im.camera_id], downscale: if path == &twin { 1 } else { k }, background };
+            let (image, pin) = prepare(&src, opts, Some(&cache))?;
             let [w, x, y, z] = im.qvec;
             let rotation = Mat3::from_quat(Quat::from_xyzw(x as f32, y as f32, z as f32, w as f32).normalize());
             let translation = Vec3::new(im.tvec[0] as f32, im.tvec[1] as f32, im.tvec[2] as f32);
-            let mut camera = Camera::new(image.width, image.height, (fx * sx / k) as f32, (fy * sy / k) as f32, rotation, translation);
-            camera.cx = (cx * sx / k) as f32;
-            camera.cy = (cy * sy / k) as f32;
+            let mut camera = Camera::new(image.width, image.height, pin.fx as f32, pin.fy as f32, rotation, translation);
+            camera.cx = pin.cx as f32;
+            camera.cy = pin.cy as f32;
             Ok(Some(Frame { index, name: im.name.clone(), camera, image }))
         })
         .collect::<Result<_>>()?;
@@ -144,26 +136,7 @@ pub fn load_colmap(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
         eprintln!("warning: {}: skipped {missing} of {total} images whose file is missing", image_dir.display());
     }
     let points = model.points.iter().map(|(p, c)| (p.map(|v| v as f32), c.map(|v| v as f32 / 255.0))).collect();
-    Ok(Dataset { frames: loaded.into_iter().flatten().collect(), background: COLMAP_BACKGROUND, points, test_indices: None })
-}
-
-/// `[fx, fy, cx, cy]` of an undistorted camera, or why it cannot be used.
-fn pinhole(c: &ColmapCamera) -> std::result::Result<[f64; 4], String> {
-    let p = &c.params;
-    let undistort = "images must be undistorted first (e.g. `colmap image_undistorter`), giving a PINHOLE model";
-    let zero = |d: &[f64]| d.iter().all(|&v| v == 0.0);
-    let r = match c.model.as_str() {
-        "SIMPLE_PINHOLE" => [p[0], p[0], p[1], p[2]],
-        "PINHOLE" => [p[0], p[1], p[2], p[3]],
-        "SIMPLE_RADIAL" | "RADIAL" | "FOV" if zero(&p[3..]) => [p[0], p[0], p[1], p[2]],
-        "OPENCV" | "FULL_OPENCV" if zero(&p[4..]) => [p[0], p[1], p[2], p[3]],
-        m => return Err(format!("{m} model with non-zero distortion (params {p:?}): {undistort}")),
-    };
-    if r.iter().all(|v| v.is_finite()) && r[0] > 0.0 && r[1] > 0.0 && c.width > 0 && c.height > 0 {
-        Ok(r)
-    } else {
-        Err(format!("invalid intrinsics {:?} for a {}x{} image", c.params, c.width, c.height))
-    }
+    Ok(Dataset { frames: loaded.into_iter().flatten().collect(), background, points, test_indices: None })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -235,10 +208,10 @@ fn read_cameras_bin(path: &Path) -> Result<HashMap<u32, ColmapCamera>> {
     for _ in 0..n {
         let id = b.i32()? as u32;
         let model_id = b.i32()?;
-        let &(_, name, np) =
-            MODELS.iter().find(|m| m.0 == model_id).ok_or_else(|| b.bad(format!("camera {id}: unknown model id {model_id}")))?;
+        let &(_, name, names) =
+            COLMAP_MODELS.iter().find(|m| m.0 == model_id).ok_or_else(|| b.bad(format!("camera {id}: unknown model id {model_id}")))?;
         let (width, height) = (b.u64()?, b.u64()?);
-        let params = (0..np).map(|_| b.f64()).collect::<Result<Vec<_>>>()?;
+        let params = (0..names.len()).map(|_| b.f64()).collect::<Result<Vec<_>>>()?;
         check_finite(path, &format!("camera {id}"), &params)?;
         out.insert(id, ColmapCamera { model: name.to_string(), width, height, params });
     }
@@ -310,8 +283,12 @@ fn read_cameras_txt(path: &Path) -> Result<HashMap<u32, ColmapCamera>> {
         let Some(first) = t.next() else { continue };
         let id: u32 = parse(path, ln, Some(first))?;
         let model: String = parse(path, ln, t.next())?;
-        let np =
-            MODELS.iter().find(|m| m.1 == model).ok_or_else(|| Error::input(path, format!("line {ln}: unknown camera model `{model}`")))?.2;
+        let np = COLMAP_MODELS
+            .iter()
+            .find(|m| m.1 == model)
+            .ok_or_else(|| Error::input(path, format!("line {ln}: unknown camera model `{model}`")))?
+            .2
+            .len();
         let (width, height) = (parse(path, ln, t.next())?, parse(path, ln, t.next())?);
         let params = (0..np).map(|_| parse(path, ln, t.next())).collect::<Result<Vec<f64>>>()?;
         check_finite(path, &format!("line {ln}"), &params)?;

@@ -2,11 +2,16 @@
 
 pub mod atomic;
 pub mod colmap;
+pub mod compressed_ply;
 pub mod dataset;
+pub mod gltf;
 pub mod image;
+pub mod lens;
 pub mod nerf;
 pub mod ply;
+pub mod prepare;
 pub mod scene;
+pub mod sog;
 pub mod splat;
 pub mod spz;
 
@@ -18,16 +23,24 @@ use crate::{Error, Result};
 use gscodec_decoder::camera::DEFAULT_ZNEAR;
 use std::path::Path;
 
-/// How to load a dataset.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// How to load a dataset (see [`prepare`] for the order of the steps).
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LoadOptions {
-    /// Integer image downscale factor (box filter); 1 = full resolution.
+    /// Integer image downscale factor; 1 = full resolution. Images come from an `images_N/`
+    /// folder when the dataset has one, else through an exact `N×N` box filter.
     pub downscale: u32,
+    /// Longest image side after the downscale (Lanczos-3 resize); `None` = no limit.
+    pub max_size: Option<u32>,
+    /// Read and write prepared images in `<dataset>/.gscodec-cache/`.
+    pub cache: bool,
+    /// Background colour (sRGB in [0,1]) for RGBA images and renders, instead of the layout's
+    /// default (white for NeRF, black for COLMAP).
+    pub background: Option<[f32; 3]>,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        LoadOptions { downscale: 1 }
+        LoadOptions { downscale: 1, max_size: None, cache: true, background: None }
     }
 }
 
@@ -46,6 +59,9 @@ impl Default for LoadOptions {
 pub fn load_dataset(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
     if opts.downscale == 0 {
         return Err(Error::input(path, "downscale factor must be at least 1"));
+    }
+    if opts.max_size == Some(0) {
+        return Err(Error::input(path, "maximum image size must be at least 1 pixel"));
     }
     let mut ds = if path.is_file() {
         nerf::load_nerf(path, None, opts)?

@@ -56,14 +56,14 @@ pub fn write_ply(path: &Path, splats: &Splats) -> Result<()> {
 // Header
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Format {
+pub(crate) enum Format {
     Ascii,
     BinaryLe,
     BinaryBe,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum ScalarType {
+pub(crate) enum ScalarType {
     I8,
     U8,
     I16,
@@ -89,7 +89,7 @@ impl ScalarType {
         })
     }
 
-    fn size(self) -> usize {
+    pub(crate) fn size(self) -> usize {
         match self {
             ScalarType::I8 | ScalarType::U8 => 1,
             ScalarType::I16 | ScalarType::U16 => 2,
@@ -133,25 +133,25 @@ impl ScalarType {
 }
 
 #[derive(Debug)]
-struct Element {
-    name: String,
-    count: usize,
+pub(crate) struct Element {
+    pub(crate) name: String,
+    pub(crate) count: usize,
     /// Scalar properties; `None` when the element has a list property (only allowed after the vertices).
-    props: Option<Vec<(String, ScalarType)>>,
+    pub(crate) props: Option<Vec<(String, ScalarType)>>,
 }
 
 #[derive(Debug)]
-struct Header {
-    format: Format,
-    elements: Vec<Element>,
-    vertex: usize,
-    body_start: usize,
+pub(crate) struct Header {
+    pub(crate) format: Format,
+    pub(crate) elements: Vec<Element>,
+    pub(crate) vertex: usize,
+    pub(crate) body_start: usize,
 }
 
 /// Headers longer than this are not PLY scenes.
 const MAX_HEADER: usize = 1 << 20;
 
-fn parse_header(bytes: &[u8]) -> std::result::Result<Header, String> {
+pub(crate) fn parse_header(bytes: &[u8]) -> std::result::Result<Header, String> {
     if !bytes.starts_with(b"ply\n") && !bytes.starts_with(b"ply\r\n") {
         return Err("not a PLY file (missing `ply` magic)".into());
     }

@@ -239,7 +239,7 @@ fn unpack(h: &SpzHeader, s: &[Vec<u8>]) -> Splats {
 
 /// Inverse sigmoid of `a / 255`. Bytes 0 and 255 (probability 0 or 1, ±∞ in the reference) are
 /// moved a quarter step inside so the logit stays finite and re-encodes to the same byte.
-fn alpha_to_logit(a: u8) -> f32 {
+pub(crate) fn alpha_to_logit(a: u8) -> f32 {
     let p = (a as f32 / 255.0).clamp(0.25 / 255.0, 1.0 - 0.25 / 255.0);
     (p / (1.0 - p)).ln()
 }

@@ -1,14 +1,17 @@
-//! Writing a quantised scene: tables per group, one ANS stream per coded channel and chunk,
-//! the container via `gscodec_decoder::bitstream` (the one definition of the format).
+//! Writing a quantised scene: choosing tables per group, then every section through the
+//! writers of `gscodec_decoder::bitstream` (the one definition of the format, beside its readers).
 
 use rayon::prelude::*;
 use serde::Serialize;
 
-use gscodec_decoder::bitstream::layout::{chunk_count, Group, CHUNK, INFO_KIND, PADDING_KIND};
-use gscodec_decoder::bitstream::{
-    self, ByteWriter, Header, Section, MAX_GAUSSIANS_PER_BYTE, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MINOR,
-};
-use gscodec_decoder::entropy::{in_context, ChannelTable, SymbolEncoder};
+use gscodec_decoder::bitstream::info::{write_info, EncoderInfo};
+use gscodec_decoder::bitstream::layout::{chunk_count, Group, CHUNK, INFO_KIND};
+use gscodec_decoder::bitstream::params::{write_channel_params, write_position_params};
+use gscodec_decoder::bitstream::positions::{delta_length, delta_raw_bits, morton_deltas, write_position_stream};
+use gscodec_decoder::bitstream::sections::write_padded;
+use gscodec_decoder::bitstream::stream::write_channel_streams;
+use gscodec_decoder::bitstream::{Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MINOR};
+use gscodec_decoder::entropy::ChannelTable;
 
 use super::quantise::Quantised;
 use super::tables::{self, ChosenTable};
@@ -53,27 +56,6 @@ impl EncodeReport {
     }
 }
 
-/// Bit length of a Morton delta (0 for 0).
-fn bit_len(d: u64) -> u32 {
-    64 - d.leading_zeros()
-}
-
-/// Position stream symbols: per Gaussian, the delta's bit length (table) and the bits below
-/// its leading one (raw). Deltas restart at 0 in each chunk.
-fn morton_deltas(morton: &[u64]) -> Vec<u64> {
-    morton
-        .chunks(CHUNK)
-        .flat_map(|c| {
-            let mut prev = 0;
-            c.iter().map(move |&m| {
-                let d = m - prev;
-                prev = m;
-                d
-            })
-        })
-        .collect()
-}
-
 struct GroupPlan {
     group: Group,
     params: Vec<u8>,
@@ -87,20 +69,14 @@ fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
     let compare = |v: &[i32], contexts: bool| if learned { tables::compare(v, contexts) } else { tables::histogram_only(v, contexts) };
     let mut plans = Vec::new();
     let deltas = morton_deltas(&q.morton);
-    let lens: Vec<i32> = deltas.iter().map(|&d| bit_len(d) as i32).collect();
+    let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
     let cmp = compare(&lens, false); // position lengths are never context-coded (SPEC §4)
     let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
     let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
     let t = cmp.best;
-    let mut w = ByteWriter::new();
-    let (origin, step, bits) = q.grid;
-    origin.iter().for_each(|&v| w.f32(v));
-    step.iter().for_each(|&v| w.f32(v));
-    w.u8(bits);
-    w.bytes(&t.bytes);
     plans.push(GroupPlan {
         group: Group::Position,
-        params: w.buf,
+        params: write_position_params(&q.grid, &t.bytes),
         tables: vec![t],
         histogram_bits: hb,
         learned_bits: lb,
@@ -113,63 +89,30 @@ fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
         // A channel where contexts were not tried (a constant) costs its histogram bits.
         let context_bits = cmps.iter().map(|c| if c.context_bits.is_nan() { c.histogram_bits } else { c.context_bits }).sum();
         let ts: Vec<ChosenTable> = cmps.into_iter().map(|c| c.best).collect();
-        let mut w = ByteWriter::new();
-        w.u8(chans.len() as u8);
-        for (s, t) in steps.iter().zip(&ts) {
-            w.f32(*s);
-            w.bytes(&t.bytes);
-        }
-        plans.push(GroupPlan { group: *g, params: w.buf, tables: ts, histogram_bits, learned_bits, context_bits });
+        let params = write_channel_params(steps, ts.iter().map(|t| &t.bytes[..]));
+        plans.push(GroupPlan { group: *g, params, tables: ts, histogram_bits, learned_bits, context_bits });
     }
     plans
 }
 
-/// Appends one stream to a data section: `varint length`, then its bytes (SPEC §6).
-fn push_stream(section: &mut ByteWriter, e: SymbolEncoder) {
-    let bytes = e.finish();
-    section.varint(bytes.len() as u32);
-    section.bytes(&bytes);
-}
-
+/// The data section of plan `p`'s group, chunk `ch`.
 fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<u8> {
     let range = ch * CHUNK..((ch + 1) * CHUNK).min(q.len());
-    let mut section = ByteWriter::new();
     if p.group == Group::Position {
-        let mut e = SymbolEncoder::new();
-        for &d in &deltas[range] {
-            let len = bit_len(d);
-            e.value(&p.tables[0].table, 0, len as i32);
-            if len >= 2 {
-                let rest = d & ((1u64 << (len - 1)) - 1);
-                let mut left = len - 1;
-                while left > 0 {
-                    let take = left.min(32);
-                    left -= take;
-                    e.raw_bits(((rest >> left) & ((1u64 << take) - 1)) as u32, take);
-                }
-            }
-        }
-        push_stream(&mut section, e);
+        write_position_stream(&p.tables[0].table, &deltas[range])
     } else {
         let chans = &q.groups.iter().find(|x| x.0 == p.group).expect("group").2;
-        for (t, c) in p.tables.iter().zip(chans) {
-            if let Some((_, centre, _)) = t.table.contexts() {
-                let mut e = SymbolEncoder::new();
-                in_context(&c[range.clone()], centre).for_each(|(ctx, v)| e.value(&t.table, ctx, v));
-                push_stream(&mut section, e);
-            }
-        }
+        let tables: Vec<&ChannelTable> = p.tables.iter().map(|t| &t.table).collect();
+        let values: Vec<&[i32]> = chans.iter().map(|c| &c[range.clone()]).collect();
+        write_channel_streams(&tables, &values)
     }
-    section.buf
 }
 
 /// Encodes a quantised scene. `input` = (Gaussians, SH degree) of the encoder's input, for `info`.
 pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8>, EncodeReport) {
     let n = q.len();
     let header = Header { version_major: VERSION_MAJOR, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
-    let mut info = ByteWriter::new();
-    info.u32(input.0.min(u32::MAX as usize) as u32);
-    info.u8(input.1);
+    let info = write_info(&EncoderInfo { input_gaussians: input.0.min(u32::MAX as usize) as u32, input_sh_degree: input.1 });
     let mut report = EncodeReport { gaussians: n, sh_degree: q.sh_degree, position_bits: q.grid.2, file_bytes: 0, groups: Vec::new() };
     let mut payloads: Vec<(u16, u16, u32, Vec<u8>)> = Vec::new();
     if n > 0 {
@@ -184,7 +127,7 @@ pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8
                 table_bytes: p.params.len(),
                 stream_bytes: 0,
                 estimated_bits: p.tables.iter().map(|t| t.bits).sum::<f64>()
-                    + if p.group == Group::Position { deltas.iter().map(|&d| bit_len(d).saturating_sub(1) as f64).sum() } else { 0.0 },
+                    + if p.group == Group::Position { deltas.iter().map(|&d| delta_raw_bits(d) as f64).sum() } else { 0.0 },
                 constant_channels: p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Constant(_))).count(),
                 histogram_bits: p.histogram_bits,
                 learned_bits: p.learned_bits,
@@ -199,18 +142,9 @@ pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8
             }
         }
     }
-    payloads.push((INFO_KIND, 0, SECTION_OPTIONAL, info.buf));
-    let build = |payloads: &[(u16, u16, u32, Vec<u8>)]| {
-        let sections: Vec<Section> = payloads.iter().map(|(k, c, f, d)| Section { kind: *k, chunk: *c, flags: *f, data: d }).collect();
-        bitstream::write(&header, &sections)
-    };
-    let mut bytes = build(&payloads);
-    // A file must have at least 1 byte per 8 Gaussians (the decoder's allocation bound).
-    let need = (n as u64).div_ceil(MAX_GAUSSIANS_PER_BYTE) as usize;
-    if bytes.len() < need {
-        payloads.push((PADDING_KIND, 0, SECTION_OPTIONAL, vec![0; need - bytes.len()]));
-        bytes = build(&payloads);
-    }
+    payloads.push((INFO_KIND, 0, SECTION_OPTIONAL, info));
+    let sections: Vec<Section> = payloads.iter().map(|(k, c, f, d)| Section { kind: *k, chunk: *c, flags: *f, data: d }).collect();
+    let bytes = write_padded(&header, &sections);
     report.file_bytes = bytes.len();
     (bytes, report)
 }

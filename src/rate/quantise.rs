@@ -1,7 +1,9 @@
 //! Quantisation: a scene to integer channels (positions on a Morton-ordered grid fitted to the
 //! bounds, smallest-three rotations, per-channel uniform steps) and back.
 
-use gscodec_decoder::bitstream::layout::{self, Group, MAX_POSITION_BITS};
+use gscodec_decoder::bitstream::assemble::{assemble, dequantise_channels, Piece};
+use gscodec_decoder::bitstream::layout::{Group, MAX_POSITION_BITS};
+use gscodec_decoder::bitstream::positions::{morton_encode, position_of};
 use gscodec_decoder::math::sigmoid;
 use gscodec_decoder::Splats;
 
@@ -129,7 +131,7 @@ pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
                 let t = (f64::from(splats.positions[i][a]) - f64::from(lo[a])) / f64::from(step[a]);
                 t.round().clamp(0.0, max_q as f64) as u32
             });
-            (layout::morton_encode(qs, bits), i)
+            (morton_encode(qs, bits), i)
         })
         .collect();
     keyed.sort_unstable();
@@ -216,34 +218,21 @@ pub fn prune_footprint(splats: &Splats, min_footprint: f32) -> Splats {
     out
 }
 
-/// The scene a decoder will restore from `q` (same formulas as the decoder, SPEC §8).
+/// The scene a decoder will restore from `q`: the decoder's dequantisation and assembler.
 pub fn dequantise(q: &Quantised) -> Splats {
+    let positions: Vec<f32> = q.morton.iter().flat_map(|&m| position_of(m, &q.grid)).collect();
+    let values: Vec<(Group, Vec<f32>)> = q
+        .groups
+        .iter()
+        .map(|(g, steps, ch)| (*g, dequantise_channels(*g, steps, ch).expect("the quantiser writes rotation indices 0..=3")))
+        .collect();
+    let mut pieces = vec![Piece { group: Group::Position, first: 0, columns: 0..3, values: &positions }];
+    pieces.extend(values.iter().map(|(g, v)| {
+        let columns = if *g == Group::Rotation { 0..4 } else { 0..g.channels() };
+        Piece { group: *g, first: 0, columns, values: v }
+    }));
     let mut s = Splats::new(q.sh_degree);
-    let (origin, step, bits) = q.grid;
-    for &m in &q.morton {
-        let g = layout::morton_decode(m, bits);
-        s.positions.push(std::array::from_fn(|a| layout::dequantise_position(origin[a], step[a], g[a])));
-    }
-    let n = q.len();
-    let k = s.rest_coeffs();
-    s.sh_rest = vec![0.0; n * k * 3];
-    for (g, steps, ch) in &q.groups {
-        let v = |c: usize, i: usize| ch[c][i] as f32 * steps[c];
-        for i in 0..n {
-            match g {
-                Group::Scale => s.log_scales.push([v(0, i), v(1, i), v(2, i)]),
-                Group::Rotation => s.rotations.push(layout::rotation_from_smallest_three(ch[0][i] as usize, [v(1, i), v(2, i), v(3, i)])),
-                Group::Opacity => s.opacity_logits.push(v(0, i)),
-                Group::ShDc => s.sh_dc.push([v(0, i), v(1, i), v(2, i)]),
-                _ => {
-                    let b = g.sh_band() as usize;
-                    for j in 0..(2 * b + 1) * 3 {
-                        s.sh_rest[(i * k + b * b - 1) * 3 + j] = v(j, i);
-                    }
-                }
-            }
-        }
-    }
+    assemble(q.len(), q.sh_degree, &pieces, &mut s);
     s
 }
 

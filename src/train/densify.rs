@@ -74,6 +74,19 @@ pub fn densify_and_prune(
     p: &DensifyParams,
     rng: &mut Rng,
 ) -> (usize, usize, usize) {
+    densify_and_prune_keeping(params, adam, stats, p, rng, 0)
+}
+
+/// [`densify_and_prune`] that never leaves fewer than `floor` Gaussians: when pruning would, the
+/// most opaque of the pruned ones (ties by index) are kept.
+pub fn densify_and_prune_keeping(
+    params: &mut Splats,
+    adam: &mut Adam,
+    stats: &DensifyStats,
+    p: &DensifyParams,
+    rng: &mut Rng,
+    floor: usize,
+) -> (usize, usize, usize) {
     let n = params.len();
     let grads: Vec<f32> = (0..n).map(|i| if stats.count[i] > 0 { stats.grad_accum[i] / stats.count[i] as f32 } else { 0.0 }).collect();
     let room = p.max_gaussians.saturating_sub(n);
@@ -130,6 +143,16 @@ pub fn densify_and_prune(
             if !(i < n && remove[i]) {
                 pruned += 1;
             }
+        }
+    }
+    let kept = keep.iter().filter(|&&k| k).count();
+    if kept < floor {
+        // Split originals stay removed (their two halves are kept); rescue the most opaque.
+        let mut rescue: Vec<usize> = (0..params.len()).filter(|&i| !keep[i] && !(i < n && remove[i])).collect();
+        rescue.sort_by(|&a, &b| params.opacity_logits[b].total_cmp(&params.opacity_logits[a]).then(a.cmp(&b)));
+        for &i in rescue.iter().take(floor - kept) {
+            keep[i] = true;
+            pruned -= 1;
         }
     }
     retain(params, adam, &keep);

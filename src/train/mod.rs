@@ -70,27 +70,70 @@ pub const LR_SH_DC: f32 = 2.5e-3;
 pub const LR_SH_REST: f32 = LR_SH_DC / 20.0;
 
 /// Iteration schedule derived from the reference 30k recipe.
-#[derive(Debug, Clone, Copy, Serialize)]
+///
+/// The reference (30,000 iterations): SH degree up every 1,000, densify every 100 from 500 to
+/// 15,000, opacity reset every 3,000 while densifying. Scaled to `iters` linearly, with floors so
+/// that short runs do not collapse: densification at most every [`MIN_DENSIFY_EVERY`] iterations
+/// (new Gaussians need time to settle) and opacity resets at most every
+/// [`MIN_OPACITY_RESET_EVERY`] (after a reset to 0.01 the opacities need hundreds of Adam steps to
+/// come back before the next prune; at 300 iterations the plain scaling reset every 30). A run too
+/// short for one reset at that interval before densification ends has none:
+/// `opacity_reset_every` is then `usize::MAX` (`null` in reports), so `it % opacity_reset_every
+/// == 0` and `it > opacity_reset_every` stay false.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct Schedule {
     pub sh_up_every: usize,
     pub densify_from: usize,
     pub densify_until: usize,
     pub densify_every: usize,
+    #[serde(serialize_with = "never_as_null")]
     pub opacity_reset_every: usize,
+}
+
+/// Fewest iterations between two densification steps.
+pub const MIN_DENSIFY_EVERY: usize = 50;
+/// Fewest iterations between two opacity resets (and before the first).
+pub const MIN_OPACITY_RESET_EVERY: usize = 1000;
+/// Pruning never leaves fewer Gaussians than this fraction of the most the run has had.
+pub const MIN_KEEP_FRACTION: f64 = 0.01;
+
+fn never_as_null<S: serde::Serializer>(v: &usize, s: S) -> std::result::Result<S::Ok, S::Error> {
+    if *v == usize::MAX {
+        s.serialize_none()
+    } else {
+        s.serialize_u64(*v as u64)
+    }
 }
 
 impl Schedule {
     pub fn for_iters(iters: usize) -> Self {
         let s = iters as f64 / 30_000.0;
         let at = |v: f64| ((v * s).round() as usize).max(1);
+        let densify_until = at(15_000.0);
+        let reset = at(3000.0).max(MIN_OPACITY_RESET_EVERY);
         Schedule {
             sh_up_every: at(1000.0),
             densify_from: at(500.0),
-            densify_until: at(15_000.0),
-            // Densifying more often than every 50 steps leaves new Gaussians no time to settle.
-            densify_every: at(100.0).clamp(50.min(iters.max(1)), 100),
-            opacity_reset_every: at(3000.0),
+            densify_until,
+            densify_every: at(100.0).clamp(MIN_DENSIFY_EVERY.min(iters.max(1)), 100),
+            opacity_reset_every: if reset < densify_until { reset } else { usize::MAX },
         }
+    }
+
+    /// Whether iteration `it` (1-based) ends with a densify-and-prune step.
+    pub fn densifies(&self, it: usize) -> bool {
+        it < self.densify_until && it > self.densify_from && it % self.densify_every == 0
+    }
+
+    /// Whether iteration `it` ends with an opacity reset (`white_background`: the reference's
+    /// extra reset at `densify_from` for white-background datasets).
+    pub fn resets_opacity(&self, it: usize, white_background: bool) -> bool {
+        it < self.densify_until && (it % self.opacity_reset_every == 0 || (white_background && it == self.densify_from))
+    }
+
+    /// Whether screen-size pruning is on at iteration `it` (after the first opacity reset).
+    pub fn prunes_screen_size(&self, it: usize) -> bool {
+        it > self.opacity_reset_every
     }
 }
 
@@ -212,6 +255,7 @@ pub fn train(
     let sched = Schedule::for_iters(cfg.iters);
     let mut adam = Adam::new(&params);
     let mut stats = DensifyStats::new(params.len());
+    let mut peak = params.len();
     let mut order: Vec<usize> = Vec::new();
     let mut points = Vec::new();
     let mut stages = StageTimes::default();
@@ -298,27 +342,29 @@ pub fn train(
         let t_eval = Instant::now();
         let test_psnr = if eval_now { evaluate(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
-        if cfg.densify && it < sched.densify_until {
-            if it > sched.densify_from && it % sched.densify_every == 0 {
+        if cfg.densify {
+            if sched.densifies(it) {
                 let dp = DensifyParams {
                     grad_threshold: cfg.densify_grad_threshold,
                     percent_dense: 0.01,
                     extent,
                     min_opacity: 0.005,
-                    max_screen_radius: (it > sched.opacity_reset_every).then_some(20.0),
+                    max_screen_radius: sched.prunes_screen_size(it).then_some(20.0),
                     max_world_fraction: 0.1,
                     max_gaussians: cfg.max_gaussians,
                 };
-                densify::densify_and_prune(&mut params, &mut adam, &stats, &dp, &mut rng);
+                let floor = (peak as f64 * MIN_KEEP_FRACTION).ceil() as usize;
+                densify::densify_and_prune_keeping(&mut params, &mut adam, &stats, &dp, &mut rng, floor);
                 if params.is_empty() {
                     return Err(Error::Failure(format!("training collapsed at iteration {it}: every Gaussian was pruned")));
                 }
                 stats = DensifyStats::new(params.len());
             }
-            if it % sched.opacity_reset_every == 0 || (dataset.background == [1.0; 3] && it == sched.densify_from) {
+            if sched.resets_opacity(it, dataset.background == [1.0; 3]) {
                 densify::reset_opacity(&mut params, &mut adam, 0.01);
             }
         }
+        peak = peak.max(params.len());
         stages.densify += t3.elapsed().as_secs_f64() - eval_seconds;
         train_seconds += t_iter.elapsed().as_secs_f64() - eval_seconds;
 

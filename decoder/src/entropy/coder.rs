@@ -14,7 +14,6 @@ use constriction::{CoderError, Stack};
 
 use super::{symbol_of, ChannelTable, FreqTable, Lookup, PRECISION};
 use crate::bitstream::bytes::{unzigzag, zigzag};
-use crate::bitstream::DecodeError;
 
 impl EntropyModel<PRECISION> for Lookup<'_> {
     type Symbol = usize;
@@ -96,14 +95,15 @@ pub struct SymbolDecoder<'a> {
 }
 
 impl<'a> SymbolDecoder<'a> {
-    /// `data` must be a whole number of 32-bit little-endian words, the first one non-zero.
-    pub fn new(data: &'a [u8]) -> Result<Self, DecodeError> {
+    /// `data` must be a whole number of 32-bit little-endian words, the first one non-zero;
+    /// the error says which rule failed.
+    pub fn new(data: &'a [u8]) -> Result<Self, &'static str> {
         if data.len() % 4 != 0 {
-            return Err(DecodeError::Corrupt("stream length is not a multiple of 4"));
+            return Err("stream length is not a multiple of 4");
         }
         AnsCoder::from_compressed(WordReader { rest: data })
             .map(|inner| SymbolDecoder { inner })
-            .map_err(|_| DecodeError::Corrupt("stream starts with a zero word"))
+            .map_err(|_| "stream starts with a zero word")
     }
 
     /// One symbol of `table`.
@@ -150,10 +150,10 @@ impl<'a> SymbolDecoder<'a> {
 
     /// Checks that the stream ended where its encoder began: every word read and the state back
     /// to zero. Anything else means the stream was not produced for the values decoded from it.
-    pub fn finish(self) -> Result<(), DecodeError> {
+    pub fn finish(self) -> Result<(), &'static str> {
         let (reader, state) = self.inner.into_raw_parts();
         if !reader.rest.is_empty() || state != 0 {
-            return Err(DecodeError::Corrupt("symbol stream does not end where its values do"));
+            return Err("symbol stream does not end where its values do");
         }
         Ok(())
     }

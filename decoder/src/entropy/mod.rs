@@ -3,13 +3,14 @@
 //! Every probability the decoder uses comes from a [`FreqTable`]: 16-bit fixed-point
 //! frequencies rebuilt from integer weights read from the bitstream by integer arithmetic
 //! only (SPEC §4.2). Values outside a channel's table range are sent through an escape symbol
-//! followed by 32 raw bits.
+//! followed by 32 raw bits. How a channel's tables are stored is [`crate::bitstream::tables`].
 
 mod coder;
 
 pub use coder::{SymbolDecoder, SymbolEncoder};
 
-use crate::bitstream::{ByteReader, ByteWriter, DecodeError};
+#[doc(hidden)]
+pub use crate::bitstream::tables::ChannelTable;
 
 /// Probabilities are fixed point with this many bits: they sum to `1 << PRECISION`.
 pub const PRECISION: usize = 16;
@@ -134,18 +135,6 @@ impl Lookup<'_> {
     }
 }
 
-/// How one channel (one integer attribute component) is stored.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum ChannelTable {
-    /// Every Gaussian has this value; no symbols are coded.
-    Constant(i32),
-    /// Values `lo .. lo + n` map to symbols `0 .. n`; symbol `n` is the escape.
-    Coded { lo: i32, table: FreqTable },
-    /// As `Coded`, with one table per context: the context of a value is
-    /// [`context`]`(previous value of the channel in the chunk, centre)`.
-    Context { lo: i32, centre: i32, tables: Box<[FreqTable; CONTEXTS]> },
-}
-
 /// Number of contexts of a context-coded channel.
 pub const CONTEXTS: usize = 4;
 
@@ -176,91 +165,6 @@ pub fn symbol_of(lo: i32, n: usize, v: i32) -> usize {
     } else {
         n
     }
-}
-
-impl ChannelTable {
-    /// `(lo, centre, table per context)` of a coded channel (a single table serves every context);
-    /// `None` for a constant.
-    pub fn contexts(&self) -> Option<(i32, i32, [&FreqTable; CONTEXTS])> {
-        match self {
-            ChannelTable::Constant(_) => None,
-            ChannelTable::Coded { lo, table } => Some((*lo, 0, [table; CONTEXTS])),
-            ChannelTable::Context { lo, centre, tables } => Some((*lo, *centre, [&tables[0], &tables[1], &tables[2], &tables[3]])),
-        }
-    }
-
-    /// Serialises a context-coded channel: `u8 2, svarint centre, svarint lo, varint n`, then
-    /// for each context `(n+1) × varint weight`.
-    pub fn write_context(w: &mut ByteWriter, lo: i32, centre: i32, weights: &[Vec<u32>; CONTEXTS]) {
-        w.u8(2);
-        w.svarint(centre);
-        w.svarint(lo);
-        w.varint((weights[0].len() - 1) as u32);
-        for ws in weights {
-            for &x in ws {
-                w.varint(x);
-            }
-        }
-    }
-
-    /// Serialises: `u8 0, svarint value` or `u8 1, svarint lo, varint n, (n+1) × varint weight`.
-    /// `weights` are the weights the table was built from (including the escape weight last).
-    pub fn write_coded(w: &mut ByteWriter, lo: i32, weights: &[u32]) {
-        w.u8(1);
-        w.svarint(lo);
-        w.varint((weights.len() - 1) as u32);
-        for &x in weights {
-            w.varint(x);
-        }
-    }
-
-    pub fn write_constant(w: &mut ByteWriter, value: i32) {
-        w.u8(0);
-        w.svarint(value);
-    }
-
-    pub fn read(r: &mut ByteReader<'_>) -> Result<ChannelTable, DecodeError> {
-        match r.u8("channel table")? {
-            0 => Ok(ChannelTable::Constant(r.svarint("constant value")?)),
-            1 => {
-                let (lo, n) = read_range(r)?;
-                Ok(ChannelTable::Coded { lo, table: read_weights(r, n)? })
-            }
-            2 => {
-                let centre = r.svarint("context centre")?;
-                let (lo, n) = read_range(r)?;
-                let t = [read_weights(r, n)?, read_weights(r, n)?, read_weights(r, n)?, read_weights(r, n)?];
-                Ok(ChannelTable::Context { lo, centre, tables: Box::new(t) })
-            }
-            _ => Err(DecodeError::Corrupt("unknown channel table mode")),
-        }
-    }
-}
-
-/// `svarint lo, varint n` of a coded table, checked.
-fn read_range(r: &mut ByteReader<'_>) -> Result<(i32, usize), DecodeError> {
-    let lo = r.svarint("table range")?;
-    let n = r.varint("table size")? as usize;
-    if n == 0 || n > MAX_SYMBOLS {
-        return Err(DecodeError::Limit("table size outside 1..=4096"));
-    }
-    if lo.checked_add(n as i32).is_none() {
-        return Err(DecodeError::Corrupt("table range overflows"));
-    }
-    Ok((lo, n))
-}
-
-/// `(n+1) × varint weight`, rebuilt into a table.
-fn read_weights(r: &mut ByteReader<'_>, n: usize) -> Result<FreqTable, DecodeError> {
-    // Each weight takes at least one byte: check before allocating.
-    if r.remaining() < n + 1 {
-        return Err(DecodeError::Truncated("table weights"));
-    }
-    let mut weights = Vec::with_capacity(n + 1);
-    for _ in 0..=n {
-        weights.push(r.varint("table weight")?);
-    }
-    Ok(FreqTable::from_weights(&weights))
 }
 
 #[cfg(test)]

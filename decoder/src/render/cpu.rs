@@ -19,7 +19,9 @@ pub struct Projected {
     pub depth: f32,
     /// 3σ radius in pixels (0 = culled).
     pub radius: f32,
+    /// Opacity after the sigmoid.
     pub opacity: f32,
+    /// RGB from the SH (+0.5, clamped at 0).
     pub color: [f32; 3],
 }
 
@@ -59,7 +61,9 @@ pub fn preprocess(splats: &Splats, cam: &Camera, max_sh_degree: u8) -> Vec<Proje
 /// Per-tile, depth-sorted Gaussian index lists.
 #[derive(Debug, Clone, Default)]
 pub struct TileBins {
+    /// Tiles per row.
     pub tiles_x: u32,
+    /// Tile rows.
     pub tiles_y: u32,
     /// `ranges[t]..ranges[t+1]` indexes `ids` for tile `t = ty * tiles_x + tx`.
     pub ranges: Vec<u32>,
@@ -68,6 +72,7 @@ pub struct TileBins {
 }
 
 impl TileBins {
+    /// The Gaussians of tile `t`, front to back.
     pub fn tile(&self, t: usize) -> &[u32] {
         &self.ids[self.ranges[t] as usize..self.ranges[t + 1] as usize]
     }
@@ -131,11 +136,15 @@ pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
 pub struct TileGaussian {
     /// `mean - 0.5`: the centre in pixel-index coordinates.
     pub mx: f32,
+    /// `mean - 0.5` along y.
     pub my: f32,
+    /// Inverse 2D covariance `[A, B, C]`.
     pub conic: [f32; 3],
+    /// Opacity after the sigmoid.
     pub opacity: f32,
     /// Below this `power` the alpha is certainly under [`MIN_ALPHA`]: skip without `exp`.
     pub cull: f32,
+    /// RGB.
     pub color: [f32; 3],
 }
 

@@ -1,6 +1,6 @@
 //! wgpu compute renderer with the semantics of the CPU renderer ([`super::render`]).
 //!
-//! Pipeline (WGSL kernels in the repository's top-level `shaders/`):
+//! Pipeline (WGSL kernels in `decoder/shaders/`, sources in [`crate::shaders`]):
 //! 1. `project` — per Gaussian: camera transform, 3D → 2D covariance (EWA), conic and 3σ radius,
 //!    SH colour, opacity, and the number of 16×16 tiles its rectangle touches. The scene is
 //!    uploaded in chunks so that no storage binding exceeds 128 MiB.
@@ -18,6 +18,7 @@
 use super::{Image, RenderOptions};
 use crate::camera::Camera;
 use crate::math::{sh_rest_coeffs, TILE};
+use crate::shaders::{COMMON, EMIT, PROJECT, RADIX_SORT, RASTERIZE, SCAN};
 use crate::splats::Splats;
 use std::future::Future;
 use std::sync::{Arc, Mutex};
@@ -57,7 +58,6 @@ pub struct GpuRenderer {
     rasterize: wgpu::ComputePipeline,
 }
 
-const COMMON: &str = include_str!("../../../shaders/common.wgsl");
 /// Floats per input record before the SH rest coefficients.
 const RECORD_BASE: usize = 14;
 const PROJECTED_BYTES: u64 = 48;
@@ -161,11 +161,11 @@ impl GpuRenderer {
                 cache: None,
             })
         };
-        let project_m = module("project", include_str!("../../../shaders/project.wgsl"));
-        let emit_m = module("emit", include_str!("../../../shaders/emit.wgsl"));
-        let scan_m = module("scan", include_str!("../../../shaders/scan.wgsl"));
-        let sort_m = module("radix_sort", include_str!("../../../shaders/radix_sort.wgsl"));
-        let raster_m = module("rasterize", include_str!("../../../shaders/rasterize.wgsl"));
+        let project_m = module("project", PROJECT);
+        let emit_m = module("emit", EMIT);
+        let scan_m = module("scan", SCAN);
+        let sort_m = module("radix_sort", RADIX_SORT);
+        let raster_m = module("rasterize", RASTERIZE);
         let r = GpuRenderer {
             project: pipeline(&project_m, "project"),
             emit: pipeline(&emit_m, "emit"),

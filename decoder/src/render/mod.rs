@@ -2,15 +2,23 @@
 //! brute-force reference with the same semantics for testing.
 
 mod cpu;
+/// The f64 brute-force renderer: the test oracle of the f32 renderers, not an API.
+#[doc(hidden)]
 pub mod reference;
 
-pub use cpu::{bin_tiles, composite, cull_thresholds, gather_tile, preprocess, render, Projected, TileBins, TileGaussian};
+pub use cpu::render;
+/// The CPU renderer's stages, shared with the encoder's differentiable rasterizer; not an API.
+#[doc(hidden)]
+pub use cpu::{bin_tiles, composite, cull_thresholds, gather_tile, preprocess, Projected, TileBins, TileGaussian};
 
 /// A linear-in-file RGB float image, row-major, channels interleaved (`data[(y*w + x)*3 + c]`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Image {
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
+    /// `width × height × 3` values, row-major, RGB interleaved.
     pub data: Vec<f32>,
 }
 
@@ -20,6 +28,7 @@ impl Image {
         Image { width, height, data: rgb.repeat((width * height) as usize) }
     }
 
+    /// The RGB value of pixel `(x, y)`.
     pub fn pixel(&self, x: u32, y: u32) -> [f32; 3] {
         let i = ((y * self.width + x) * 3) as usize;
         [self.data[i], self.data[i + 1], self.data[i + 2]]

@@ -27,9 +27,22 @@ int main(int argc, char **argv) {
     /* Error paths never crash and report a message. */
     GscScene *scene = (GscScene *)1;
     const uint8_t garbage[] = "definitely not a gsc file";
-    CHECK(gsc_decode(garbage, sizeof garbage, 3, 0, &scene) == GSC_ERR_INVALID_DATA);
+    CHECK(gsc_decode(garbage, sizeof garbage, 3, 0, &scene) == GSC_ERR_FORMAT);
     CHECK(scene == NULL);
     CHECK(strlen(gsc_last_error()) > 0);
+    CHECK(strcmp(gsc_error_class(GSC_ERR_FORMAT), "format") == 0);
+    CHECK(strcmp(gsc_error_class(GSC_ERR_LIMITS), "limits") == 0 && strcmp(gsc_error_class(12345), "unknown") == 0);
+    /* A flipped last byte fails a section checksum; a budget of 10 bytes (less than any file) fails the limits. */
+    if (len > 0) {
+        buf[len - 1] ^= 1;
+        CHECK(gsc_decode(buf, (size_t)len, 3, 0, &scene) == GSC_ERR_CHECKSUM && scene == NULL);
+        CHECK(strstr(gsc_last_error(), "checksum") != NULL);
+        buf[len - 1] ^= 1;
+    }
+    GscLimits tight = gsc_default_limits();
+    CHECK(tight.max_sh_degree == 3 && tight.max_bytes > 0);
+    tight.max_bytes = 10;
+    CHECK(gsc_decode_limited(buf, (size_t)len, &tight, 0, &scene) == GSC_ERR_LIMITS && scene == NULL);
     CHECK(gsc_decode(NULL, 10, 3, 0, &scene) == GSC_ERR_ARGUMENT);
     CHECK(gsc_decode(buf, (size_t)len, 3, 0, NULL) == GSC_ERR_ARGUMENT);
     CHECK(gsc_decode(buf, (size_t)len, 7, 0, &scene) == GSC_ERR_ARGUMENT);

@@ -1,0 +1,389 @@
+#!/usr/bin/env python3
+"""Writes the bad conformance vectors `vectors/bad/bad-*.gsc` and `vectors/bad/EXPECTED`
+(SPEC §9.2), and the good vector `vectors/quirks.gsc` with its `quirks.ply` (SPEC §9.3),
+deterministically from the good vector `vectors/hand.gsc`.
+
+Each bad vector breaks exactly one rule of SPEC.md; every other byte, including every CRC that
+is not the point of the vector, is kept valid, so that a decoder has to reach the broken rule
+to refuse the file. Streams are re-coded with the encoder of SPEC §5.4, written here from the
+SPEC text. Parsing uses specdec.py (the SPEC's second decoder), so this needs numpy.
+
+Usage: python3 make_bad_vectors.py [--out DIR]   (no argument: rewrites vectors/bad/,
+       quirks.gsc, quirks.ply and their lines in SHA256SUMS; --out: writes the bad vectors,
+       EXPECTED and quirks.gsc to DIR only)
+"""
+import hashlib
+import os
+import struct
+import sys
+import zlib
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import specdec  # noqa: E402
+
+VECTORS = os.path.join(HERE, "vectors")
+BAD = os.path.join(VECTORS, "bad")
+
+
+# ----------------------------------------------------------------------------
+# Writing (SPEC §1, §2, §4.1, §5.4)
+# ----------------------------------------------------------------------------
+def varint(v):
+    out = bytearray()
+    while True:
+        b = v & 0x7F
+        v >>= 7
+        if v:
+            out.append(b | 0x80)
+        else:
+            out.append(b)
+            return bytes(out)
+
+
+def zigzag(v):
+    return ((v << 1) ^ (v >> 31)) & 0xFFFFFFFF
+
+
+class File:
+    """A parsed .gsc file that can be changed and written again with valid CRCs."""
+
+    def __init__(self, data):
+        self.major, self.minor = data[4], data[5]
+        self.n, self.degree, sections = specdec.parse_container(data)
+        self.flags = self.reserved = 0
+        # [kind, chunk, flags, payload, crc or None (= correct)]
+        self.sections = [[k, c, f, p, None] for (k, c), (f, p) in sections.items()]
+
+    def section(self, kind, chunk=0):
+        return next(s for s in self.sections if s[0] == kind and s[1] == chunk)
+
+    def remove(self, kind, chunk=0):
+        self.sections.remove(self.section(kind, chunk))
+
+    def write(self, header_crc_xor=0, length_delta=None):
+        """length_delta: (index, delta) adds delta to one table entry's length field only."""
+        head = bytearray(b"\x8aGSC")
+        head += struct.pack("<BBHIBBH", self.major, self.minor, len(self.sections), self.n,
+                            self.degree, self.flags, self.reserved)
+        for i, (kind, chunk, flags, payload, crc) in enumerate(self.sections):
+            length = len(payload) + (length_delta[1] if length_delta and length_delta[0] == i else 0)
+            crc = zlib.crc32(payload) if crc is None else crc
+            head += struct.pack("<HHIII", kind, chunk, flags, length, crc)
+        head += struct.pack("<I", zlib.crc32(head) ^ header_crc_xor)
+        return bytes(head) + b"".join(s[3] for s in self.sections)
+
+
+def ans_encode(intervals, start=0):
+    """SPEC §5.4: the stream of `intervals` [(cdf, freq)] given in decode order. `start` is the
+    encoder's initial state; a conforming encoder starts at 0 (bad-final-state starts at 1)."""
+    x, out = start, []
+    for c, f in reversed(intervals):
+        if x >= f << 48:
+            out.append(x & 0xFFFFFFFF)
+            x >>= 32
+        x = ((x // f) << 16) + c + x % f
+    head = [] if x == 0 else [x] if x < 1 << 32 else [x >> 32, x & 0xFFFFFFFF]
+    return struct.pack(f"<{len(head) + len(out)}I", *head, *reversed(out))
+
+
+def raw_intervals(value, bits):
+    """§5.1: `bits` raw bits, most significant piece (of at most 16 bits) first."""
+    out, left = [], bits
+    while left > 0:
+        take = min(left, 16)
+        left -= take
+        piece = (value >> left) & ((1 << take) - 1)
+        out.append((piece << (16 - take), 1 << (16 - take)))
+    return out
+
+
+def value_intervals(table, values):
+    """§5.2: the intervals coding the values of one stream with a coded or context table."""
+    out, prev = [], table.centre
+    for v in values:
+        cdf = specdec.table_for(table, prev)
+        s = v - table.lo if 0 <= v - table.lo < table.n else table.n
+        out.append((cdf[s], cdf[s + 1] - cdf[s]))
+        if s == table.n:
+            out += raw_intervals(zigzag(v), 32)
+        prev = v
+    return out
+
+
+def overlong(v):
+    """`v` as a 5-byte varint (§1: valid, though encoders write the shortest form)."""
+    return bytes([(v >> (7 * i)) & 0x7F | (0x80 if i < 4 else 0) for i in range(5)])
+
+
+def streams_of(payload, count):
+    """The `count` streams of a data section (§6)."""
+    return specdec.split_streams(payload, count, "section")
+
+
+def section_of(streams):
+    return b"".join(varint(len(s)) + s for s in streams)
+
+
+def decoded_values(stream, table, k):
+    dec = specdec.AnsDecoder(stream, "stream")
+    state = [table.centre]
+    values = [specdec.read_value(dec, table, state) for _ in range(k)]
+    dec.finish()
+    return values
+
+
+def replace_table(params, index, new_table_bytes):
+    """Parameter section of a non-position group with channel `index`'s table replaced."""
+    rd = specdec.Reader(params, "params")
+    out = bytearray([rd.u8()])
+    for j in range(params[0]):
+        step = rd.take(4)
+        start = rd.pos
+        specdec.read_channel_table(rd, allow_context=True)
+        out += step + (new_table_bytes if j == index else params[start:rd.pos])
+    return bytes(out)
+
+
+def replace_step(params, index, step):
+    """Parameter section of a non-position group with channel `index`'s step replaced."""
+    rd = specdec.Reader(params, "params")
+    rd.u8()
+    for j in range(index + 1):
+        at = rd.pos
+        rd.take(4)
+        specdec.read_channel_table(rd, allow_context=True)
+    return params[:at] + struct.pack("<f", step) + params[at + 4:]
+
+
+# ----------------------------------------------------------------------------
+# The bad vectors
+# ----------------------------------------------------------------------------
+def make(good):
+    """{name: (bytes, class, reason)}."""
+    out = {}
+
+    def add(name, data, cls, reason):
+        out[name] = (data, cls, reason)
+
+    def edit():
+        return File(good)
+
+    # hand.gsc: N = 3, D = 1; group g's parameters are kind 0x10+g, its data 0x20+g (chunk 0).
+    k = 3
+    rot_params = specdec.parse_group_params(2, File(good).section(0x12)[3])
+    opa_params = specdec.parse_group_params(3, File(good).section(0x13)[3])
+    origin, step, bits, length_table = specdec.parse_position_params(File(good).section(0x10)[3])
+
+    # --- container (§2) ---
+    add("truncated", good[: len(good) - 7], "format", "the file ends 7 bytes before the last payload does")
+    add("magic", b"\x8aGSD" + good[4:], "format", "magic is 8A 47 53 44, not 8A 47 53 43")
+    f = edit()
+    f.major = 4
+    add("version", f.write(), "unsupported", "version_major 4 (header CRC valid)")
+    add("header-crc", edit().write(header_crc_xor=1), "checksum", "header CRC off by one bit")
+    f = edit()
+    s = f.section(0x24)
+    s[4] = zlib.crc32(s[3]) ^ 0x80000000
+    add("section-crc", f.write(), "checksum", "CRC of the sh_dc data section off by one bit")
+    f = edit()
+    f.sections.append([0x102, 0, 1, b"skip me", zlib.crc32(b"skip me") ^ 1])
+    add("skipped-crc", f.write(), "checksum",
+        "an unknown section with the optional bit set (which a decoder skips) has a wrong CRC")
+    f = edit()
+    f.sections.append([0x102, 0, 0, b"must understand", None])
+    add("unknown-section", f.write(), "unsupported", "section kind 0x102 without the optional bit")
+    f = edit()
+    f.section(0x13)[2] = 2
+    add("section-flags", f.write(), "format", "section flags bit 1 set")
+    f = edit()
+    f.sections.append(list(f.section(0x100)))
+    add("duplicate-section", f.write(), "format", "the info section (0x100, 0) listed twice")
+    f = edit()
+    f.n = (1 << 26) + 1
+    add("count-limit", f.write(), "limits", "N = 2^26 + 1")
+    f = edit()
+    f.n = 8 * len(good) + 1
+    add("count-file", f.write(), "limits", "N = 8 * file length + 1 (allocation bound)")
+    f = edit()
+    add("section-beyond-file", f.write(length_delta=(len(f.sections) - 1, 1000)), "format",
+        "the last table entry declares 1000 bytes more than the file holds (truncation)")
+    add("trailing", good + b"\x00", "format", "one byte after the last payload")
+    f = edit()
+    f.degree = 4
+    add("sh-degree", f.write(), "format", "SH degree 4")
+    f = edit()
+    f.remove(0x13)
+    add("missing-params", f.write(), "format", "the opacity parameter section is absent")
+    f = edit()
+    f.remove(0x23)
+    add("missing-data", f.write(), "format",
+        "the opacity data section is absent although its channel is coded (truncation)")
+
+    # --- parameters and tables (§1, §4) ---
+    f = edit()
+    s = f.section(0x10)
+    s[3] = struct.pack("<f", float("inf")) + s[3][4:]
+    add("inf-origin", f.write(), "format", "position origin x is +Inf")
+    f = edit()
+    s = f.section(0x13)
+    s[3] = s[3][:1] + b"\x00\x00\xc0\x7f" + s[3][5:]
+    add("nan-step", f.write(), "format", "the opacity step is a NaN")
+    f = edit()
+    s = f.section(0x11)
+    s[3] = replace_step(s[3], 0, 3e38)
+    add("overflow", f.write(), "format",
+        "scale step 3e38: the dequantised scales overflow to -Inf (§8)")
+    f = edit()
+    s = f.section(0x10)
+    s[3] = s[3][:24] + bytes([22]) + s[3][25:]
+    add("grid-bits", f.write(), "format", "position grid of 22 bits per axis")
+    f = edit()
+    s = f.section(0x13)
+    s[3] = replace_table(s[3], 0, bytes([1]) + varint(zigzag(0)) + varint(4097) + b"\x01" * 4098)
+    add("table-size", f.write(), "limits", "a coded table with n = 4097 symbols (4098 weights present)")
+    f = edit()
+    s = f.section(0x13)
+    s[3] = replace_table(s[3], 0, bytes([3]) + varint(zigzag(0)))
+    add("table-mode", f.write(), "format", "channel table mode 3")
+    f = edit()
+    s = f.section(0x13)
+    s[3] = replace_table(s[3], 0, bytes([1]) + varint(zigzag(0x7FFFFFFF - 1)) + varint(2) + b"\x01\x01\x01")
+    add("table-range", f.write(), "format", "lo + n = 2^31 overflows a signed 32-bit integer")
+    f = edit()
+    s = f.section(0x13)
+    table = opa_params[0][1]
+    weights = b"\x01" * table.n + b"\x80\x80\x80\x80\x10"
+    s[3] = replace_table(s[3], 0, bytes([1]) + varint(zigzag(table.lo)) + varint(table.n) + weights)
+    add("table-weight", f.write(), "format", "the escape weight is a varint of 2^32 (does not fit in 32 bits)")
+    f = edit()
+    s = f.section(0x10)
+    weights = b"".join(varint(1) for _ in range(length_table.n + 1))
+    s[3] = s[3][:25] + bytes([2]) + varint(0) + varint(zigzag(length_table.lo)) + varint(length_table.n) + weights * 4
+    add("context-position", f.write(), "format", "the position length table has mode 2")
+
+    # --- streams (§5, §6) ---
+    rot_streams = streams_of(File(good).section(0x22)[3], 3)
+    index_table = rot_params[0][1]
+    index = decoded_values(rot_streams[0], index_table, k)
+    f = edit()
+    f.section(0x22)[3] = section_of([ans_encode(value_intervals(index_table, [4] + index[1:]))] + rot_streams[1:])
+    add("escape-rotation", f.write(), "format", "the rotation index of Gaussian 0 is escaped to 4 (§6.2: 0..3)")
+
+    (pos,) = streams_of(File(good).section(0x20)[3], 1)
+    dec = specdec.AnsDecoder(pos, "positions")
+    lengths, raws = [], []
+    for _ in range(k):
+        lengths.append(specdec.read_value(dec, length_table, [0]))
+        raws.append(dec.raw_bits(lengths[-1] - 1) if lengths[-1] > 1 else 0)
+    lengths[0], raws[0] = 3 * bits + 1, 0  # escaped: outside the table's range lo..lo+n
+    intervals = []
+    for length, r in zip(lengths, raws):
+        intervals += value_intervals(length_table, [length])
+        if length > 1:
+            intervals += raw_intervals(r, length - 1)
+    f = edit()
+    f.section(0x20)[3] = section_of([ans_encode(intervals)])
+    add("escape-length", f.write(), "format",
+        f"Morton length of Gaussian 0 escaped to {3 * bits + 1} > 3 * bits (§6.1)")
+
+    opa_table = opa_params[0][1]
+    (opa_stream,) = streams_of(File(good).section(0x23)[3], 1)
+    opa = decoded_values(opa_stream, opa_table, k)
+    f = edit()
+    f.section(0x23)[3] = section_of([ans_encode(value_intervals(opa_table, opa), start=1)])
+    add("final-state", f.write(), "format",
+        "the opacity stream decodes its 3 values and uses every word but ends in state 1, not 0")
+    f = edit()
+    # k symbols read at most 2 + k words: k + 3 words leave at least one unread.
+    padded = opa_stream + b"\x01\x00\x00\x00" * (k + 3 - len(opa_stream) // 4)
+    f.section(0x23)[3] = section_of([padded])
+    add("leftover-words", f.write(), "format",
+        "the opacity stream has more words than its 3 values can consume")
+    f = edit()
+    f.section(0x23)[3] = section_of([b"\x00\x00\x00\x00" + opa_stream])
+    add("zero-word", f.write(), "format", "the opacity stream starts with a zero word")
+    f = edit()
+    f.section(0x23)[3] = section_of([opa_stream + b"\x00\x00"])
+    add("stream-length", f.write(), "format", "the opacity stream is 2 bytes past a whole number of words")
+    f = edit()
+    f.section(0x23)[3] = section_of([opa_stream]) + b"\x00"
+    add("section-tail", f.write(), "format", "one byte after the opacity section's last stream")
+    return out
+
+
+def make_quirks(good):
+    """quirks.gsc: a valid file that uses what the SPEC allows and our encoder never writes, so
+    a decoder MUST accept it and decode it to quirks.ply."""
+    f, k = File(good), 3
+    # Opacity (group 3): all-zero weights, i.e. the uniform table (§4.2), `lo` and the stream's
+    # length as overlong varints (§1); its data section carries the optional bit (§3).
+    params = f.section(0x13)
+    table = specdec.parse_group_params(3, params[3])[0][1]
+    values = decoded_values(streams_of(f.section(0x23)[3], 1)[0], table, k)
+    params[3] = replace_table(params[3], 0, bytes([1]) + overlong(zigzag(table.lo)) + varint(table.n) + bytes(table.n + 1))
+    table = specdec.parse_group_params(3, params[3])[0][1]
+    stream = ans_encode(value_intervals(table, values))
+    data = f.section(0x23)
+    data[2], data[3] = 1, overlong(len(stream)) + stream
+    # SH band 1 (group 5) channel 0: a context table (§4.1, §5.2) whose centre is -2^31, far
+    # outside the values (the distance needs more than 32 bits), with four different weight lists.
+    params, data = f.section(0x15), f.section(0x25)
+    channels = specdec.parse_group_params(5, params[3])
+    coded = [j for j, (_, t) in enumerate(channels) if t.mode != 0]
+    streams = streams_of(data[3], len(coded))
+    table = channels[0][1]
+    values = decoded_values(streams[0], table, k)
+    m = table.n + 1
+    lists = [[1 + s for s in range(m)], [m - s for s in range(m)], [1] * m, [7 if s % 2 else 0 for s in range(m)]]
+    weights = b"".join(varint(w) for ws in lists for w in ws)
+    params[3] = replace_table(params[3], 0, bytes([2]) + varint(zigzag(-(1 << 31))) + varint(zigzag(table.lo)) + varint(table.n) + weights)
+    table = specdec.parse_group_params(5, params[3])[0][1]
+    data[3] = section_of([ans_encode(value_intervals(table, values))] + streams[1:])
+    # Steps (§1): a subnormal scale step (subnormal results) and a -0.0 colour step (signed zeros).
+    f.section(0x11)[3] = replace_step(f.section(0x11)[3], 0, 1e-40)
+    f.section(0x14)[3] = replace_step(f.section(0x14)[3], 2, -0.0)
+    # An unknown section with the optional bit (skipped, §2) and an info section of 3 bytes (§3).
+    f.section(0x100)[3] = b"odd"
+    f.sections.append([0x102, 0, 1, b"a later minor's section", None])
+    return f.write()
+
+
+def main(argv):
+    """No argument: rewrite vectors/bad/ and its lines in SHA256SUMS. `--out DIR`: write the
+    vectors and EXPECTED to DIR only (the test suite compares them with the committed ones)."""
+    out_dir = argv[2] if len(argv) == 3 and argv[1] == "--out" else BAD
+    good = open(os.path.join(VECTORS, "hand.gsc"), "rb").read()
+    vectors = make(good)
+    os.makedirs(out_dir, exist_ok=True)
+    for old in os.listdir(out_dir):
+        if old.startswith("bad-") and old.endswith(".gsc"):
+            os.remove(os.path.join(out_dir, old))
+    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc"]
+    for name, (data, cls, reason) in sorted(vectors.items()):
+        with open(os.path.join(out_dir, f"bad-{name}.gsc"), "wb") as fh:
+            fh.write(data)
+        lines.append(f"bad-{name}.gsc {cls} {reason}")
+    with open(os.path.join(out_dir, "EXPECTED"), "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+    quirks = make_quirks(good)
+    with open(os.path.join(out_dir if out_dir != BAD else VECTORS, "quirks.gsc"), "wb") as fh:
+        fh.write(quirks)
+    if out_dir == BAD:
+        # quirks.ply is what specdec.py decodes quirks.gsc to (the Rust decoder is tested against it).
+        n, degree, cols = specdec.decode(quirks)
+        specdec.write_ply(os.path.join(VECTORS, "quirks.ply"), n, degree, cols)
+        ply = open(os.path.join(VECTORS, "quirks.ply"), "rb").read()
+        # SHA256SUMS: the encoder's vectors' lines (tests/vectors.rs `regenerate`), then ours.
+        sums_path = os.path.join(VECTORS, "SHA256SUMS")
+        kept = [l for l in open(sums_path).read().splitlines() if not l.endswith((".gsc", "quirks.ply"))]
+        kept.append(f"{hashlib.sha256(ply).hexdigest()}  quirks.ply")
+        for name, (data, _, _) in sorted(vectors.items()):
+            kept.append(f"{hashlib.sha256(data).hexdigest()}  bad/bad-{name}.gsc")
+        with open(sums_path, "w") as fh:
+            fh.write("\n".join(kept) + "\n")
+    print(f"wrote {len(vectors)} bad vectors to {out_dir}")
+
+
+if __name__ == "__main__":
+    main(sys.argv)

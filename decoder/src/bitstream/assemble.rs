@@ -1,0 +1,200 @@
+//! Dequantisation (SPEC §8) and the one assembler from dequantised channel values to a
+//! [`Splats`] scene (SPEC §7), used by the decoder and by the encoder to see what a decoder
+//! will restore.
+
+use std::ops::Range;
+
+use rayon::prelude::*;
+
+use super::layout::{Group, CHUNK};
+use crate::Splats;
+
+/// A channel value `v` with step `s`: `f32(v) · s` (SPEC §8).
+#[inline(always)]
+pub fn dequantise_value(v: i32, step: f32) -> f32 {
+    v as f32 * step
+}
+
+/// A grid coordinate: `origin + q·step` in f32 (two rounded operations, no FMA).
+#[inline(always)]
+pub fn dequantise_position(origin: f32, step: f32, q: u32) -> f32 {
+    let scaled = q as f32 * step;
+    origin + scaled
+}
+
+/// Rebuilds a unit quaternion `(w, x, y, z)` from smallest-three form: `largest` is the index of
+/// the omitted component, `c` the other three in index order (already dequantised).
+pub fn rotation_from_smallest_three(largest: usize, c: [f32; 3]) -> [f32; 4] {
+    let sumsq = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+    let big = (1.0 - sumsq).max(0.0).sqrt();
+    let mut out = [0.0f32; 4];
+    let mut j = 0;
+    for (i, o) in out.iter_mut().enumerate() {
+        if i == largest {
+            *o = big;
+        } else {
+            *o = c[j];
+            j += 1;
+        }
+    }
+    out
+}
+
+/// Quaternions from rotation channel rows `(index, c0, c1, c2)` (the index as an exact f32,
+/// the components dequantised); an index outside 0..=3 is an error.
+pub fn rotation_rows(rows: &[f32]) -> Result<Vec<f32>, &'static str> {
+    let mut out = Vec::with_capacity(rows.len());
+    for v in rows.chunks_exact(4) {
+        if !matches!(v[0], 0.0 | 1.0 | 2.0 | 3.0) {
+            return Err("rotation index outside 0..4");
+        }
+        out.extend_from_slice(&rotation_from_smallest_three(v[0] as usize, [v[1], v[2], v[3]]));
+    }
+    Ok(out)
+}
+
+/// Integer channels of a group other than position (`channels[c][i]`: channel c of Gaussian i)
+/// dequantised with `steps`, in the assembler's layout: Gaussian-major values, quaternions for
+/// rotation.
+pub fn dequantise_channels(group: Group, steps: &[f32], channels: &[Vec<i32>]) -> Result<Vec<f32>, &'static str> {
+    let n = channels.first().map_or(0, Vec::len);
+    let mut vals = Vec::with_capacity(n * channels.len());
+    for i in 0..n {
+        vals.extend(channels.iter().zip(steps).map(|(c, &s)| dequantise_value(c[i], s)));
+    }
+    if group == Group::Rotation {
+        rotation_rows(&vals)
+    } else {
+        Ok(vals)
+    }
+}
+
+/// Dequantised values of one group for a run of Gaussians: `values` holds, for Gaussians
+/// `first .. first + count`, the row entries `columns` (position: x y z; rotation: w x y z;
+/// other groups: a range of its channels), Gaussian-major.
+#[derive(Debug, Clone)]
+pub struct Piece<'a> {
+    /// The group.
+    pub group: Group,
+    /// First Gaussian.
+    pub first: usize,
+    /// Columns of the group's row (SH bands: channel `3·m + c` of band b).
+    pub columns: Range<usize>,
+    /// `count × columns.len()` values.
+    pub values: &'a [f32],
+}
+
+impl Piece<'_> {
+    fn count(&self) -> usize {
+        self.values.len() / self.columns.len().max(1)
+    }
+}
+
+/// Builds a scene of `n` Gaussians and SH degree `degree` from `pieces` into `out` (its
+/// allocations are reused). The pieces of each base group, in order of `first`, must cover
+/// Gaussians `0..n`; each SH piece covers whole runs of `CHUNK` Gaussians, and SH values no
+/// piece covers are zero.
+pub fn assemble(n: usize, degree: u8, pieces: &[Piece<'_>], out: &mut Splats) {
+    out.sh_degree = degree;
+    let of = |group: Group| {
+        let mut ps: Vec<&Piece> = pieces.iter().filter(|p| p.group == group).collect();
+        ps.sort_by_key(|p| p.first);
+        ps
+    };
+    fn rows<const W: usize>(dst: &mut Vec<[f32; W]>, ps: &[&Piece<'_>], n: usize) {
+        dst.clear();
+        dst.reserve(n);
+        for p in ps {
+            dst.extend(p.values.chunks_exact(W).map(|v| std::array::from_fn(|i| v[i])));
+        }
+    }
+    let row = out.rest_coeffs() * 3;
+    let Splats { positions, log_scales, rotations, opacity_logits, sh_dc, sh_rest, .. } = out;
+    let scatter_sh = || {
+        sh_rest.clear();
+        sh_rest.resize(n * row, 0.0);
+        if row == 0 {
+            return;
+        }
+        // SH channel j of band b is rest value (b²−1)·3 + j of its Gaussian.
+        let sh: Vec<(usize, &Piece)> = pieces
+            .iter()
+            .filter(|p| (1..=degree).contains(&p.group.sh_band()))
+            .map(|p| {
+                let b = p.group.sh_band() as usize;
+                ((b * b - 1) * 3 + p.columns.start, p)
+            })
+            .collect();
+        sh_rest.par_chunks_mut(CHUNK * row).enumerate().for_each(|(block, rows)| {
+            let (start, count) = (block * CHUNK, rows.len() / row);
+            let mine: Vec<(usize, usize, &[f32])> = sh
+                .iter()
+                .filter(|(_, p)| p.first <= start && p.first + p.count() >= start + count)
+                .map(|&(col, p)| {
+                    let w = p.columns.len();
+                    (col, w, &p.values[(start - p.first) * w..(start - p.first + count) * w])
+                })
+                .collect();
+            rows.par_chunks_mut(row).enumerate().with_min_len(1024).for_each(|(i, dst)| {
+                for &(col, w, vals) in &mine {
+                    dst[col..col + w].copy_from_slice(&vals[i * w..(i + 1) * w]);
+                }
+            });
+        });
+    };
+    rayon::join(
+        || rayon::join(|| rows(positions, &of(Group::Position), n), || rows(log_scales, &of(Group::Scale), n)),
+        || {
+            rayon::join(
+                || {
+                    rayon::join(
+                        || rows(rotations, &of(Group::Rotation), n),
+                        || {
+                            opacity_logits.clear();
+                            opacity_logits.extend(of(Group::Opacity).iter().flat_map(|p| p.values));
+                        },
+                    )
+                },
+                || rayon::join(|| rows(sh_dc, &of(Group::ShDc), n), scatter_sh),
+            )
+        },
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn smallest_three_rebuilds_unit_quaternion() {
+        let q = rotation_from_smallest_three(2, [0.5, -0.5, 0.5]);
+        assert_eq!(q, [0.5, -0.5, 0.5, 0.5]);
+        assert_eq!(rotation_rows(&[2.0, 0.5, -0.5, 0.5]).unwrap(), q);
+        assert!(rotation_rows(&[4.0, 0.0, 0.0, 0.0]).is_err());
+    }
+
+    #[test]
+    fn sh_pieces_are_scattered_coefficient_major() {
+        // Two Gaussians of degree 2: band 1 in one piece, band 2 in two channel ranges.
+        let b1: Vec<f32> = (0..18).map(|v| v as f32).collect();
+        let b2a: Vec<f32> = (0..16).map(|v| 100.0 + v as f32).collect();
+        let b2b: Vec<f32> = (0..14).map(|v| 200.0 + v as f32).collect();
+        let base = |group, w| Piece { group, first: 0, columns: 0..w, values: Box::leak(vec![1.0; 2 * w].into_boxed_slice()) };
+        let pieces = [
+            base(Group::Position, 3),
+            base(Group::Scale, 3),
+            base(Group::Rotation, 4),
+            base(Group::Opacity, 1),
+            base(Group::ShDc, 3),
+            Piece { group: Group::Sh1, first: 0, columns: 0..9, values: &b1 },
+            Piece { group: Group::Sh2, first: 0, columns: 0..8, values: &b2a },
+            Piece { group: Group::Sh2, first: 0, columns: 8..15, values: &b2b },
+        ];
+        let mut s = Splats::new(0);
+        assemble(2, 2, &pieces, &mut s);
+        assert_eq!((s.len(), s.sh_degree, s.rest_coeffs()), (2, 2, 8));
+        let expected1: Vec<f32> = [&b1[9..18], &b2a[8..16], &b2b[7..14]].concat();
+        assert_eq!(s.rest_of(1), &expected1[..]);
+        assert_eq!(s.rest_of(0)[..9], b1[..9]);
+    }
+}

@@ -1,0 +1,126 @@
+//! Parameter sections (SPEC §4): per group, the dequantisation steps and one channel table per
+//! channel; for positions, the grid and the table of Morton-delta lengths.
+
+use rayon::prelude::*;
+
+use super::layout::{Group, MAX_POSITION_BITS};
+use super::sections::Container;
+use super::tables::ChannelTable;
+use super::{ByteReader, ByteWriter};
+use crate::error::{DecodeError, SectionId};
+
+/// The position grid: origin and step per axis, and bits per axis (SPEC §4, §6.1).
+pub type Grid = ([f32; 3], [f32; 3], u8);
+
+/// The parsed parameter section of one group.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GroupParams {
+    /// Per channel dequantisation step (position: empty).
+    pub steps: Vec<f32>,
+    /// One table per channel (position: the length table).
+    pub tables: Vec<ChannelTable>,
+    /// Position only: the grid.
+    pub grid: Option<Grid>,
+}
+
+/// Reads the parameter section of group `g`; it must be consumed exactly.
+pub fn read_params(g: Group, r: &mut ByteReader<'_>) -> Result<GroupParams, DecodeError> {
+    let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None };
+    if g == Group::Position {
+        let origin = [r.f32("grid origin")?, r.f32("grid origin")?, r.f32("grid origin")?];
+        let step = [r.f32("grid step")?, r.f32("grid step")?, r.f32("grid step")?];
+        let at = r.place();
+        let bits = r.u8("grid bits")?;
+        if bits > MAX_POSITION_BITS {
+            return Err(at.corrupt("position grid above 21 bits per axis"));
+        }
+        p.grid = Some((origin, step, bits));
+        let at = r.place();
+        let lengths = ChannelTable::read(r)?;
+        if matches!(lengths, ChannelTable::Context { .. }) {
+            return Err(at.corrupt("context-coded position lengths"));
+        }
+        p.tables.push(lengths);
+    } else {
+        let at = r.place();
+        let n = r.u8("channel count")? as usize;
+        if n != g.channels() {
+            return Err(at.corrupt("wrong channel count"));
+        }
+        for _ in 0..n {
+            p.steps.push(r.f32("channel step")?);
+            p.tables.push(ChannelTable::read(r)?);
+        }
+    }
+    if r.remaining() != 0 {
+        return Err(r.corrupt("trailing bytes in a parameter section"));
+    }
+    Ok(p)
+}
+
+/// Writes the position parameter section: the grid, then the serialised length table.
+pub fn write_position_params(grid: &Grid, length_table: &[u8]) -> Vec<u8> {
+    let mut w = ByteWriter::new();
+    let (origin, step, bits) = grid;
+    origin.iter().for_each(|&v| w.f32(v));
+    step.iter().for_each(|&v| w.f32(v));
+    w.u8(*bits);
+    w.bytes(length_table);
+    w.buf
+}
+
+/// Writes the parameter section of a group other than position: the channel count, then per
+/// channel its step and serialised table.
+pub fn write_channel_params<'t>(steps: &[f32], tables: impl ExactSizeIterator<Item = &'t [u8]>) -> Vec<u8> {
+    let mut w = ByteWriter::new();
+    w.u8(tables.len() as u8);
+    for (s, t) in steps.iter().zip(tables) {
+        w.f32(*s);
+        w.bytes(t);
+    }
+    w.buf
+}
+
+/// The parameter sections of the groups present up to SH degree `degree` (none for N = 0),
+/// read in parallel; a missing one is an error.
+pub fn read_all_params(c: &Container<'_>, degree: u8) -> Result<Vec<(Group, GroupParams)>, DecodeError> {
+    if c.header.gaussians == 0 {
+        return Ok(Vec::new());
+    }
+    let groups: Vec<Group> = Group::present(degree).collect();
+    groups
+        .into_par_iter()
+        .map(|g| {
+            if c.section(g.params_kind(), 0).is_none() {
+                return Err(c.missing(SectionId { kind: g.params_kind(), chunk: 0 }, g.params_name()));
+            }
+            Ok((g, read_params(g, &mut c.reader(g.params_kind(), 0))?))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn written_params_read_back() {
+        let mut t = ByteWriter::new();
+        ChannelTable::write_coded(&mut t, 0, &[3, 1, 1]);
+        let grid = ([1.0, -2.0, 0.5], [0.25, 0.25, 0.125], 7);
+        let bytes = write_position_params(&grid, &t.buf);
+        let p = read_params(Group::Position, &mut ByteReader::new(&bytes)).unwrap();
+        assert_eq!(p.grid, Some(grid));
+        assert_eq!(p.tables.len(), 1);
+        let mut c = ByteWriter::new();
+        ChannelTable::write_constant(&mut c, 4);
+        let bytes = write_channel_params(&[0.5, 0.25, -1.0], [&c.buf[..], &t.buf, &c.buf].into_iter());
+        let p = read_params(Group::Scale, &mut ByteReader::new(&bytes)).unwrap();
+        assert_eq!((p.steps, p.tables[0].clone()), (vec![0.5, 0.25, -1.0], ChannelTable::Constant(4)));
+        // Scale has 3 channels, not 1; and a parameter section must be consumed exactly.
+        assert_eq!(read_params(Group::Opacity, &mut ByteReader::new(&bytes)).unwrap_err().class(), "format");
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert_eq!(read_params(Group::Scale, &mut ByteReader::new(&longer)).unwrap_err().class(), "format");
+    }
+}

@@ -1,0 +1,151 @@
+//! Data sections (SPEC §6): a sequence of streams, each `varint length` + that many bytes, one
+//! per coded channel (positions: one, see [`super::positions`]). The readers decode a chunk's
+//! channels straight into dequantised `f32` values; the writers code a chunk's integer channels.
+
+use std::ops::Range;
+
+use super::assemble::{dequantise_value, rotation_rows};
+use super::layout::Group;
+use super::params::GroupParams;
+use super::tables::ChannelTable;
+use super::{ByteReader, ByteWriter};
+use crate::entropy::{context, in_context, Lookup, SymbolDecoder, SymbolEncoder, CONTEXTS};
+use crate::error::{DecodeError, Place};
+
+/// The next stream of a data section (`varint length`, then `length` bytes) and where it starts.
+pub(crate) fn next_stream<'a>(r: &mut ByteReader<'a>) -> Result<(&'a [u8], Place), DecodeError> {
+    let len = r.varint("stream length")? as usize;
+    let at = r.place();
+    Ok((r.take(len, "stream")?, at))
+}
+
+/// Appends one stream to a data section: `varint length`, then its bytes.
+pub fn push_stream(section: &mut ByteWriter, e: SymbolEncoder) {
+    let bytes = e.finish();
+    section.varint(bytes.len() as u32);
+    section.bytes(&bytes);
+}
+
+/// A symbol decoder over a stream, its errors placed at the stream.
+pub(crate) fn stream_decoder(data: &[u8], at: Place) -> Result<SymbolDecoder<'_>, DecodeError> {
+    SymbolDecoder::new(data).map_err(|what| at.corrupt(what))
+}
+
+/// Writes the data section of one chunk of a group other than position: for each coded channel
+/// (in channel order) the stream of its values; constant channels write nothing.
+/// `channels[j]` are channel j's values for the chunk's Gaussians.
+pub fn write_channel_streams(tables: &[&ChannelTable], channels: &[&[i32]]) -> Vec<u8> {
+    let mut section = ByteWriter::new();
+    for (t, values) in tables.iter().zip(channels) {
+        if let Some((_, centre, _)) = t.contexts() {
+            let mut e = SymbolEncoder::new();
+            in_context(values, centre).for_each(|(ctx, v)| e.value(t, ctx, v));
+            push_stream(&mut section, e);
+        }
+    }
+    section.buf
+}
+
+/// One coded channel being decoded: its stream, tables and the previous value (the context).
+struct Lane<'a> {
+    col: usize,
+    lo: i32,
+    centre: i32,
+    prev: i32,
+    tables: [Lookup<'a>; CONTEXTS],
+    scale: f32,
+    d: SymbolDecoder<'a>,
+    at: Place,
+}
+
+impl Lane<'_> {
+    /// The lane's next value into `row` (`CONTEXT`: pick the table by the previous value).
+    #[inline(always)]
+    fn decode<const CONTEXT: bool>(&mut self, row: &mut [f32]) {
+        let table = if CONTEXT { self.tables[context(self.prev, self.centre)] } else { self.tables[0] };
+        let v = self.d.coded_value(self.lo, table);
+        self.prev = v;
+        row[self.col] = dequantise_value(v, self.scale);
+    }
+}
+
+/// Channels `channels` of a (non-position) group chunk, Gaussian-major (`count × channels.len()`),
+/// each value dequantised with `scale[channel]`. Each coded channel has its own stream; decoding
+/// them side by side lets the independent coder states overlap in the CPU.
+pub(crate) fn decode_channels(
+    p: &GroupParams,
+    r: &mut ByteReader<'_>,
+    count: usize,
+    scale: &[f32],
+    channels: Range<usize>,
+) -> Result<Vec<f32>, DecodeError> {
+    // Every channel's stream is located (so the section's layout is checked), the wanted ones decoded.
+    let mut streams = Vec::with_capacity(p.tables.len());
+    for t in &p.tables {
+        streams.push(match t {
+            ChannelTable::Constant(_) => (&[][..], r.place()),
+            ChannelTable::Coded { .. } | ChannelTable::Context { .. } => next_stream(r)?,
+        });
+    }
+    let w = channels.len();
+    let mut vals = vec![0f32; count * w];
+    // Channels with one table and context-coded ones decode in separate lanes, so that the former
+    // skip the context computation.
+    let (mut plain, mut contextual) = (Vec::with_capacity(w), Vec::new());
+    for (col, j) in channels.enumerate() {
+        match p.tables[j].contexts() {
+            None => {
+                let v = if let ChannelTable::Constant(v) = p.tables[j] { v } else { 0 };
+                vals.iter_mut().skip(col).step_by(w).for_each(|x| *x = dequantise_value(v, scale[j]));
+            }
+            Some((lo, centre, tables)) => {
+                let lanes = if matches!(p.tables[j], ChannelTable::Context { .. }) { &mut contextual } else { &mut plain };
+                let (data, at) = streams[j];
+                lanes.push(Lane {
+                    col,
+                    lo,
+                    centre,
+                    prev: centre,
+                    tables: tables.map(|t| t.lookup_table()),
+                    scale: scale[j],
+                    d: stream_decoder(data, at)?,
+                    at,
+                });
+            }
+        }
+    }
+    for row in vals.chunks_exact_mut(w) {
+        plain.iter_mut().for_each(|l| l.decode::<false>(row));
+        contextual.iter_mut().for_each(|l| l.decode::<true>(row));
+    }
+    plain.into_iter().chain(contextual).try_for_each(|l| l.d.finish().map_err(|what| l.at.corrupt(what)))?;
+    if !vals.iter().fold(true, |ok, x| ok & x.is_finite()) {
+        return Err(r.corrupt("dequantised value is not finite"));
+    }
+    Ok(vals)
+}
+
+/// Decodes channels `channels` of one data section of `count` Gaussians, dequantised
+/// (position: `count × 3` coordinates; rotation: `count × 4` quaternion components, always all
+/// channels; other groups: Gaussian-major channel values).
+pub(crate) fn decode_data_section(
+    g: Group,
+    p: &GroupParams,
+    r: &mut ByteReader<'_>,
+    count: usize,
+    channels: Range<usize>,
+) -> Result<Vec<f32>, DecodeError> {
+    let out = match g {
+        Group::Position => super::positions::decode_positions(p, r, count)?,
+        Group::Rotation => {
+            // The index channel is read unscaled: f32 holds 0..=3 (and any escaped value) exactly enough.
+            let vals = decode_channels(p, r, count, &[1.0, p.steps[1], p.steps[2], p.steps[3]], 0..4)?;
+            rotation_rows(&vals).map_err(|what| r.corrupt(what))?
+        }
+        _ => decode_channels(p, r, count, &p.steps, channels)?,
+    };
+    if r.remaining() != 0 {
+        return Err(r.corrupt("trailing bytes in a data section"));
+    }
+    Ok(out)
+}

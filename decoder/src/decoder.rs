@@ -1,0 +1,402 @@
+//! The decoder's front door: [`Decoder`] (configure) → [`Reader`] (header and section table
+//! read, limits checked) → a [`Splats`] scene, plus one-call conveniences for bytes in memory.
+
+use std::io::Read;
+
+use crate::bitstream::header::{self, check_allocation_bound, Header, HEADER_BYTES};
+use crate::bitstream::info::{read_info, EncoderInfo};
+use crate::bitstream::layout::{Group, INFO_KIND};
+use crate::bitstream::params::read_all_params;
+use crate::bitstream::sections::{self, read_table, table_bytes, Table};
+use crate::bitstream::tables::ChannelTable;
+use crate::bitstream::{self, SECTION_OPTIONAL};
+use crate::decode::{decode_container, in_pool};
+use crate::error::{self, DecodeError, FormatErrorKind, Limit, Place, SectionId};
+use crate::math::sh_rest_coeffs;
+use crate::Splats;
+
+/// Resource limits of a decode, checked right after the header and section table are read,
+/// before anything they bound is allocated or read.
+///
+/// The defaults take any scene of up to 16.7 M Gaussians whose decode needs at most 4 GiB.
+///
+/// # Examples
+///
+/// A tiny byte budget refuses a file before its payloads are read:
+///
+/// ```
+/// use gscodec_decoder::{Decoder, DecodeError, Limits};
+/// # let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../bitstream-spec/vectors/tiny.gsc")).unwrap();
+/// let limits = Limits { max_bytes: 1000, ..Limits::default() };
+/// let err = Decoder::with_limits(&bytes[..], limits).read_info().unwrap_err();
+/// assert!(matches!(err, DecodeError::LimitsExceeded(_)));
+/// assert_eq!(err.class(), "limits");
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// Most Gaussians a file may hold (default 2^24; the format's own bound is 2^26).
+    pub max_gaussians: u32,
+    /// One byte budget: the bytes a decode holds at its peak — the file, the decoded values and
+    /// the scene ([`Reader::required_bytes`]) — may not exceed it (default 4 GiB).
+    pub max_bytes: u64,
+    /// SH bands above this degree are not read, allocated or returned (default 3: all). Unlike
+    /// the other limits it trims instead of failing: a scene of lower degree is still the scene.
+    pub max_sh_degree: u8,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits { max_gaussians: 1 << 24, max_bytes: 4 << 30, max_sh_degree: 3 }
+    }
+}
+
+impl Limits {
+    /// No limits beyond the format's own (SPEC §9).
+    pub fn none() -> Limits {
+        Limits { max_gaussians: u32::MAX, max_bytes: u64::MAX, max_sh_degree: 3 }
+    }
+}
+
+/// One section as listed in a file's table.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SectionInfo {
+    /// Section kind (SPEC §3).
+    pub kind: u16,
+    /// Chunk index.
+    pub chunk: u16,
+    /// Whether the OPTIONAL flag is set.
+    pub optional: bool,
+    /// Payload bytes.
+    pub bytes: usize,
+    /// Group name, or `info` / `padding` / `unknown`.
+    pub name: &'static str,
+}
+
+impl SectionInfo {
+    fn new(id: SectionId, flags: u32, bytes: usize) -> SectionInfo {
+        let group = Group::ALL.into_iter().find(|g| g.params_kind() == id.kind || g.data_kind() == id.kind);
+        let name = group.map(|g| g.name()).unwrap_or(match id.kind {
+            INFO_KIND => "info",
+            bitstream::layout::PADDING_KIND => "padding",
+            _ => "unknown",
+        });
+        SectionInfo { kind: id.kind, chunk: id.chunk, optional: flags & SECTION_OPTIONAL != 0, bytes, name }
+    }
+}
+
+/// What the header and section table say about a file, available before its payloads are read.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Info {
+    /// The fixed header: version, Gaussian count, SH degree.
+    pub header: Header,
+    /// Length of the whole file as the table declares it.
+    pub file_bytes: u64,
+    /// The sections in file order.
+    pub sections: Vec<SectionInfo>,
+}
+
+/// A checked overview of a whole file without decoding its streams ([`inspect`]; `gscodec info`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FileInfo {
+    /// Header and sections.
+    pub info: Info,
+    /// The optional info section: the encoder's input before pruning and SH truncation.
+    pub encoder: Option<EncoderInfo>,
+    /// Channels stored once as constants, as `group/channel`.
+    pub constant_channels: Vec<String>,
+    /// Channels coded with one table per context, as `group/channel`.
+    pub context_channels: Vec<String>,
+}
+
+/// Configures a decode of a `.gsc` file from any [`Read`] (a file, a socket, a decompressor, a
+/// byte slice); [`read_info`](Decoder::read_info) then reads the header.
+///
+/// # Examples
+///
+/// ```
+/// use gscodec_decoder::{Decoder, Limits};
+/// # let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../bitstream-spec/vectors/tiny.gsc");
+/// let file = std::fs::File::open(path)?;
+/// let mut decoder = Decoder::new(std::io::BufReader::new(file));
+/// decoder.set_limits(Limits { max_sh_degree: 1, ..Limits::default() });
+/// let reader = decoder.read_info()?;
+/// assert_eq!(reader.info().header.sh_degree, 3); // stored
+/// assert_eq!(reader.output_sh_degree(), 1); // returned
+/// let scene = reader.decode()?;
+/// assert_eq!((scene.len(), scene.sh_degree), (1000, 1));
+/// # Ok::<(), gscodec_decoder::DecodeError>(())
+/// ```
+#[derive(Debug)]
+pub struct Decoder<R> {
+    reader: R,
+    limits: Limits,
+    threads: usize,
+}
+
+impl<R: Read> Decoder<R> {
+    /// A decoder with the default [`Limits`].
+    pub fn new(reader: R) -> Self {
+        Decoder { reader, limits: Limits::default(), threads: 0 }
+    }
+
+    /// A decoder with `limits`.
+    pub fn with_limits(reader: R, limits: Limits) -> Self {
+        Decoder { reader, limits, threads: 0 }
+    }
+
+    /// Replaces the limits.
+    pub fn set_limits(&mut self, limits: Limits) -> &mut Self {
+        self.limits = limits;
+        self
+    }
+
+    /// Worker threads of the decode (at most 256); 0 (the default) = rayon's global pool. The
+    /// result is identical for every value; the pool for a count is built on first use and kept.
+    pub fn set_threads(&mut self, threads: usize) -> &mut Self {
+        self.threads = threads;
+        self
+    }
+
+    /// Reads the fixed header and the section table (16 + 16·S + 4 bytes, nothing more), checks
+    /// the header CRC, the format's bounds and the limits.
+    ///
+    /// # Errors
+    /// [`DecodeError::Io`] if the reader fails; `Format` (bad magic, truncation),
+    /// `Unsupported` (another major version), `Checksum` (header CRC) or `LimitsExceeded`.
+    pub fn read_info(mut self) -> Result<Reader<R>, DecodeError> {
+        let mut bytes = vec![0u8; HEADER_BYTES];
+        let got = read_up_to(&mut self.reader, &mut bytes)?;
+        bytes.truncate(got);
+        let (_, count) = header::read_header(&bytes)?;
+        let end = table_bytes(count);
+        bytes.resize(end, 0);
+        let got = read_up_to(&mut self.reader, &mut bytes[HEADER_BYTES..])?;
+        bytes.truncate(HEADER_BYTES + got);
+        let table = read_table(&bytes)?;
+        check_allocation_bound(&table.header, table.file_bytes())?;
+        let degree = check_limits(&table, &self.limits)?;
+        Ok(Reader { reader: self.reader, bytes, table, degree, threads: self.threads })
+    }
+}
+
+/// A file whose header and section table have been read and checked against the limits; it
+/// decodes the rest. Consumed by decoding, so options cannot change mid-decode.
+#[derive(Debug)]
+pub struct Reader<R> {
+    reader: R,
+    /// Header and section table, then (while decoding) the payloads.
+    bytes: Vec<u8>,
+    table: Table,
+    degree: u8,
+    threads: usize,
+}
+
+impl<R: Read> Reader<R> {
+    /// Header and sections as the table lists them.
+    pub fn info(&self) -> Info {
+        let sections = self.table.entries.iter().map(|e| SectionInfo::new(e.id, e.flags, e.length as usize)).collect();
+        Info { header: self.table.header, file_bytes: self.table.file_bytes(), sections }
+    }
+
+    /// Number of Gaussians the scene will have.
+    pub fn gaussians(&self) -> usize {
+        self.table.header.gaussians as usize
+    }
+
+    /// SH degree of the scene that will be returned: the stored one, at most
+    /// [`Limits::max_sh_degree`].
+    pub fn output_sh_degree(&self) -> u8 {
+        self.degree
+    }
+
+    /// The bytes this decode holds at its peak, checked against [`Limits::max_bytes`]: the file,
+    /// the decoded values and the scene.
+    pub fn required_bytes(&self) -> u64 {
+        required_bytes(&self.table, self.degree)
+    }
+
+    /// Reads the payloads and decodes them into `out`, reusing its allocations. On error `out`
+    /// is left as it was.
+    ///
+    /// # Errors
+    /// [`DecodeError::Io`] if the reader fails; otherwise what the bytes break (see
+    /// [`DecodeError`]): truncation, a section CRC, trailing bytes, corrupt content.
+    pub fn decode_into(mut self, out: &mut Splats) -> Result<(), DecodeError> {
+        let start = self.bytes.len();
+        let body = (self.table.file_bytes() - start as u64) as usize; // ≤ max_bytes, checked
+        self.bytes.resize(start + body, 0);
+        let got = read_up_to(&mut self.reader, &mut self.bytes[start..])?;
+        self.bytes.truncate(start + got);
+        if got == body && read_up_to(&mut self.reader, &mut [0u8; 1])? != 0 {
+            return Err(Place { section: None, offset: self.bytes.len() as u64 }.error(FormatErrorKind::TrailingData, "trailing data"));
+        }
+        let c = sections::parse(&self.bytes)?;
+        in_pool(self.threads, || decode_container(&c, self.degree, out))
+    }
+
+    /// Reads the payloads and decodes them into a new scene.
+    ///
+    /// # Errors
+    /// As [`decode_into`](Reader::decode_into).
+    pub fn decode(self) -> Result<Splats, DecodeError> {
+        let mut out = Splats::new(self.degree);
+        self.decode_into(&mut out)?;
+        Ok(out)
+    }
+}
+
+/// Reads until `buf` is full or the reader ends; the number of bytes read.
+fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> Result<usize, DecodeError> {
+    let mut got = 0;
+    while got < buf.len() {
+        match r.read(&mut buf[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(DecodeError::Io(e)),
+        }
+    }
+    Ok(got)
+}
+
+/// Bytes of a decoded scene of `n` Gaussians and SH degree `degree`.
+fn scene_bytes(n: u64, degree: u8) -> u64 {
+    n * (3 + 3 + 4 + 1 + 3 + 3 * sh_rest_coeffs(degree) as u64) * 4
+}
+
+fn required_bytes(table: &Table, degree: u8) -> u64 {
+    table.file_bytes() + 2 * scene_bytes(table.header.gaussians.into(), degree)
+}
+
+/// Checks the caller's limits against a file's table; the SH degree to decode.
+fn check_limits(table: &Table, limits: &Limits) -> Result<u8, DecodeError> {
+    let n = table.header.gaussians;
+    if n > limits.max_gaussians {
+        return Err(error::limit(Limit::Gaussians, n.into(), limits.max_gaussians.into(), true));
+    }
+    let degree = table.header.sh_degree.min(limits.max_sh_degree);
+    let need = required_bytes(table, degree);
+    if need > limits.max_bytes {
+        return Err(error::limit(Limit::Bytes, need, limits.max_bytes, true));
+    }
+    Ok(degree)
+}
+
+/// Decodes a whole `.gsc` file in memory with the default [`Limits`] (the same checks and result
+/// as [`Decoder`], without copying the bytes). Never panics; the result is bit-identical across
+/// runs and thread counts.
+///
+/// # Errors
+/// Any [`DecodeError`] but `Io`.
+///
+/// # Examples
+///
+/// ```
+/// # let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../bitstream-spec/vectors/hand.gsc")).unwrap();
+/// let scene = gscodec_decoder::decode(&bytes)?;
+/// assert_eq!(scene.len(), 3);
+/// assert_eq!(gscodec_decoder::decode(b"PK\x03\x04").unwrap_err().class(), "format");
+/// # Ok::<(), gscodec_decoder::DecodeError>(())
+/// ```
+pub fn decode(bytes: &[u8]) -> Result<Splats, DecodeError> {
+    decode_with(bytes, &Limits::default())
+}
+
+/// As [`decode`], with `limits`.
+///
+/// # Errors
+/// Any [`DecodeError`] but `Io`.
+pub fn decode_with(bytes: &[u8], limits: &Limits) -> Result<Splats, DecodeError> {
+    // The checks of Decoder::read_info, in its order, then those of Reader::decode.
+    let table = read_table(bytes)?;
+    check_allocation_bound(&table.header, table.file_bytes())?;
+    let degree = check_limits(&table, limits)?;
+    let c = sections::parse(bytes)?;
+    let mut out = Splats::new(degree);
+    decode_container(&c, degree, &mut out)?;
+    Ok(out)
+}
+
+/// Reads the fixed header only (magic, version, counts): the first 16 bytes are enough. No
+/// checksums and no check of the Gaussian count against the file size ([`decode`] does both).
+///
+/// # Errors
+/// `Format` (bad magic, fewer than 16 bytes), `Unsupported` (another major version) or
+/// `LimitsExceeded` (the format's bounds).
+pub fn peek_header(bytes: &[u8]) -> Result<Header, DecodeError> {
+    header::read_header(bytes).map(|(h, _)| h)
+}
+
+/// Parses and checks a whole file (every CRC and parameter section) without decoding its streams.
+///
+/// # Errors
+/// Any [`DecodeError`] but `Io` and `LimitsExceeded` from caller limits.
+pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
+    let c = sections::parse(bytes)?;
+    let params = read_all_params(&c, c.header.sh_degree)?;
+    let mut info = FileInfo {
+        info: Info { header: c.header, file_bytes: bytes.len() as u64, sections: Vec::new() },
+        encoder: None,
+        constant_channels: Vec::new(),
+        context_channels: Vec::new(),
+    };
+    for s in &c.sections {
+        info.info.sections.push(SectionInfo::new(s.id(), s.flags, s.data.len()));
+        if s.kind == INFO_KIND {
+            info.encoder = read_info(s.data);
+        }
+    }
+    for (g, p) in &params {
+        for (i, t) in p.tables.iter().enumerate() {
+            match t {
+                ChannelTable::Constant(_) => info.constant_channels.push(format!("{}/{}", g.name(), i)),
+                ChannelTable::Context { .. } => info.context_channels.push(format!("{}/{}", g.name(), i)),
+                ChannelTable::Coded { .. } => {}
+            }
+        }
+    }
+    Ok(info)
+}
+
+/// Decodes what has arrived of a file written in the recommended section order (SPEC §3, §7.1):
+/// `Ok(None)` until the base (positions, scales, rotations, opacities, DC colours) is complete,
+/// then the scene with the highest SH degree (up to `limits.max_sh_degree`) whose sections have
+/// all arrived. Call it again as more bytes come in; given the whole file it equals [`decode`].
+/// Every section used is CRC-checked; corrupt data is an error, not `None`.
+///
+/// # Errors
+/// Any [`DecodeError`] but `Io`; a file that is merely incomplete is `Ok(None)`.
+///
+/// # Examples
+///
+/// ```
+/// # let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../bitstream-spec/vectors/tiny.gsc")).unwrap();
+/// use gscodec_decoder::{decode_prefix, Limits};
+/// let mut shown = None;
+/// for arrived in (0..=bytes.len()).step_by(4096).chain([bytes.len()]) {
+///     if let Some(scene) = decode_prefix(&bytes[..arrived], &Limits::default()).unwrap() {
+///         shown = Some(scene.sh_degree); // hand the scene to the renderer
+///     }
+/// }
+/// assert_eq!(shown, Some(3));
+/// ```
+pub fn decode_prefix(bytes: &[u8], limits: &Limits) -> Result<Option<Splats>, DecodeError> {
+    if bitstream::MAGIC.starts_with(bytes) {
+        return Ok(None); // not even the magic has arrived
+    }
+    let c = match sections::parse_prefix(bytes) {
+        Ok(c) => c,
+        Err(e) if e.format_error().is_some_and(|f| f.kind() == FormatErrorKind::Truncated) => return Ok(None),
+        Err(e) => return Err(e),
+    };
+    let table = read_table(bytes)?;
+    let wanted = check_limits(&table, limits)?;
+    let arrived = |g: Group| !c.pending.iter().any(|id| id.kind == g.params_kind() || id.kind == g.data_kind());
+    if !Group::present(0).all(arrived) {
+        return Ok(None);
+    }
+    let degree = (1..=wanted).take_while(|&b| arrived(Group::for_band(b))).last().unwrap_or(0);
+    let mut out = Splats::new(degree);
+    decode_container(&c, degree, &mut out)?;
+    Ok(Some(out))
+}

@@ -1,0 +1,82 @@
+//! The training schedule scaled to short runs: no collapse at 300 iterations on a scene with a
+//! background, the reference values at 30k, and the pruning floor.
+
+use gscodec::io::Dataset;
+use gscodec::loss::L1Ssim;
+use gscodec::rng::Rng;
+use gscodec::train::adam::Adam;
+use gscodec::train::densify::{densify_and_prune_keeping, DensifyParams, DensifyStats};
+use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+use gscodec::train::{train, Schedule, TrainConfig, MIN_OPACITY_RESET_EVERY};
+use gscodec_decoder::Splats;
+
+#[test]
+fn schedule_is_the_reference_at_30k_and_keeps_floors_when_short() {
+    let s = Schedule::for_iters(30_000);
+    assert_eq!((s.sh_up_every, s.densify_from, s.densify_until, s.densify_every, s.opacity_reset_every), (1000, 500, 15_000, 100, 3000));
+    let s = Schedule::for_iters(5000);
+    assert_eq!((s.densify_every, s.opacity_reset_every, s.densify_until), (50, MIN_OPACITY_RESET_EVERY, 2500));
+    assert!(s.resets_opacity(1000, false) && s.resets_opacity(2000, false) && !s.resets_opacity(3000, false));
+    for iters in [1, 10, 300, 1000, 1999] {
+        let s = Schedule::for_iters(iters);
+        assert_eq!(s.opacity_reset_every, usize::MAX, "{iters} iterations: no room for an opacity reset");
+        assert!((1..=iters).all(|it| !s.resets_opacity(it, false) && !s.prunes_screen_size(it)));
+        assert!(s.densify_every >= 50.min(iters));
+        let json = serde_json::to_value(s).unwrap();
+        assert!(json["opacity_reset_every"].is_null());
+    }
+    // White backgrounds keep the reference's extra reset at densify_from.
+    assert!(Schedule::for_iters(300).resets_opacity(5, true));
+}
+
+/// An object in front of a textured shell that fills every view (a "photo" background).
+fn scene_with_background() -> Splats {
+    let mut s = toy_scene(150, 8);
+    let mut rng = Rng::new(9);
+    let rest = vec![0.0; s.rest_coeffs() * 3];
+    for _ in 0..600 {
+        let d = glam::Vec3::new(rng.normal(), rng.normal(), rng.normal()).normalize_or(glam::Vec3::Z) * 7.0;
+        let c = [rng.uniform() - 0.5, rng.uniform() - 0.5, 0.3 * rng.normal()];
+        s.push(d.to_array(), [-0.2; 3], [1.0, 0.0, 0.0, 0.0], 4.0, c.map(|v| v / 0.282_094_8), &rest);
+    }
+    s
+}
+
+#[test]
+fn three_hundred_iterations_on_a_scene_with_a_background_do_not_collapse() {
+    let cams = orbit_cameras(16, 3.5, 48, 48);
+    let ds: Dataset = render_targets(&scene_with_background(), &cams, [0.0; 3]);
+    let cfg = TrainConfig { iters: 300, seed: 1, init_points: 2000, eval_interval: 100, ..Default::default() };
+    let (s, report) = train(&ds, None, &cfg, Box::new(L1Ssim::default()), None, &mut |_| {}).unwrap();
+    let peak = report.points.iter().map(|p| p.gaussians).max().unwrap();
+    let psnr: Vec<f64> = report.points.iter().filter_map(|p| p.test_psnr).collect();
+    eprintln!("300 iterations: peak {peak}, final {} Gaussians, held-out PSNR {psnr:?}", s.len());
+    assert!(s.len() * 10 >= peak, "ended with {} of a peak {peak} Gaussians", s.len());
+    assert!(report.test_psnr.unwrap() > 15.0, "held-out PSNR {:?}", report.test_psnr);
+}
+
+#[test]
+fn pruning_keeps_the_most_opaque_down_to_the_floor() {
+    let mut p = Splats::new(0);
+    for i in 0..10 {
+        // All below the 0.005 opacity threshold; Gaussian i has logit -10 + i·0.1.
+        p.push([i as f32, 0.0, 0.0], [-3.0; 3], [1.0, 0.0, 0.0, 0.0], -10.0 + i as f32 * 0.1, [0.0; 3], &[]);
+    }
+    let dp = DensifyParams {
+        grad_threshold: 1.0,
+        percent_dense: 0.01,
+        extent: 1.0,
+        min_opacity: 0.005,
+        max_screen_radius: None,
+        max_world_fraction: 0.1,
+        max_gaussians: 100,
+    };
+    let (mut a, mut b) = (p.clone(), p.clone());
+    let (mut adam_a, mut adam_b) = (Adam::new(&a), Adam::new(&b));
+    let stats = DensifyStats::new(10);
+    let (_, _, pruned) = densify_and_prune_keeping(&mut a, &mut adam_a, &stats, &dp, &mut Rng::new(0), 0);
+    assert_eq!((pruned, a.len()), (10, 0));
+    let (_, _, pruned) = densify_and_prune_keeping(&mut b, &mut adam_b, &stats, &dp, &mut Rng::new(0), 3);
+    assert_eq!((pruned, b.len(), adam_b.m.len()), (7, 3, 3));
+    assert_eq!(b.positions.iter().map(|q| q[0]).collect::<Vec<_>>(), [7.0, 8.0, 9.0]);
+}
