@@ -3,7 +3,7 @@
 //! [`CpuBackend`], today's CPU trainer (`crate::train::train`).
 //!
 //! A GPU trainer plugs in by implementing [`TrainBackend`] (feature `gpu`) and being returned by
-//! `gpu_backend` below; see docs/architecture.md ("The training backend").
+//! `gpu_backend` below; see docs/codec.md ("The training backend").
 
 use gscodec_decoder::Splats;
 

@@ -195,10 +195,15 @@ impl Input {
             Ok(Input { source: Source::Scene(scene), views, background })
         } else {
             let ds = crate::io::load_dataset(path, &crate::io::LoadOptions::default())?;
-            let (views, background) = crate::cli::render::dataset_views(path, Split::Test, None)?;
+            let views: Vec<View> = ds
+                .split(Split::Test)
+                .into_iter()
+                .map(|f| View { index: f.index, camera: f.camera, target: Some(f.image.clone()) })
+                .collect();
             if views.is_empty() {
                 return Err(Error::input(path, "the dataset has no test views to measure a sweep on"));
             }
+            let background = ds.background;
             Ok(Input { source: Source::Dataset(ds), views, background })
         }
     }
@@ -229,7 +234,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
     write_bytes_atomic(&dir.join("report.json"), report.as_bytes())?;
 
     let t = Instant::now();
-    let decoded = gscodec_decoder::decode(&out.bytes, &Default::default()).map_err(|e| Error::failure(&dir.join("scene.gsc"), e))?;
+    let decoded = gscodec_decoder::decode(&out.bytes).map_err(|e| Error::failure(&dir.join("scene.gsc"), e))?;
     let decode_s = t.elapsed().as_secs_f64();
     let (per_view, _) = crate::cli::eval::measure(&decoded, &input.views, input.background, &mut || {});
     let m = crate::metrics::view::mean(&per_view).ok_or_else(|| Error::input(&plan.input, "no views to measure"))?;
