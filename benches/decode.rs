@@ -30,7 +30,8 @@ fn bench_decode(c: &mut Criterion) {
     let mut g = c.benchmark_group("decode");
     for (label, s) in [("sh3", sh3.clone()), ("sh0", sh3.with_sh_degree(0))] {
         // The configuration `gscodec encode --lambda LAMBDA` chooses (RD search over renders).
-        let (config, _) = rate::rd::search(&s, rate::Lambda::new(LAMBDA).unwrap(), |_| {}).expect("rd search");
+        let lambda = rate::Lambda::new(LAMBDA).expect("a valid λ");
+        let (config, _) = rate::rd::search(&s, lambda, |_| {}).expect("rd search");
         let (gsc, _, _) = rate::encode(&s, &config).expect("encode");
         let spz = encode_spz(&s, SpzVersion::V4).unwrap();
         let n = s.len() as u64;

@@ -74,8 +74,7 @@ pub struct SectionInfo {
 
 impl SectionInfo {
     fn new(id: SectionId, flags: u32, bytes: usize) -> SectionInfo {
-        let group = Group::ALL.into_iter().find(|g| g.params_kind() == id.kind || g.data_kind() == id.kind);
-        let name = group.map(|g| g.name()).unwrap_or(match id.kind {
+        let name = Group::of_kind(id.kind).map(|g| g.name()).unwrap_or(match id.kind {
             INFO_KIND => "info",
             bitstream::layout::PADDING_KIND => "padding",
             _ => "unknown",
@@ -223,11 +222,12 @@ impl<R: Read> Reader<R> {
     /// [`DecodeError`]): truncation, a section CRC, trailing bytes, corrupt content.
     pub fn decode_into(mut self, out: &mut Splats) -> Result<(), DecodeError> {
         let start = self.bytes.len();
-        let body = (self.table.file_bytes() - start as u64) as usize; // ≤ max_bytes, checked
-        self.bytes.resize(start + body, 0);
-        let got = read_up_to(&mut self.reader, &mut self.bytes[start..])?;
-        self.bytes.truncate(start + got);
-        if got == body && read_up_to(&mut self.reader, &mut [0u8; 1])? != 0 {
+        let body = self.table.file_bytes() - start as u64; // ≤ max_bytes, checked
+        // The buffer grows with what arrives, not with what the table claims: a short input
+        // that declares a huge section costs what it holds.
+        self.bytes.reserve(body.min(16 << 20) as usize);
+        (&mut self.reader).take(body).read_to_end(&mut self.bytes)?;
+        if self.bytes.len() as u64 - start as u64 == body && read_up_to(&mut self.reader, &mut [0u8; 1])? != 0 {
             return Err(Place { section: None, offset: self.bytes.len() as u64 }.error(FormatErrorKind::TrailingData, "trailing data"));
         }
         let c = sections::parse(&self.bytes)?;

@@ -23,11 +23,8 @@ impl SectionId {
     /// What the section holds: a group name with `parameters` or `data`, `info`, `padding` or
     /// `unknown`.
     pub fn name(self) -> String {
-        if let Some(g) = Group::ALL.into_iter().find(|g| g.params_kind() == self.kind) {
-            return format!("{} parameters", g.name());
-        }
-        if let Some(g) = Group::ALL.into_iter().find(|g| g.data_kind() == self.kind) {
-            return format!("{} data", g.name());
+        if let Some(g) = Group::of_kind(self.kind) {
+            return format!("{} {}", g.name(), if g.params_kind() == self.kind { "parameters" } else { "data" });
         }
         match self.kind {
             INFO_KIND => "info".into(),
@@ -343,4 +340,27 @@ pub(crate) fn unsupported_section(id: SectionId, offset: u64) -> DecodeError {
 /// The format's own bound (`caller = false`) or the caller's.
 pub(crate) fn limit(limit: Limit, value: u64, max: u64, caller: bool) -> DecodeError {
     DecodeError::LimitsExceeded(LimitError { limit, value, max, caller })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn messages_name_the_place_and_the_bound() {
+        let id = |kind, chunk| SectionId { kind, chunk };
+        assert_eq!(id(0x11, 0).name(), "scale parameters");
+        assert_eq!(id(0x27, 2).to_string(), "section 0x27/2 (sh_band3 data)");
+        assert_eq!(id(0x102, 0).name(), "unknown");
+        let at = Place { section: Some(id(0x23, 1)), offset: 1234 };
+        let e = at.truncated("stream");
+        assert_eq!(e.to_string(), "file is truncated while reading stream at byte 1234 in section 0x23/1 (opacity data)");
+        assert_eq!((e.class(), e.format_error().unwrap().offset()), ("format", 1234));
+        let e = Place::default().checksum(1, 2);
+        assert_eq!((e.class(), e.to_string()), ("checksum", "checksum mismatch in the header: stored 00000001, computed 00000002".into()));
+        let e = limit(Limit::Gaussians, 10, 5, true);
+        assert_eq!((e.class(), e.to_string()), ("limits", "limit exceeded: 10 Gaussians > Limits::max_gaussians = 5".into()));
+        assert_eq!(unsupported_version(4, 1).class(), "unsupported");
+        assert_eq!(DecodeError::from(std::io::Error::other("x")).class(), "io");
+    }
 }

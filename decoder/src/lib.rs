@@ -58,3 +58,9 @@ pub use decoder::{decode, decode_prefix, decode_with, inspect, peek_header, Deco
 pub use error::{ChecksumError, DecodeError, FormatError, FormatErrorKind, Limit, LimitError, SectionId, UnsupportedError};
 pub use render::{Image, RenderOptions};
 pub use splats::{SceneError, Splats};
+
+/// The Rust examples of `docs/decoder.md`, run as doctests (the file is outside the package, so
+/// only under `cargo test --doc` in this repository).
+#[cfg(doctest)]
+#[doc = include_str!("../../docs/decoder.md")]
+pub struct DecoderGuide;

@@ -198,3 +198,23 @@ fn bad_vectors_fail_with_their_class() {
     }
     assert!(checked >= 8, "only {checked} bad vectors");
 }
+
+/// A short input whose table declares a 3 GB section (within the default byte budget) is refused
+/// as truncated after reading what is there, without a buffer of the declared size.
+#[test]
+fn a_huge_declared_section_costs_only_what_arrives() {
+    let mut b = Vec::new();
+    b.extend_from_slice(&[0x8A, b'G', b'S', b'C', 3, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+    b.extend_from_slice(&0x101u16.to_le_bytes()); // padding, optional
+    b.extend_from_slice(&0u16.to_le_bytes());
+    b.extend_from_slice(&1u32.to_le_bytes());
+    b.extend_from_slice(&3_000_000_000u32.to_le_bytes());
+    b.extend_from_slice(&0u32.to_le_bytes());
+    let crc = crc32fast::hash(&b);
+    b.extend_from_slice(&crc.to_le_bytes());
+    b.extend_from_slice(&[0; 100]);
+    let reader = Decoder::new(&b[..]).read_info().unwrap();
+    assert_eq!(reader.info().file_bytes, 36 + 3_000_000_000);
+    let e = reader.decode().unwrap_err();
+    assert_eq!(e.format_error().map(|f| (f.kind(), f.section())), Some((FormatErrorKind::Truncated, Some(SectionId { kind: 0x101, chunk: 0 }))));
+}

@@ -42,6 +42,9 @@ pub struct Args {
     /// Run the points and record their results, but write no tables or plots (what emitted jobs run).
     #[arg(long)]
     pub points_only: bool,
+    /// Dataset image options, for each encode and the test views it is measured on.
+    #[command(flatten)]
+    pub dataset: super::dataset_args::DatasetArgs,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -54,7 +57,7 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let lambdas = if args.lambdas.is_empty() { DEFAULT_LAMBDAS.to_vec() } else { args.lambdas.clone() };
     let losses = if args.losses.is_empty() { DEFAULT_LOSSES.iter().map(|s| s.to_string()).collect() } else { args.losses.clone() };
-    let mut plan = Plan { input: args.input.clone(), out: args.out.clone(), lambdas, losses, iters: args.iters, backend: args.backend };
+    let mut plan = Plan { input: args.input.clone(), out: args.out.clone(), lambdas, losses, iters: args.iters, backend: args.backend, dataset_args: args.dataset.to_args() };
     plan.validate()?;
 
     if let Some(dir) = &args.collect {
@@ -89,7 +92,7 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("sweep: {skipped} finished point(s) kept, {} to run", pending.len());
     }
     // Loaded once for every point, and only when a point is to run.
-    let input = if pending.is_empty() { None } else { Some(Input::load(&plan.input)?) };
+    let input = if pending.is_empty() { None } else { Some(Input::load(&plan.input, &args.dataset.load_options())?) };
     let bar = super::progress::bar(pending.len() as u64, "sweep", args.quiet || pending.is_empty());
     let next = AtomicUsize::new(0);
     let failures = Mutex::new(Vec::new());

@@ -1,7 +1,7 @@
 //! `gscodec train DATA -o OUT.ply`: train Gaussians on a posed-image dataset.
 
-use crate::encoder::{Backend, LossSpec, TrainJob};
 use crate::io;
+use crate::encoder::{Backend, LossSpec, TrainJob};
 use crate::loss::LossArgs;
 use crate::train::TrainConfig;
 use crate::{Error, Result};
@@ -52,6 +52,8 @@ pub struct Args {
     /// Dataset image options.
     #[command(flatten)]
     pub dataset: super::dataset_args::DatasetArgs,
+    #[command(flatten)]
+    pub checkpoint: super::dataset_args::CheckpointArgs,
     /// No progress bar or summary.
     #[arg(long)]
     pub quiet: bool,
@@ -82,27 +84,31 @@ pub fn run(args: Args) -> Result<()> {
     // Without a terminal (logs), a line per evaluation instead of the bar.
     let log_lines = !args.quiet && pb.is_hidden();
     let mut last_psnr = None;
-    let job = TrainJob { dataset: &ds, init, config: &cfg, loss: &loss, rate: None };
-    let (splats, report) = backend.train(job, &mut |p| {
-        if p.test_psnr.is_some() {
-            last_psnr = p.test_psnr;
-            if log_lines {
-                eprintln!(
-                    "iteration {}/{}: loss {:.4}, {} Gaussians, held-out PSNR {:.2} dB",
-                    p.iteration,
-                    p.iters,
-                    p.loss,
-                    p.gaussians,
-                    p.test_psnr.unwrap_or(0.0)
-                );
+    let run = args.checkpoint.run_options(args.report.clone());
+    let job = TrainJob { dataset: &ds, init, config: &cfg, loss: &loss, rate: None, run: &run };
+    let (splats, report) = backend.train(
+        job,
+        &mut |p| {
+            if p.test_psnr.is_some() {
+                last_psnr = p.test_psnr;
+                if log_lines {
+                    eprintln!(
+                        "iteration {}/{}: loss {:.4}, {} Gaussians, held-out PSNR {:.2} dB",
+                        p.iteration,
+                        p.iters,
+                        p.loss,
+                        p.gaussians,
+                        p.test_psnr.unwrap_or(0.0)
+                    );
+                }
             }
-        }
-        pb.set_position(p.iteration as u64);
-        if p.iteration % 10 == 0 || p.test_psnr.is_some() {
-            let psnr = last_psnr.map(|v| format!(" test {v:.2} dB")).unwrap_or_default();
-            pb.set_message(format!("loss {:.4} n {}{psnr}", p.loss, p.gaussians));
-        }
-    })
+            pb.set_position(p.iteration as u64);
+            if p.iteration % 10 == 0 || p.test_psnr.is_some() {
+                let psnr = last_psnr.map(|v| format!(" test {v:.2} dB")).unwrap_or_default();
+                pb.set_message(format!("loss {:.4} n {}{psnr}", p.loss, p.gaussians));
+            }
+        },
+    )
     .map_err(|e| match e {
         Error::Input(m) => Error::input(&args.data, m),
         other => other,

@@ -11,7 +11,7 @@ use crate::io::Dataset;
 use crate::loss::{FeatureSpec, ImageLoss, LossArgs, LossKind};
 use crate::rate::term::RateTerm;
 use crate::rate::{Lambda, Steps};
-use crate::train::{Progress, TrainConfig, TrainReport};
+use crate::train::{Progress, RunOptions, TrainConfig, TrainReport};
 use crate::{Error, Result};
 
 /// Which trainer runs `train`, `encode` and `sweep`.
@@ -112,6 +112,8 @@ pub struct TrainJob<'a> {
     pub loss: &'a LossSpec,
     /// The rate term; None trains the image loss alone.
     pub rate: Option<RateObjective>,
+    /// Checkpoints, resume and the live report (`RunOptions::default()`: none).
+    pub run: &'a RunOptions,
 }
 
 /// A trainer. Both backends use the same [`TrainConfig`] and schedule and return the same
@@ -146,7 +148,7 @@ impl TrainBackend for CpuBackend {
             term.start_iter = r.start_iter;
             Box::new(term) as Box<dyn crate::train::RdTerm>
         });
-        crate::train::train(job.dataset, job.init, job.config, loss, rd, progress)
+        crate::train::train_with(job.dataset, job.init, job.config, loss, rd, progress, job.run)
     }
 }
 

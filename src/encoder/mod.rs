@@ -38,7 +38,7 @@ pub use target::{Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 use crate::io::{Dataset, Split};
 use crate::rate::group::Group;
 use crate::rate::{self, EncodeConfig, Steps};
-use crate::train::{Progress, TrainConfig, TrainReport};
+use crate::train::{Progress, RunOptions, TrainConfig, TrainReport};
 use crate::views::{orbit_cameras, training_cameras, UpAxis};
 use crate::{Error, Result};
 
@@ -182,7 +182,7 @@ impl Encoder {
             learn_steps: self.config.learn_steps,
             start_iter,
         };
-        let job = TrainJob { dataset, init, config: cfg, loss: &self.config.loss, rate: Some(rate) };
+        let job = TrainJob { dataset, init, config: cfg, loss: &self.config.loss, rate: Some(rate), run: &RunOptions::default() };
         let (s, r) = backend.train(job, &mut |p| {
             if let Some(psnr) = p.test_psnr {
                 series.push(SeriesPoint {

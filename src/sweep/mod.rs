@@ -77,6 +77,9 @@ pub struct Plan {
     pub iters: Option<usize>,
     /// Training backend of every encode.
     pub backend: Backend,
+    /// Dataset options (`--downscale N`, …) as command-line words, passed on to emitted jobs;
+    /// in process they are [`Input::load`]'s options.
+    pub dataset_args: Vec<String>,
 }
 
 impl Plan {
@@ -140,6 +143,7 @@ impl Plan {
         if let Some(n) = self.iters {
             c.extend(["--iters".into(), n.to_string()]);
         }
+        c.extend(self.dataset_args.iter().cloned());
         if self.backend != Backend::Auto {
             let b = self.backend.to_possible_value().expect("no skipped variants");
             c.extend(["--backend".into(), b.get_name().to_string()]);
@@ -183,18 +187,18 @@ pub enum Source {
 }
 
 impl Input {
-    /// Loads `path`: a `.ply` scene or a dataset directory.
+    /// Loads `path`: a `.ply` scene or a dataset directory (with `opts`).
     ///
     /// # Errors
     /// An unreadable input (exit 2, naming it).
-    pub fn load(path: &Path) -> Result<Input> {
+    pub fn load(path: &Path, opts: &crate::io::LoadOptions) -> Result<Input> {
         if is_ply(path) {
             let scene = crate::io::read_ply(path)?;
             let (views, background) =
                 crate::cli::eval::reference_views(&scene, PLY_EVAL_ORBIT, None, crate::views::UpAxis::NegY);
             Ok(Input { source: Source::Scene(scene), views, background })
         } else {
-            let ds = crate::io::load_dataset(path, &crate::io::LoadOptions::default())?;
+            let ds = crate::io::load_dataset(path, opts)?;
             let views: Vec<View> = ds
                 .split(Split::Test)
                 .into_iter()
@@ -284,6 +288,7 @@ mod tests {
             losses: vec!["l1ssim".into(), "wdr".into()],
             iters: Some(300),
             backend: Backend::Auto,
+            dataset_args: Vec::new(),
         };
         let pts = plan.points();
         assert_eq!(pts.len(), 4);
@@ -294,6 +299,8 @@ mod tests {
             "sweep data/lego -o sw --lambdas 0.01 --loss l1ssim --iters 300 --points-only --quiet"
         );
         plan.validate().unwrap();
+        let scaled = Plan { dataset_args: vec!["--downscale".into(), "2".into()], ..plan.clone() };
+        assert!(scaled.point_command(&pts[1]).join(" ").ends_with("--iters 300 --downscale 2 --points-only --quiet"));
         let cpu = Plan { backend: Backend::Cpu, ..plan.clone() };
         assert!(cpu.point_command(&pts[0]).join(" ").ends_with("--iters 300 --backend cpu --points-only --quiet"));
         let c = plan.encoder_config(&pts[3]).unwrap();

@@ -89,6 +89,11 @@ impl Group {
         }
     }
 
+    /// The group whose parameter or data sections have `kind`, if any.
+    pub fn of_kind(kind: u16) -> Option<Group> {
+        Group::ALL.into_iter().find(|g| g.params_kind() == kind || g.data_kind() == kind)
+    }
+
     /// Groups present in a file of SH degree `d`.
     pub fn present(d: u8) -> impl Iterator<Item = Group> {
         Group::ALL.into_iter().filter(move |g| g.sh_band() <= d)
