@@ -2,7 +2,7 @@
 //! [`TrainBackend`] trait every trainer implements, the [`TrainJob`] it is handed and
 //! [`CpuBackend`], today's CPU trainer (`crate::train::train`).
 //!
-//! A GPU trainer plugs in by implementing [`TrainBackend`] (feature `gpu`) and being returned by
+//! The GPU trainer (`crate::train::gpu`, feature `gpu`) plugs in as `GpuBackend`, returned by
 //! `gpu_backend` below; see docs/codec.md ("The training backend").
 
 use gscodec_decoder::Splats;
@@ -42,10 +42,51 @@ impl Backend {
     }
 }
 
-/// The GPU trainer, if this build has one and (with `hardware_only`) a hardware adapter exists.
-/// The GPU trainer (`crate::train::gpu`) is wired in here when it lands.
-fn gpu_backend(_hardware_only: bool) -> Option<Box<dyn TrainBackend>> {
+/// The GPU trainer, if this build has one and (with `auto`) a hardware adapter exists. `auto`
+/// runs on the CPU the jobs the GPU trainer cannot (a WD loss, the rate term).
+#[cfg(feature = "gpu")]
+fn gpu_backend(auto: bool) -> Option<Box<dyn TrainBackend>> {
+    if auto && !crate::train::gpu::hardware_adapter_available() {
+        return None;
+    }
+    Some(Box::new(GpuBackend { fall_back_to_cpu: auto }))
+}
+
+/// Without the `gpu` feature there is no GPU trainer.
+#[cfg(not(feature = "gpu"))]
+fn gpu_backend(_auto: bool) -> Option<Box<dyn TrainBackend>> {
     None
+}
+
+/// The wgpu trainer, `crate::train::gpu::train`.
+#[cfg(feature = "gpu")]
+#[derive(Debug, Clone, Copy)]
+struct GpuBackend {
+    /// Run what the GPU trainer refuses on the CPU instead (`--backend auto`).
+    fall_back_to_cpu: bool,
+}
+
+#[cfg(feature = "gpu")]
+impl TrainBackend for GpuBackend {
+    fn name(&self) -> &'static str {
+        "gpu"
+    }
+
+    fn train(&mut self, job: TrainJob<'_>, progress: &mut dyn FnMut(&Progress)) -> Result<(Splats, TrainReport)> {
+        let loss = crate::train::gpu::GpuLoss::from(job.loss.kind);
+        let refused = if job.rate.is_some() {
+            Some(crate::train::gpu::rate_unsupported())
+        } else if job.run.checkpoint.is_some() || job.run.resume.is_some() {
+            Some(Error::Input("GPU training does not write or resume checkpoints yet; use --backend cpu".into()))
+        } else {
+            loss.check().err()
+        };
+        match refused {
+            Some(_) if self.fall_back_to_cpu => CpuBackend.train(job, progress),
+            Some(e) => Err(e),
+            None => crate::train::gpu::train(job.dataset, job.init, job.config, &loss, progress),
+        }
+    }
 }
 
 /// The image loss a backend trains with, as a description (kind, features, γ), so that a GPU
@@ -169,5 +210,25 @@ mod tests {
         assert_eq!(e.exit_code(), 2);
         assert!(e.to_string().contains("GPU training not available"), "{e}");
         assert_eq!(Backend::Auto.resolve().unwrap().name(), "cpu");
+    }
+
+    /// With the `gpu` feature, `gpu` refuses the rate term as bad input and `auto` runs such a
+    /// job on the CPU (whatever adapter the machine has).
+    #[cfg(feature = "gpu")]
+    #[test]
+    fn with_the_gpu_feature_auto_runs_rate_jobs_on_the_cpu() {
+        let scene = crate::sample::scene(40, 2);
+        let cams = crate::views::orbit_cameras(&scene, 4, 32, 32, crate::views::UpAxis::NegY.vector());
+        let dataset = crate::train::targets::render_targets(&scene, &cams, [0.0; 3]);
+        let cfg = TrainConfig { iters: 2, densify: false, eval_interval: 0, ..Default::default() };
+        let loss = LossSpec::default();
+        let rate = RateObjective { lambda: Lambda::DEFAULT, steps: Steps::default(), min_opacity: 1.0 / 255.0, learn_steps: true, start_iter: 0 };
+        let run = RunOptions::default();
+        let job = || TrainJob { dataset: &dataset, init: Some(scene.clone()), config: &cfg, loss: &loss, rate: Some(rate), run: &run };
+        let e = gpu_backend(false).unwrap().train(job(), &mut |_| {}).err().expect("refused");
+        assert!(e.exit_code() == 2 && e.to_string().contains("rate term"), "{e}");
+        let (_, r) = GpuBackend { fall_back_to_cpu: true }.train(job(), &mut |_| {}).unwrap();
+        assert_eq!(r.backend, "cpu");
+        assert!(r.rate.is_some());
     }
 }
