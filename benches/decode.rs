@@ -9,15 +9,13 @@ use gscodec::decoder::{Decoder, Splats};
 use gscodec::io::ply::read_ply;
 use gscodec::io::spz::{decode_spz, encode_spz, SpzVersion};
 use gscodec::rate;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// The λ of the README's SPZ comparison on k7000 (a file half the `.spz`'s size, at a higher PSNR).
 const LAMBDA: f64 = 24.0;
 
 fn scene() -> (String, Splats) {
-    let data =
-        std::env::var_os("GSCODEC_DATA").map(PathBuf::from).unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let k7000 = data.join("scenes/k7000.ply");
+    let k7000 = gscodec::testkit::data_dir().join("scenes/k7000.ply");
     if k7000.exists() {
         ("k7000".into(), read_ply(&k7000).unwrap())
     } else {

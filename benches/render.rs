@@ -6,13 +6,8 @@ use gscodec::decoder::{render::render, Camera, RenderOptions, Splats};
 
 fn scene(n: usize) -> Splats {
     // Deterministic pseudo-random cloud in the unit cube with scene-typical sizes.
-    let mut state = 0x1234_5678_9abc_def1u64;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut rng = gscodec::rng::Rng::new(0x1234_5678_9abc_def1);
+    let mut next = move || rng.uniform();
     let mut s = Splats::new(3);
     // Sizes shrink with density so the screen coverage per frame stays comparable.
     let base = -2.5 - 0.5 * (n as f32 / 10_000.0).log2().max(0.0) / 1.5;

@@ -6,16 +6,17 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use gscodec::loss::L1Ssim;
 use gscodec::raster;
 use gscodec::rate::group::Group;
+use gscodec::testkit::{random_splats, rig_cameras};
 use gscodec::train::adam::Adam;
-use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+use gscodec::train::targets::render_targets;
 use gscodec_decoder::{Image, RenderOptions, Splats};
 
 fn setup(n: usize) -> (Splats, Image, gscodec_decoder::Camera) {
     let shrink = (n as f32 / 120.0).cbrt().ln();
-    let mut truth = toy_scene(n, 1).with_sh_degree(3);
+    let mut truth = random_splats(n, 1, 1).with_sh_degree(3);
     truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-    let ds = render_targets(&truth, &orbit_cameras(2, 4.0, 200, 200), [1.0; 3]);
-    let mut params = toy_scene(n, 2).with_sh_degree(3);
+    let ds = render_targets(&truth, &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
+    let mut params = random_splats(n, 1, 2).with_sh_degree(3);
     params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
     (params, ds.frames[0].image.clone(), ds.frames[0].camera)
 }

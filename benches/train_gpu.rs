@@ -4,8 +4,9 @@
 //! Skips (prints why) when there is no adapter.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use gscodec::testkit::{random_splats, rig_cameras};
 use gscodec::train::gpu::{Gpu, Session};
-use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+use gscodec::train::targets::render_targets;
 
 fn wait(gpu: &Gpu) {
     gpu.device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
@@ -21,10 +22,10 @@ fn bench_stages(c: &mut Criterion) {
     group.sample_size(10);
     for n in [10_000usize, 50_000] {
         let shrink = (n as f32 / 120.0).cbrt().ln();
-        let mut truth = toy_scene(n, 1).with_sh_degree(3);
+        let mut truth = random_splats(n, 1, 1).with_sh_degree(3);
         truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-        let ds = render_targets(&truth, &orbit_cameras(2, 4.0, 200, 200), [1.0; 3]);
-        let mut params = toy_scene(n, 2).with_sh_degree(3);
+        let ds = render_targets(&truth, &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
+        let mut params = random_splats(n, 1, 2).with_sh_degree(3);
         params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
         let frame = &ds.frames[0];
         let cam = frame.camera;

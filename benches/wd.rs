@@ -45,14 +45,15 @@ fn bench(c: &mut Criterion) {
 fn bench_iteration(c: &mut Criterion) {
     use gscodec::raster;
     use gscodec::rate::group::Group;
+    use gscodec::testkit::{random_splats, rig_cameras};
     use gscodec::train::adam::Adam;
-    use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+    use gscodec::train::targets::render_targets;
     use gscodec_decoder::RenderOptions;
     let n = 10_000;
     let shrink = (n as f32 / 120.0).cbrt().ln();
-    let mut truth = toy_scene(n, 1).with_sh_degree(3);
+    let mut truth = random_splats(n, 1, 1).with_sh_degree(3);
     truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-    let ds = render_targets(&truth, &orbit_cameras(2, 4.0, 200, 200), [1.0; 3]);
+    let ds = render_targets(&truth, &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
     let opts = RenderOptions { background: [1.0; 3], max_sh_degree: 3 };
     let frame = &ds.frames[0];
     let mut group = c.benchmark_group("train_iteration_200x200_10k");
@@ -60,7 +61,7 @@ fn bench_iteration(c: &mut Criterion) {
     let losses: Vec<(&str, Box<dyn ImageLoss>)> =
         vec![("l1ssim", Box::new(gscodec::loss::L1Ssim::default())), ("wdr_pyramid", Box::new(WdrLoss::new(Box::new(Pyramid), 0)))];
     for (name, mut loss) in losses {
-        let mut params = toy_scene(n, 2).with_sh_degree(3);
+        let mut params = random_splats(n, 1, 2).with_sh_degree(3);
         params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
         let mut adam = Adam::new(&params);
         group.bench_function(name, |b| {

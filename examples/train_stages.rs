@@ -9,8 +9,9 @@
 use gscodec::loss::L1Ssim;
 use gscodec::raster;
 use gscodec::rate::group::Group;
+use gscodec::testkit::{random_splats, rig_cameras};
 use gscodec::train::adam::Adam;
-use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+use gscodec::train::targets::render_targets;
 use gscodec_decoder::RenderOptions;
 use std::time::Instant;
 
@@ -27,12 +28,12 @@ fn main() {
     let iters: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(20);
     for n in [10_000usize, 50_000] {
         // A lego-like density: many small Gaussians in the unit ball, seen from 4 units away.
-        let mut truth = toy_scene(n, 1);
+        let mut truth = random_splats(n, 1, 1);
         let shrink = (n as f32 / 120.0).cbrt().ln();
         truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-        let cams = orbit_cameras(4, 4.0, 200, 200);
+        let cams = rig_cameras(4, 4.0, 200, 200);
         let ds = render_targets(&truth, &cams, [1.0; 3]);
-        let mut params = toy_scene(n, 2);
+        let mut params = random_splats(n, 1, 2);
         params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
         let mut adam = Adam::new(&params);
         let opts = RenderOptions { background: [1.0; 3], max_sh_degree: 1 };

@@ -31,6 +31,8 @@ pub mod rate;
 pub mod rng;
 pub mod sample;
 pub mod sweep;
+#[doc(hidden)]
+pub mod testkit;
 pub mod train;
 pub mod views;
 

@@ -8,8 +8,11 @@ use gscodec::io::image::write_png;
 use gscodec::io::lens::{distort_image, Distortion, Lens};
 use gscodec::io::{load_dataset, Dataset, LoadOptions, Split};
 use gscodec::loss::L1Ssim;
-use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
-use gscodec::train::{evaluate, train, TrainConfig};
+use gscodec::metrics::psnr;
+use gscodec::metrics::view::mean_psnr_ssim;
+use gscodec::testkit::{random_splats, rig_cameras};
+use gscodec::train::targets::render_targets;
+use gscodec::train::{train, TrainConfig};
 use std::path::Path;
 
 const W: u32 = 64;
@@ -70,15 +73,11 @@ fn lens_params(l: &Lens) -> (&'static str, Vec<f64>) {
     }
 }
 
-fn psnr(a: &Image, b: &Image) -> f64 {
-    gscodec::metrics::psnr(a, b)
-}
-
 #[test]
 fn undistorted_photos_match_pinhole_renders_of_the_loaded_cameras() {
-    let scene = toy_scene(150, 2);
+    let scene = random_splats(150, 1, 2);
     let bg = [0.0; 3];
-    let cams = orbit_cameras(4, 3.5, W, H);
+    let cams = rig_cameras(4, 3.5, W, H);
     for lens in [opencv(), fisheye()] {
         let photos: Vec<Image> = cams.iter().map(|c| photo(&scene, c, &lens, bg)).collect();
         let dir = tempfile::tempdir().unwrap();
@@ -105,10 +104,10 @@ fn undistorted_photos_match_pinhole_renders_of_the_loaded_cameras() {
 
 #[test]
 fn training_on_distorted_photos_matches_training_on_pinhole_images() {
-    let scene = toy_scene(150, 4);
+    let scene = random_splats(150, 1, 4);
     let bg = [0.0; 3];
     let lens = opencv();
-    let cams = orbit_cameras(16, 3.5, W, H);
+    let cams = rig_cameras(16, 3.5, W, H);
     // Reference: pinhole images with the lens's focal length and principal point.
     let pinhole: Vec<Camera> =
         cams.iter().map(|c| Camera { fx: lens.fx as f32, fy: lens.fy as f32, cx: lens.cx as f32, cy: lens.cy as f32, ..*c }).collect();
@@ -127,7 +126,7 @@ fn training_on_distorted_photos_matches_training_on_pinhole_images() {
         let psnr = |seed| {
             let cfg = TrainConfig { iters: 300, seed, init_points: 600, eval_interval: 0, ..Default::default() };
             let (s, _) = train(ds, None, &cfg, Box::new(L1Ssim::default()), None, &mut |_| {}).unwrap();
-            evaluate(&s, &held.split(Split::All), bg).unwrap().0
+            mean_psnr_ssim(&s, &held.split(Split::All), bg).unwrap().0
         };
         (psnr(3) + psnr(4)) / 2.0
     };
@@ -139,9 +138,9 @@ fn training_on_distorted_photos_matches_training_on_pinhole_images() {
 
 #[test]
 fn nerf_json_distortion_keys_and_per_frame_intrinsics() {
-    let scene = toy_scene(100, 5);
+    let scene = random_splats(100, 1, 5);
     let bg = [1.0; 3];
-    let cams = orbit_cameras(2, 3.5, W, H);
+    let cams = rig_cameras(2, 3.5, W, H);
     let lens = opencv();
     let fish = fisheye();
     let dir = tempfile::tempdir().unwrap();
@@ -188,10 +187,10 @@ fn nerf_json_distortion_keys_and_per_frame_intrinsics() {
 
 #[test]
 fn downscale_uses_images_n_and_max_size_resizes() {
-    let scene = toy_scene(100, 6);
+    let scene = random_splats(100, 1, 6);
     let ropts = RenderOptions { background: [0.0; 3], max_sh_degree: 3 };
     let (w2, h2) = (2 * W, 2 * H);
-    let cams: Vec<Camera> = orbit_cameras(2, 3.5, w2, h2)
+    let cams: Vec<Camera> = rig_cameras(2, 3.5, w2, h2)
         .into_iter()
         .map(|c| Camera { fx: 2.0 * F as f32, fy: 2.0 * F as f32, cx: W as f32, cy: H as f32, ..c })
         .collect();

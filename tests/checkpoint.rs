@@ -3,14 +3,15 @@
 
 use gscodec::io::{write_ply, Dataset};
 use gscodec::loss::L1Ssim;
-use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+use gscodec::testkit::{random_splats, rig_cameras};
+use gscodec::train::targets::render_targets;
 use gscodec::train::{train_with, RunOptions, TrainConfig};
 use gscodec::Error;
 use gscodec_decoder::Splats;
 use std::path::Path;
 
 fn dataset() -> Dataset {
-    render_targets(&toy_scene(80, 11), &orbit_cameras(10, 3.5, 24, 24), [1.0; 3])
+    render_targets(&random_splats(80, 1, 11), &rig_cameras(10, 3.5, 24, 24), [1.0; 3])
 }
 
 fn cfg() -> TrainConfig {

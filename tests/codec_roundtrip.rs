@@ -1,27 +1,25 @@
 //! Encoder ⇄ decoder: bit-exact round trips, determinism, leave-out and refusal of bad input.
 
+use glam::Vec3;
 use gscodec::rate::{self, quantise, EncodeConfig};
+use gscodec::rng::Rng;
+use gscodec::testkit::{extreme_splats, random_splats_in, rig_cameras, SceneRanges};
 use gscodec_decoder::bitstream::VERSION_MAJOR;
-use gscodec_decoder::{decode, decode_with, DecodeError, FormatErrorKind, Limits, Splats};
+use gscodec_decoder::render::render;
+use gscodec_decoder::{decode, decode_with, Camera, DecodeError, FormatErrorKind, Limits, RenderOptions, Splats};
 
-/// A deterministic random scene of `n` Gaussians (SH degree `d`) spread over `extent`.
+/// A deterministic random scene of `n` Gaussians (SH degree `d`) spread over `extent`, its
+/// scales, flat ones included, in proportion.
 fn scene(n: usize, d: u8, extent: f32, seed: u64) -> Splats {
-    let mut state = seed;
-    let mut r = move || {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+    let e = extent.max(1e-3).ln();
+    let ranges = SceneRanges {
+        extent: [extent, extent, 0.5 * extent],
+        log_scale: [e - 8.0, e - 3.0],
+        opacity: [-6.0, 6.0],
+        sh_dc: 1.0,
+        sh_rest: 0.2,
     };
-    let mut s = Splats::new(d);
-    let k3 = s.rest_coeffs() * 3;
-    for _ in 0..n {
-        let pos = [r() * extent, r() * extent, r() * extent * 0.5];
-        let e = extent.max(1e-3).ln();
-        let ls = [r() - 4.0 + e, r() - 4.0 + e, r() * 3.0 - 5.0 + e];
-        let rot = [r(), r(), r(), r() + 0.01];
-        let rest: Vec<f32> = (0..k3).map(|_| r() * 0.2).collect();
-        s.push(pos, ls, rot, r() * 6.0, [r(), r(), r()], &rest);
-    }
-    s
+    random_splats_in(n, d, seed, &ranges)
 }
 
 #[test]
@@ -111,9 +109,30 @@ fn empty_and_huge_lambda_give_valid_files() {
     let (bytes, report, _) = rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(1e12).unwrap())).unwrap();
     assert_eq!(report.gaussians, 0);
     assert!(decode(&bytes).unwrap().is_empty());
-    let sizes: Vec<usize> =
-        [0.0, 1.0, 10.0, 100.0].iter().map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(l).unwrap())).unwrap().0.len()).collect();
+    let sizes: Vec<usize> = [0.0, 1.0, 10.0, 100.0]
+        .iter()
+        .map(|&l| rate::encode(&s, &EncodeConfig::for_lambda(rate::Lambda::new(l).unwrap())).unwrap().0.len())
+        .collect();
     assert!(sizes.windows(2).all(|w| w[1] < w[0]), "{sizes:?}");
+}
+
+/// DESIGN §8's extreme Gaussians (scales e^−20 … e^10, degenerate covariances, opacity logits
+/// ±100, one at the camera centre) code and decode to the dequantised scene, which renders to
+/// finite pixels from the origin and from outside.
+#[test]
+fn extreme_gaussians_round_trip_and_render_finite() {
+    let s = extreme_splats(3);
+    let (bytes, report, q) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+    let decoded = decode(&bytes).unwrap();
+    assert_eq!(decoded, quantise::dequantise(&q));
+    assert!(report.gaussians >= s.len() - 1, "only the invisible Gaussian may be left out: {}", report.gaussians);
+    let at_origin = Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::NEG_Y, 40, 30, 1.0);
+    for cam in rig_cameras(2, 3.0, 40, 30).into_iter().chain([at_origin]) {
+        for scene in [&s, &decoded] {
+            let img = render(scene, &cam, &RenderOptions::default());
+            assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0), "non-finite or negative pixel");
+        }
+    }
 }
 
 #[test]
@@ -130,11 +149,8 @@ fn nan_input_is_refused() {
 fn mutated_files_never_panic() {
     let s = scene(300, 3, 1.0, 13);
     let (bytes, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
-    let mut state = 99u64;
-    let mut rnd = move |m: usize| {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((state >> 33) as usize) % m.max(1)
-    };
+    let mut rng = Rng::new(99);
+    let mut rnd = move |m: usize| rng.below(m.max(1));
     let mut errors = 0;
     for _ in 0..3000 {
         let mut b = bytes.clone();
@@ -170,9 +186,7 @@ fn typed_errors_for_bad_files() {
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::BadMagic));
     let mut newer = bytes.clone();
     newer[4] = VERSION_MAJOR + 1;
-    assert!(
-        matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR + 1, 0)))
-    );
+    assert!(matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR + 1, 0))));
     let e = decode(&bytes[..bytes.len() - 1]).unwrap_err();
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::Truncated));
     // Hostile Gaussian count: refused before anything is allocated.

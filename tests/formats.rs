@@ -3,13 +3,15 @@
 //! splat-transform from samples/tiny/truth.ply) read back to the source, and bad input through
 //! `gscodec convert`.
 
-use gscodec::decoder::math::{covariance_3d, normalize_quat, sh_rest_coeffs, sigmoid, SH_C0};
+use gscodec::decoder::math::{covariance_3d, normalize_quat, sigmoid, SH_C0};
 use gscodec::decoder::Splats;
 use gscodec::io::compressed_ply::{decode_compressed_ply, encode_compressed_ply, CHUNK_SIZE};
 use gscodec::io::gltf::{decode_gltf, encode_glb, encode_gltf};
 use gscodec::io::ply::read_ply;
 use gscodec::io::sog::{decode_sog_bundle, encode_sog_bundle, morton_order, quantize_1d};
 use gscodec::io::{read_scene, write_scene};
+use gscodec::rng::Rng;
+use gscodec::testkit::{random_splats_in, SceneRanges};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -25,27 +27,10 @@ fn truth() -> Splats {
     read_ply(&root().join("samples/tiny/truth.ply")).unwrap()
 }
 
-/// A random scene (deterministic LCG) with every attribute spread over a wide range.
+/// A random scene with every attribute spread over a wide range.
 fn scene(n: usize, degree: u8) -> Splats {
-    let mut s = Splats::new(degree);
-    let k = sh_rest_coeffs(degree) * 3;
-    let mut x = 0x9e37_79b9_7f4a_7c15u64;
-    let mut r = move |lo: f32, hi: f32| {
-        x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        lo + (hi - lo) * ((x >> 40) as f32 / (1u64 << 24) as f32)
-    };
-    for _ in 0..n {
-        let rest: Vec<f32> = (0..k).map(|_| r(-0.9, 0.9)).collect();
-        s.push(
-            [r(-20.0, 20.0), r(-5.0, 5.0), r(-50.0, 50.0)],
-            [r(-9.0, 3.0), r(-9.0, 3.0), r(-9.0, 3.0)],
-            [r(-1.0, 1.0), r(-1.0, 1.0), r(-1.0, 1.0), r(-1.0, 1.0)],
-            r(-8.0, 8.0),
-            [r(-3.0, 3.0), r(-3.0, 3.0), r(-3.0, 3.0)],
-            &rest,
-        );
-    }
-    s
+    let ranges = SceneRanges { extent: [20.0, 5.0, 50.0], log_scale: [-9.0, 3.0], opacity: [-8.0, 8.0], sh_dc: 3.0, sh_rest: 0.9 };
+    random_splats_in(n, degree, 0x9e37_79b9_7f4a_7c15, &ranges)
 }
 
 /// `1 − |q·p|` of the normalised quaternions: 0 for the same rotation.
@@ -411,13 +396,8 @@ fn malformed_inputs_fail_cleanly() {
 /// scene, never panic (and never allocate for a size the data cannot back).
 #[test]
 fn mutated_files_never_panic() {
-    let mut x = 0x2545_f491_4f6c_dd1du64;
-    let mut next = move || {
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        x
-    };
+    let mut rng = Rng::new(0x2545_f491_4f6c_dd1d);
+    let mut next = move || rng.next_u64();
     let files: [(&str, fn(&[u8]) -> bool); 3] = [
         ("tiny.sog", |b| decode_sog_bundle(b).is_ok()),
         ("tiny.compressed.ply", |b| decode_compressed_ply(b).is_ok()),

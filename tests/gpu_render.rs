@@ -4,24 +4,14 @@
 #![cfg(feature = "gpu")]
 
 use glam::Vec3;
-use gscodec::decoder::render::gpu::{GpuError, GpuRenderer};
+use gscodec::decoder::render::gpu::GpuRenderer;
 use gscodec::decoder::render::render;
 use gscodec::decoder::{Camera, RenderOptions, Splats};
 use gscodec::io::image::write_png;
 use gscodec::io::{load_dataset, read_ply, LoadOptions};
 use gscodec::metrics::psnr;
+use gscodec::testkit::{gpu_renderer, shared_data};
 use std::path::Path;
-
-fn renderer() -> Option<GpuRenderer> {
-    match GpuRenderer::new() {
-        Ok(r) => Some(r),
-        Err(GpuError::NoAdapter(e)) => {
-            eprintln!("SKIP: no GPU adapter available ({e}); install mesa-vulkan-drivers for lavapipe");
-            None
-        }
-        Err(e) => panic!("an adapter exists but the renderer failed: {e}"),
-    }
-}
 
 fn compare(r: &GpuRenderer, name: &str, s: &Splats, cams: &[Camera], opts: &RenderOptions) {
     for (i, cam) in cams.iter().enumerate() {
@@ -39,31 +29,23 @@ fn compare(r: &GpuRenderer, name: &str, s: &Splats, cams: &[Camera], opts: &Rend
 
 #[test]
 fn sample_scene_gpu_matches_cpu() {
-    let Some(r) = renderer() else { return };
+    let Some(r) = gpu_renderer() else { return };
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
     let s = read_ply(&root.join("truth.ply")).unwrap();
     let ds = load_dataset(&root, &LoadOptions::default()).unwrap();
     let cams: Vec<Camera> = ds.frames.iter().take(3).map(|f| f.camera.resized(96, 96)).collect();
-    compare(&r, "tiny", &s, &cams, &RenderOptions { background: ds.background, max_sh_degree: 3 });
+    compare(r, "tiny", &s, &cams, &RenderOptions { background: ds.background, max_sh_degree: 3 });
 }
 
 #[test]
 fn k7000_gpu_matches_cpu() {
-    // `GSCODEC_DATA` overrides the data location (default ../shared/data).
-    let root = std::env::var_os("GSCODEC_DATA")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let path = root.join("scenes/k7000.ply");
-    if !path.exists() {
-        eprintln!("SKIP: {} not found (test data absent)", path.display());
-        return;
-    }
-    let Some(r) = renderer() else { return };
+    let Some(path) = shared_data("scenes/k7000.ply") else { return };
+    let Some(r) = gpu_renderer() else { return };
     let s = read_ply(&path).unwrap();
     let (lo, hi) = s.bounds().unwrap();
     let (lo, hi) = (Vec3::from_array(lo), Vec3::from_array(hi));
     let center = (lo + hi) * 0.5;
     let radius = (hi - lo).length() * 0.6;
     let cams = Camera::orbit(2, center, radius, 0.4, Vec3::new(0.0, -1.0, 0.0), 160, 120, 1.0);
-    compare(&r, "k7000", &s, &cams, &RenderOptions::default());
+    compare(r, "k7000", &s, &cams, &RenderOptions::default());
 }

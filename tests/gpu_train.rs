@@ -18,8 +18,9 @@ use glam::{Mat3, Quat, Vec3};
 use gscodec::io::{load_dataset, LoadOptions, Split};
 use gscodec::loss::L1Ssim;
 use gscodec::raster;
+use gscodec::testkit::{random_splats, rig_cameras};
 use gscodec::train::gpu::{self, Gpu, GpuLoss};
-use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+use gscodec::train::targets::render_targets;
 use gscodec::train::{TrainConfig, TrainReport};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
 use std::path::Path;
@@ -34,7 +35,7 @@ fn device() -> Option<Gpu> {
             Some(g)
         }
         None => {
-            eprintln!("SKIP: no GPU adapter available; install mesa-vulkan-drivers for lavapipe");
+            gscodec::testkit::skip("no GPU adapter available; install mesa-vulkan-drivers for lavapipe");
             None
         }
     }
@@ -185,8 +186,8 @@ fn tiny_dataset() -> gscodec::io::Dataset {
 
 /// 16 views (32×32, white background) of a 120-Gaussian toy scene: small enough for lavapipe.
 fn toy_dataset() -> gscodec::io::Dataset {
-    let scene = toy_scene(120, 3);
-    render_targets(&scene, &orbit_cameras(16, 3.5, 32, 32), [1.0; 3])
+    let scene = random_splats(120, 1, 3);
+    render_targets(&scene, &rig_cameras(16, 3.5, 32, 32), [1.0; 3])
 }
 
 #[test]

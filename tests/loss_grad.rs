@@ -6,19 +6,16 @@
 
 use gscodec::loss::ssim::{ssim, ssim_and_grad, ssim_map};
 use gscodec::loss::{l1_and_grad, ImageLoss, L1Ssim};
+use gscodec::rng::Rng;
 use gscodec_decoder::Image;
 
 fn image(w: u32, h: u32, seed: u64, smooth: bool) -> Image {
-    let mut s = seed;
-    let mut next = || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = Rng::new(seed);
     let data = (0..w * h * 3)
         .map(|i| {
             let (x, y) = (((i / 3) % w) as f64, ((i / 3) / w) as f64);
             let base = if smooth { 0.5 + 0.3 * (0.3 * x + 0.2 * y + i as f64 % 3.0).sin() } else { 0.0 };
-            (base + 0.4 * next()).clamp(0.0, 1.0) as f32
+            (base + 0.4 * rng.uniform_f64()).clamp(0.0, 1.0) as f32
         })
         .collect();
     Image { width: w, height: h, data }

@@ -2,20 +2,14 @@
 
 use gscodec::decoder::Splats;
 use gscodec::io::ply::{read_ply, read_ply_bytes, write_ply};
+use gscodec::rng::Rng;
 use std::path::Path;
-
-mod common;
 
 /// A small seeded scene of the given SH degree with values of every magnitude.
 fn scene(degree: u8, n: usize) -> Splats {
     let mut s = Splats::new(degree);
-    let mut x = 0x9e37_79b9_u32;
-    let mut rnd = move || {
-        x ^= x << 13;
-        x ^= x >> 17;
-        x ^= x << 5;
-        (x as f32 / u32::MAX as f32 - 0.5) * 10f32.powi((x % 7) as i32 - 3)
-    };
+    let mut rng = Rng::new(0x9e37_79b9);
+    let mut rnd = move || (rng.uniform() - 0.5) * 10f32.powi(rng.below(7) as i32 - 3);
     let k3 = s.rest_coeffs() * 3;
     for _ in 0..n {
         let rest: Vec<f32> = (0..k3).map(|_| rnd()).collect();
@@ -195,18 +189,15 @@ fn bad_files_are_input_errors() {
     }
     cases.push(("zero norm", zq));
     cases.push(("truncated", good[..good.len() - 3].to_vec()));
-    let lie = String::from_utf8_lossy(&good[..header_len]).replace("vertex 4", "vertex 5");
-    cases.push(("truncated", [lie.as_bytes(), &good[header_len..]].concat()));
-    let lie = String::from_utf8_lossy(&good[..header_len]).replace("vertex 4", "vertex 3");
-    cases.push(("extra bytes", [lie.as_bytes(), &good[header_len..]].concat()));
-    let huge = String::from_utf8_lossy(&good[..header_len]).replace("vertex 4", "vertex 18446744073709551615");
-    cases.push(("truncated", [huge.as_bytes(), &good[header_len..]].concat()));
-    let missing = String::from_utf8_lossy(&good[..header_len]).replace("property float opacity\n", "");
-    cases.push(("`opacity` is missing", [missing.as_bytes(), &good[header_len..]].concat()));
-    let badrest = String::from_utf8_lossy(&good[..header_len]).replace("property float f_rest_8\n", "");
-    cases.push(("8 `f_rest_*`", [badrest.as_bytes(), &good[header_len..]].concat()));
-    let badtype = String::from_utf8_lossy(&good[..header_len]).replace("property float x\n", "property quux x\n");
-    cases.push(("unknown property type", [badtype.as_bytes(), &good[header_len..]].concat()));
+    // The good file with one header edit.
+    let edited =
+        |from: &str, to: &str| [String::from_utf8_lossy(&good[..header_len]).replace(from, to).as_bytes(), &good[header_len..]].concat();
+    cases.push(("truncated", edited("vertex 4", "vertex 5")));
+    cases.push(("extra bytes", edited("vertex 4", "vertex 3")));
+    cases.push(("truncated", edited("vertex 4", "vertex 18446744073709551615")));
+    cases.push(("`opacity` is missing", edited("property float opacity\n", "")));
+    cases.push(("8 `f_rest_*`", edited("property float f_rest_8\n", "")));
+    cases.push(("unknown property type", edited("property float x\n", "property quux x\n")));
     cases.push(("magic", b"PK\x03\x04garbage".to_vec()));
     cases.push(("end_header", b"ply\nformat ascii 1.0\nelement vertex 1\n".to_vec()));
     for (want, bytes) in cases {
@@ -219,7 +210,7 @@ fn bad_files_are_input_errors() {
 
 #[test]
 fn shared_scenes_load() {
-    let Some(dir) = common::shared_data("scenes") else { return };
+    let Some(dir) = gscodec::testkit::shared_data("scenes") else { return };
     for (name, n) in [("k7000.ply", 9080), ("fruit-drops.ply", 4721), ("playbot-lod3.ply", 31000)] {
         let s = read_ply(&dir.join(name)).unwrap();
         assert_eq!((s.len(), s.sh_degree), (n, 3), "{name}");

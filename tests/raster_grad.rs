@@ -15,20 +15,15 @@
 
 use glam::{DMat3, DVec3, Vec3};
 use gscodec::raster;
+use gscodec::rng::Rng;
+use gscodec::testkit::{random_splats_in, SceneRanges};
 use gscodec_decoder::math::{sh_rest_coeffs, SH_C0, SH_C1, SH_C2, SH_C3, TILE};
 use gscodec_decoder::render::render;
 use gscodec_decoder::{Camera, RenderOptions, Splats};
 
-/// Deterministic uniform numbers in [0, 1).
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.next()
-    }
+/// Uniform in [-1, 1): the weights of the pixels in the scalar whose gradient is checked.
+fn weight(rng: &mut Rng) -> f64 {
+    2.0 * rng.uniform_f64() - 1.0
 }
 
 /// Flat f64 parameter vector in `Splats` order: per group, all Gaussians.
@@ -204,26 +199,17 @@ fn camera() -> Camera {
     Camera::look_at(Vec3::new(0.3, -0.4, -4.0), Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.0, -1.0, 0.1), 64, 48, 1.0)
 }
 
-fn random_scene(rng: &mut Lcg, n: usize, degree: u8) -> Splats {
-    let mut s = Splats::new(degree);
-    let k = sh_rest_coeffs(degree);
-    for _ in 0..n {
-        let pos = [rng.range(-0.9, 0.9), rng.range(-0.7, 0.7), rng.range(-0.8, 0.8)].map(|v| v as f32);
-        let ls = [rng.range(-2.6, -1.4), rng.range(-2.6, -1.4), rng.range(-2.6, -1.4)].map(|v| v as f32);
-        let rot = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)].map(|v| v as f32);
-        let op = rng.range(-1.0, 2.0) as f32;
-        let dc = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)].map(|v| v as f32);
-        let rest: Vec<f32> = (0..k * 3).map(|_| rng.range(-0.3, 0.3) as f32).collect();
-        s.push(pos, ls, rot, op, dc, &rest);
-    }
-    s
+/// `n` Gaussians in front of [`camera`], small enough that few parameters sit at a discontinuity.
+fn random_scene(seed: u64, n: usize, degree: u8) -> Splats {
+    let ranges = SceneRanges { extent: [0.9, 0.7, 0.8], log_scale: [-2.6, -1.4], opacity: [-1.0, 2.0], sh_dc: 1.0, sh_rest: 0.3 };
+    random_splats_in(n, degree, seed, &ranges)
 }
 
 /// Checks every parameter of `s`; returns the number of parameters skipped at discontinuities.
 fn check(name: &str, s: &Splats, cam: &Camera, bg: [f32; 3], degree: u8, seed: u64) -> usize {
-    let mut rng = Lcg(seed);
+    let mut rng = Rng::new(seed);
     let n = s.len();
-    let weights: Vec<f64> = (0..(cam.width * cam.height * 3) as usize).map(|_| rng.range(-1.0, 1.0)).collect();
+    let weights: Vec<f64> = (0..(cam.width * cam.height * 3) as usize).map(|_| weight(&mut rng)).collect();
     let opts = RenderOptions { background: bg, max_sh_degree: degree };
     let (img, state) = raster::forward(s, cam, &opts);
     assert_eq!(img, render(s, cam, &opts), "{name}: forward differs from the decoder's render");
@@ -279,8 +265,7 @@ fn check(name: &str, s: &Splats, cam: &Camera, bg: [f32; 3], degree: u8, seed: u
 fn random_scenes_all_degrees() {
     let cam = camera();
     for (seed, degree) in [(1u64, 0u8), (2, 1), (3, 2), (4, 3)] {
-        let mut rng = Lcg(seed);
-        let s = random_scene(&mut rng, 8, 3);
+        let s = random_scene(seed, 8, 3);
         check(&format!("random seed {seed} degree {degree}"), &s, &cam, [0.2, 0.5, 0.9], degree, seed + 100);
     }
 }
@@ -288,8 +273,7 @@ fn random_scenes_all_degrees() {
 #[test]
 fn white_background_and_clamped_colours() {
     let cam = camera();
-    let mut rng = Lcg(7);
-    let mut s = random_scene(&mut rng, 6, 3);
+    let mut s = random_scene(7, 6, 3);
     // Strongly negative DC: colour clamped at 0 on some channels.
     s.sh_dc[0] = [-3.0, 0.1, -2.5];
     s.sh_dc[1] = [-1.9, -1.6, 0.3];
@@ -299,8 +283,7 @@ fn white_background_and_clamped_colours() {
 #[test]
 fn tiny_huge_and_degenerate_scales() {
     let cam = camera();
-    let mut rng = Lcg(11);
-    let mut s = random_scene(&mut rng, 6, 1);
+    let mut s = random_scene(11, 6, 1);
     s.log_scales[0] = [-9.0, -9.0, -9.0]; // sub-pixel: footprint is the 0.3 px² dilation
     s.log_scales[1] = [0.8, 0.6, 0.7]; // fills the view
     s.opacity_logits[1] = -2.0;
@@ -312,8 +295,7 @@ fn tiny_huge_and_degenerate_scales() {
 #[test]
 fn saturated_opacity() {
     let cam = camera();
-    let mut rng = Lcg(21);
-    let mut s = random_scene(&mut rng, 6, 2);
+    let mut s = random_scene(21, 6, 2);
     s.opacity_logits[0] = 9.0; // alpha clamps at 0.99 near the centre
     s.opacity_logits[1] = 30.0;
     s.opacity_logits[2] = -4.0; // mostly under the 1/255 cut
@@ -323,8 +305,7 @@ fn saturated_opacity() {
 #[test]
 fn frustum_edge_jacobian_clamp() {
     let cam = camera();
-    let mut rng = Lcg(31);
-    let mut s = random_scene(&mut rng, 4, 1);
+    let mut s = random_scene(31, 4, 1);
     // Centres well outside the view (|x/z| > 1.3·tan(fov/2)), large enough to reach into it.
     let c2w = cam.rotation.transpose();
     let place = |u: f32, v: f32, z: f32| (c2w * (Vec3::new(u * z, v * z, z) - cam.translation)).to_array();
@@ -346,10 +327,10 @@ fn frustum_edge_jacobian_clamp() {
 #[test]
 fn backward_is_deterministic_across_thread_counts() {
     let cam = camera();
-    let mut rng = Lcg(41);
-    let s = random_scene(&mut rng, 200, 3);
+    let s = random_scene(41, 200, 3);
     let opts = RenderOptions { background: [1.0; 3], max_sh_degree: 3 };
-    let dl: Vec<f32> = (0..(cam.width * cam.height * 3)).map(|_| rng.range(-1.0, 1.0) as f32).collect();
+    let mut rng = Rng::new(42);
+    let dl: Vec<f32> = (0..(cam.width * cam.height * 3)).map(|_| weight(&mut rng) as f32).collect();
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {

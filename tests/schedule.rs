@@ -4,9 +4,10 @@
 use gscodec::io::Dataset;
 use gscodec::loss::L1Ssim;
 use gscodec::rng::Rng;
+use gscodec::testkit::{random_splats, rig_cameras};
 use gscodec::train::adam::Adam;
 use gscodec::train::densify::{densify_and_prune_keeping, DensifyParams, DensifyStats};
-use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
+use gscodec::train::targets::render_targets;
 use gscodec::train::{train, Schedule, TrainConfig, MIN_OPACITY_RESET_EVERY};
 use gscodec_decoder::Splats;
 
@@ -31,7 +32,7 @@ fn schedule_is_the_reference_at_30k_and_keeps_floors_when_short() {
 
 /// An object in front of a textured shell that fills every view (a "photo" background).
 fn scene_with_background() -> Splats {
-    let mut s = toy_scene(150, 8);
+    let mut s = random_splats(150, 1, 8);
     let mut rng = Rng::new(9);
     let rest = vec![0.0; s.rest_coeffs() * 3];
     for _ in 0..600 {
@@ -44,7 +45,7 @@ fn scene_with_background() -> Splats {
 
 #[test]
 fn three_hundred_iterations_on_a_scene_with_a_background_do_not_collapse() {
-    let cams = orbit_cameras(16, 3.5, 48, 48);
+    let cams = rig_cameras(16, 3.5, 48, 48);
     let ds: Dataset = render_targets(&scene_with_background(), &cams, [0.0; 3]);
     let cfg = TrainConfig { iters: 300, seed: 1, init_points: 2000, eval_interval: 100, ..Default::default() };
     let (s, report) = train(&ds, None, &cfg, Box::new(L1Ssim::default()), None, &mut |_| {}).unwrap();

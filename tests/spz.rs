@@ -6,20 +6,8 @@ use gscodec::decoder::Splats;
 use gscodec::io::ply::read_ply;
 use gscodec::io::splat::{decode_splat, encode_splat};
 use gscodec::io::spz::{decode_spz, encode_spz, read_spz, SpzVersion};
-use std::path::{Path, PathBuf};
-
-fn data(rel: &str) -> Option<PathBuf> {
-    // `GSCODEC_DATA` overrides the location (e.g. when the checkout is not beside `shared/`).
-    let root =
-        std::env::var_os("GSCODEC_DATA").map(PathBuf::from).unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let p = root.join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("SKIP: {} not found (test data absent)", p.display());
-        None
-    }
-}
+use gscodec::testkit::{random_splats_in, shared_data, SceneRanges};
+use std::path::Path;
 
 fn max_abs_diff(a: impl IntoIterator<Item = f32>, b: impl IntoIterator<Item = f32>) -> f32 {
     a.into_iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
@@ -28,7 +16,7 @@ fn max_abs_diff(a: impl IntoIterator<Item = f32>, b: impl IntoIterator<Item = f3
 /// Our reading of the reference tool's v4 file equals the reference tool's own decode.
 #[test]
 fn k7000_spz_matches_reference_decode() {
-    let (Some(spz), Some(ply)) = (data("spz-baseline/k7000.spz"), data("spz-baseline/k7000_spz_decoded.ply")) else { return };
+    let (Some(spz), Some(ply)) = (shared_data("spz-baseline/k7000.spz"), shared_data("spz-baseline/k7000_spz_decoded.ply")) else { return };
     let ours = read_spz(&spz).unwrap();
     let theirs = read_ply(&ply).unwrap();
     assert_eq!((ours.len(), ours.sh_degree), (theirs.len(), theirs.sh_degree));
@@ -46,7 +34,7 @@ fn k7000_spz_matches_reference_decode() {
 #[test]
 fn baseline_files_reencode_losslessly() {
     for name in ["k7000.spz", "fruit.spz", "playbot_lod3.spz"] {
-        let Some(p) = data(&format!("spz-baseline/{name}")) else { return };
+        let Some(p) = shared_data(&format!("spz-baseline/{name}")) else { return };
         let s = read_spz(&p).unwrap();
         for v in [SpzVersion::V4, SpzVersion::V3] {
             let again = decode_spz(&encode_spz(&s, v).unwrap()).unwrap();
@@ -61,26 +49,10 @@ fn baseline_files_reencode_losslessly() {
     }
 }
 
+/// Wide ranges: positions far from the origin, tiny to huge scales, nearly transparent to opaque.
 fn scene(n: usize, degree: u8) -> Splats {
-    let mut s = Splats::new(degree);
-    let k = sh_rest_coeffs(degree) * 3;
-    let mut x = 0x1234_5678u64;
-    let mut r = move |lo: f32, hi: f32| {
-        x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        lo + (hi - lo) * ((x >> 40) as f32 / (1u64 << 24) as f32)
-    };
-    for _ in 0..n {
-        let rest: Vec<f32> = (0..k).map(|_| r(-0.9, 0.9)).collect();
-        s.push(
-            [r(-50.0, 50.0), r(-50.0, 50.0), r(-50.0, 50.0)],
-            [r(-9.0, 5.0), r(-9.0, 5.0), r(-9.0, 5.0)],
-            [r(-1.0, 1.0), r(-1.0, 1.0), r(-1.0, 1.0), r(-1.0, 1.0)],
-            r(-6.0, 6.0),
-            [r(-3.0, 3.0), r(-3.0, 3.0), r(-3.0, 3.0)],
-            &rest,
-        );
-    }
-    s
+    let ranges = SceneRanges { extent: [50.0; 3], log_scale: [-9.0, 5.0], opacity: [-6.0, 6.0], sh_dc: 3.0, sh_rest: 0.9 };
+    random_splats_in(n, degree, 0x1234_5678, &ranges)
 }
 
 /// Angle-free rotation error: 1 - |<q1, q2>| for normalised quaternions (same rotation up to sign).

@@ -3,19 +3,21 @@
 
 use gscodec::io::{Dataset, Split};
 use gscodec::loss::{ImageLoss, L1Ssim};
-use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
-use gscodec::train::{evaluate, train, RdTerm, TrainConfig};
+use gscodec::metrics::view::mean_psnr_ssim;
+use gscodec::testkit::{random_splats, rig_cameras};
+use gscodec::train::targets::render_targets;
+use gscodec::train::{train, RdTerm, TrainConfig};
 use gscodec_decoder::{Image, Splats};
 
 fn dataset(scale: f32) -> Dataset {
-    let mut scene = toy_scene(120, 3);
+    let mut scene = random_splats(120, 1, 3);
     for p in &mut scene.positions {
         *p = p.map(|v| v * scale);
     }
     for l in &mut scene.log_scales {
         *l = l.map(|v| v + scale.ln());
     }
-    let cams: Vec<_> = orbit_cameras(16, 3.5, 32, 32).into_iter().map(|c| c.scaled(scale)).collect();
+    let cams: Vec<_> = rig_cameras(16, 3.5, 32, 32).into_iter().map(|c| c.scaled(scale)).collect();
     render_targets(&scene, &cams, [1.0; 3])
 }
 
@@ -33,7 +35,7 @@ fn short_run_improves_held_out_psnr() {
     let c = cfg(400);
     let mut rng = gscodec::rng::Rng::new(c.seed);
     let init = gscodec::train::init::initial_splats(&ds, c.init_points, 3, &mut rng);
-    let (before, _) = evaluate(&init, &ds.split(Split::Test), ds.background).unwrap();
+    let (before, _) = mean_psnr_ssim(&init, &ds.split(Split::Test), ds.background).unwrap();
     let (trained, report) = run(&ds, &c, None);
     let after = report.test_psnr.unwrap();
     eprintln!("held-out PSNR {before:.2} -> {after:.2} dB, {} Gaussians, {:.1} s {:?}", trained.len(), report.train_seconds, report.stages);
@@ -102,7 +104,7 @@ fn rd_term_penalty_lowers_opacity() {
 #[test]
 fn fine_tuning_keeps_the_scene_and_degree() {
     let ds = dataset(1.0);
-    let truth = toy_scene(120, 3);
+    let truth = random_splats(120, 1, 3);
     let c = TrainConfig { densify: false, ..cfg(30) };
     let (out, report) = train(&ds, Some(truth.clone()), &c, Box::new(L1Ssim::default()), None, &mut |_| {}).unwrap();
     assert_eq!(out.len(), truth.len());

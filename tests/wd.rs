@@ -10,27 +10,14 @@ use gscodec::loss::tensor::{Real, Tensor};
 use gscodec::loss::wd::{self, Reference, Sigma};
 use gscodec::loss::wdr::{self, WdDistortion, WdrLoss};
 use gscodec::loss::ImageLoss;
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn normal(&mut self) -> f64 {
-        let (u, v) = (self.next().max(1e-12), self.next());
-        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
-    }
-}
+use gscodec::rng::Rng;
 
 fn random_tensor<T: Real>(rng: &mut Rng, c: usize, h: usize, w: usize) -> Tensor<T> {
-    Tensor::from_vec(c, h, w, (0..c * h * w).map(|_| T::c(rng.normal())).collect())
+    Tensor::from_vec(c, h, w, (0..c * h * w).map(|_| T::c(f64::from(rng.normal()))).collect())
 }
 
 fn random_image<T: Real>(rng: &mut Rng, h: usize, w: usize) -> Tensor<T> {
-    Tensor::from_vec(3, h, w, (0..3 * h * w).map(|_| T::c(0.1 + 0.8 * rng.next())).collect())
+    Tensor::from_vec(3, h, w, (0..3 * h * w).map(|_| T::c(0.1 + 0.8 * rng.uniform_f64())).collect())
 }
 
 fn to_image(t: &Tensor<f64>) -> Image {
@@ -135,7 +122,7 @@ fn naive_wd(a: &Tensor<f64>, b: &Tensor<f64>, ls: &[f64]) -> f64 {
 
 #[test]
 fn matches_naive_formula_with_all_levels_computed() {
-    let mut rng = Rng(7);
+    let mut rng = Rng::new(7);
     for &(c, h, w) in &[(2, 16, 16), (3, 13, 10), (1, 9, 24)] {
         let a = random_tensor::<f64>(&mut rng, c, h, w);
         let b = random_tensor::<f64>(&mut rng, c, h, w);
@@ -146,7 +133,7 @@ fn matches_naive_formula_with_all_levels_computed() {
             assert!((got - want).abs() <= 1e-12 * want.abs().max(1.0), "σ={sigma} {c}x{h}x{w}: {got} vs {want}");
         }
         // a per-pixel σ map at the array's own resolution (no resize involved)
-        let sig: Vec<f64> = (0..h * w).map(|_| 2f64.powf(4.0 * rng.next())).collect();
+        let sig: Vec<f64> = (0..h * w).map(|_| 2f64.powf(4.0 * rng.uniform_f64())).collect();
         let got = wd::wd(&[a.clone()], &[b.clone()], &Sigma::map(h, w, &sig), h, w);
         let want = naive_wd(&a, &b, &sig.iter().map(|s| s.log2()).collect::<Vec<_>>());
         assert!((got - want).abs() <= 1e-12 * want.abs().max(1.0), "σ map: {got} vs {want}");
@@ -157,7 +144,7 @@ fn matches_naive_formula_with_all_levels_computed() {
 fn downscaled_arrays_get_smaller_sigma_and_zero_levels_are_skipped() {
     // σ = 4 on a 64×64 image: the full-resolution arrays use level 2 only, a ½ array level 1,
     // a ¼ array level 0 and an ⅛ array level 0 (relu'd): 5 of 30 levels.
-    let mut rng = Rng(3);
+    let mut rng = Rng::new(3);
     let img = random_image::<f64>(&mut rng, 64, 64);
     let feats = Pyramid.features(&img);
     let r = Reference::new(&feats, &Sigma::Constant(4.0), 64, 64);
@@ -182,7 +169,7 @@ fn downscaled_arrays_get_smaller_sigma_and_zero_levels_are_skipped() {
 
 #[test]
 fn identity_nonnegativity_and_pointwise_limit() {
-    let mut rng = Rng(11);
+    let mut rng = Rng::new(11);
     let a = random_image::<f64>(&mut rng, 24, 20);
     let b = random_image::<f64>(&mut rng, 24, 20);
     for sigma in [Sigma::Constant(4.0), Sigma::Constant(1.5), Sigma::map(3, 2, &[1.0, 2.0, 4.0, 8.0, 3.0, 0.5])] {
@@ -190,10 +177,10 @@ fn identity_nonnegativity_and_pointwise_limit() {
         assert!(wd_of(&Pyramid, &a, &b, &sigma) > 0.0);
     }
     for seed in 0..20 {
-        let mut r = Rng(100 + seed);
+        let mut r = Rng::new(100 + seed);
         let x = random_tensor::<f64>(&mut r, 2, 7 + seed as usize % 5, 9);
         let y = random_tensor::<f64>(&mut r, 2, x.h, 9);
-        assert!(wd::wd(&[x.clone()], &[y], &Sigma::Constant(1.0 + r.next() * 20.0), x.h, 9) >= 0.0);
+        assert!(wd::wd(&[x.clone()], &[y], &Sigma::Constant(1.0 + r.uniform_f64() * 20.0), x.h, 9) >= 0.0);
     }
     // σ → 0: the pointwise mean squared feature difference, summed over arrays.
     let (fa, fb) = (Pyramid.features(&a), Pyramid.features(&b));
@@ -210,8 +197,8 @@ fn identity_nonnegativity_and_pointwise_limit() {
 
 /// Stripes of period 4 (or a noise texture), its half-period shift, and its blurred copy.
 fn textures(h: usize, w: usize, stripes: bool) -> (Tensor<f64>, Tensor<f64>, Tensor<f64>) {
-    let mut rng = Rng(5);
-    let mut rng2 = Rng(999);
+    let mut rng = Rng::new(5);
+    let mut rng2 = Rng::new(999);
     let period = 4.0;
     let make = |shift: f64, rng: &mut Rng| -> Tensor<f64> {
         let mut t = Tensor::zeros(3, h, w);
@@ -220,7 +207,7 @@ fn textures(h: usize, w: usize, stripes: bool) -> (Tensor<f64>, Tensor<f64>, Ten
                 let v = if stripes {
                     0.5 + 0.35 * (2.0 * std::f64::consts::PI * (x as f64 + shift) / period).sin().signum()
                 } else {
-                    0.5 + 0.15 * rng.normal().clamp(-2.5, 2.5)
+                    0.5 + 0.15 * f64::from(rng.normal()).clamp(-2.5, 2.5)
                 };
                 for c in 0..3 {
                     t.data[c * h * w + y * w + x] = v * [1.0, 0.9, 0.7][c];
@@ -281,12 +268,12 @@ fn check_grad(x: &Tensor<f64>, grad: &Tensor<f64>, idx: &[usize], eps: f64, tol:
 }
 
 fn some_indices(rng: &mut Rng, n: usize, k: usize) -> Vec<usize> {
-    (0..k).map(|_| (rng.next() * n as f64) as usize % n).collect()
+    (0..k).map(|_| (rng.uniform_f64() * n as f64) as usize % n).collect()
 }
 
 #[test]
 fn gradient_of_raw_wd_matches_finite_differences() {
-    let mut rng = Rng(21);
+    let mut rng = Rng::new(21);
     let sigmas = [
         Sigma::Constant(4.0),
         Sigma::Constant(2.7),
@@ -312,7 +299,7 @@ fn gradient_of_raw_wd_matches_finite_differences() {
 
 #[test]
 fn gradient_through_pyramid_matches_finite_differences() {
-    let mut rng = Rng(33);
+    let mut rng = Rng::new(33);
     let (h, w) = (21, 18);
     let target = random_image::<f64>(&mut rng, h, w);
     let x = random_image::<f64>(&mut rng, h, w);
@@ -327,14 +314,14 @@ fn gradient_through_pyramid_matches_finite_differences() {
 
 /// A safetensors file of VGG-16 layout with the given output widths and random weights.
 fn vgg_bytes(widths: &[usize; 13], seed: u64) -> Vec<u8> {
-    let mut rng = Rng(seed);
+    let mut rng = Rng::new(seed);
     let mut bufs: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
     let mut cin = 3;
     for (l, &idx) in CONV_INDICES.iter().enumerate() {
         let cout = widths[l];
         let std = (2.0 / (cin * 9) as f64).sqrt();
-        let wv: Vec<u8> = (0..cout * cin * 9).flat_map(|_| ((rng.normal() * std) as f32).to_le_bytes()).collect();
-        let bv: Vec<u8> = (0..cout).flat_map(|_| ((rng.normal() * 0.05) as f32).to_le_bytes()).collect();
+        let wv: Vec<u8> = (0..cout * cin * 9).flat_map(|_| ((f64::from(rng.normal()) * std) as f32).to_le_bytes()).collect();
+        let bv: Vec<u8> = (0..cout).flat_map(|_| ((f64::from(rng.normal()) * 0.05) as f32).to_le_bytes()).collect();
         bufs.push((format!("features.{idx}.weight"), vec![cout, cin, 3, 3], wv));
         bufs.push((format!("features.{idx}.bias"), vec![cout], bv));
         cin = cout;
@@ -352,7 +339,7 @@ const NARROW: [usize; 13] = [4, 4, 6, 6, 8, 8, 8, 8, 8, 8, 8, 8, 8];
 fn gradient_through_vgg16_matches_finite_differences() {
     let net = Vgg16::<f64>::from_safetensors(&vgg_bytes(&NARROW, 5)).unwrap();
     assert!(!net.is_full_size());
-    let mut rng = Rng(44);
+    let mut rng = Rng::new(44);
     let (h, w) = (34, 36);
     let target = random_image::<f64>(&mut rng, h, w);
     let x = random_image::<f64>(&mut rng, h, w);
@@ -375,7 +362,7 @@ fn vgg16_full_shapes_load_from_file_and_give_16_arrays() {
     std::fs::write(&path, vgg_bytes(&VGG16_CHANNELS, 9)).unwrap();
     let net = Vgg16::<f32>::load(&path).unwrap();
     assert!(net.is_full_size());
-    let mut rng = Rng(1);
+    let mut rng = Rng::new(1);
     let img = random_image::<f32>(&mut rng, 64, 64);
     let f = net.features(&img);
     let shapes: Vec<(usize, usize, usize)> = f.iter().map(|t| (t.c, t.h, t.w)).collect();
@@ -400,19 +387,21 @@ fn vgg16_full_shapes_load_from_file_and_give_16_arrays() {
 
 #[test]
 fn wdr_gradient_matches_finite_differences_and_composition() {
-    let mut rng = Rng(55);
+    let mut rng = Rng::new(55);
     let (h, w) = (20, 22);
     // keep |rendered − target| ≥ 0.05 so the L1 kink is never crossed
     let target = random_image::<f64>(&mut rng, h, w);
     let mut x = target.clone();
-    x.data.iter_mut().for_each(|v| *v += if rng.next() < 0.5 { -0.05 - 0.04 * rng.next() } else { 0.05 + 0.04 * rng.next() });
+    x.data
+        .iter_mut()
+        .for_each(|v| *v += if rng.uniform_f64() < 0.5 { -0.05 - 0.04 * rng.uniform_f64() } else { 0.05 + 0.04 * rng.uniform_f64() });
     // make every value exactly representable in f32 so the f32 and f64 paths see the same image
     x.data.iter_mut().for_each(|v| *v = *v as f32 as f64);
     let target: Tensor<f64> = Tensor::from_vec(3, h, w, target.data.iter().map(|v| *v as f32 as f64).collect());
     let (ti, xi) = (to_image(&target), to_image(&x));
 
     let total = 1000;
-    let mut loss = WdrLoss::new(Box::new(Pyramid), total);
+    let mut loss = WdrLoss::new(Box::new(Pyramid), total).with_fixed_gamma(wdr::DEFAULT_GAMMA_WDR);
     assert_eq!(loss.warmup, 100);
     // warm-up: L_orig alone
     let (lw, gw) = loss.loss_and_grad(&xi, &ti, 0, 99);
@@ -443,10 +432,61 @@ fn wdr_gradient_matches_finite_differences_and_composition() {
 }
 
 #[test]
+fn wdr_normalised_gamma_matches_the_l1ssim_gradient_scale_then_freezes() {
+    let mut rng = Rng(77);
+    let (h, w) = (24, 20);
+    let views: Vec<(Image, Image)> = (0..wdr::NORMALISE_VIEWS + 3)
+        .map(|_| {
+            let t = random_image::<f64>(&mut rng, h, w);
+            let mut x = t.clone();
+            x.data.iter_mut().for_each(|v| *v = (*v + 0.3 * (rng.next() - 0.5)).clamp(0.0, 1.0));
+            (to_image(&x), to_image(&t))
+        })
+        .collect();
+    let l2 = |g: &[f32]| g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+    let mut loss = WdrLoss::new(Box::new(Pyramid), 100);
+    assert!(loss.normalise && !loss.gamma_settled());
+    // warm-up iterations do not touch γ
+    loss.loss_and_grad(&views[0].0, &views[0].1, 0, 0);
+    assert_eq!(loss.gamma, wdr::DEFAULT_GAMMA_WDR);
+    // first WD iteration: the gradient has exactly the norm of L_orig's (= L1-SSIM's)
+    let (x, t) = &views[0];
+    let (l, g) = loss.loss_and_grad(x, t, 0, loss.warmup);
+    let (lo, go) = wdr::l_orig(x, t);
+    assert!((l2(&g) / l2(&go) - 1.0).abs() < 1e-5, "{} vs {}", l2(&g), l2(&go));
+    let mut plain = WdDistortion::new(Box::new(Pyramid));
+    let (d, gd) = plain.value_and_grad(x, t, None);
+    assert!((l - loss.gamma * (d + wdr::BETA * lo)).abs() < 1e-9 * l);
+    // γ is the ratio of the summed norms over NORMALISE_VIEWS views, then frozen
+    let (mut so, mut sc) = (l2(&go), l2(&gd.iter().zip(&go).map(|(a, b)| a + wdr::BETA as f32 * b).collect::<Vec<_>>()));
+    for (i, (x, t)) in views.iter().enumerate().skip(1) {
+        let before = loss.gamma;
+        let settled = loss.gamma_settled();
+        let (_, g) = loss.loss_and_grad(x, t, i, loss.warmup + i);
+        let (_, go) = wdr::l_orig(x, t);
+        let (_, gd) = plain.value_and_grad(x, t, None);
+        let comb: Vec<f32> = gd.iter().zip(&go).map(|(a, b)| a + wdr::BETA as f32 * b).collect();
+        if settled {
+            assert_eq!(loss.gamma, before, "γ changed after {} views", wdr::NORMALISE_VIEWS);
+        } else {
+            so += l2(&go);
+            sc += l2(&comb);
+            assert!((loss.gamma - so / sc).abs() < 1e-6 * loss.gamma);
+        }
+        assert!((l2(&g) - loss.gamma * l2(&comb)).abs() < 1e-4 * l2(&g));
+    }
+    assert!(loss.gamma_settled());
+    // a fixed γ is never changed
+    let mut fixed = WdrLoss::new(Box::new(Pyramid), 100).with_fixed_gamma(0.5);
+    fixed.loss_and_grad(x, t, 0, 50);
+    assert_eq!(fixed.gamma, 0.5);
+}
+
+#[test]
 fn constant_images_and_flat_regions_give_finite_gradients() {
     let (h, w) = (24, 24);
     let flat = |v: f32| Image { width: w, height: h, data: vec![v; (3 * w * h) as usize] };
-    let mut rng = Rng(66);
+    let mut rng = Rng::new(66);
     let textured = to_image(&random_image::<f64>(&mut rng, h as usize, w as usize));
     let mut half = textured.clone();
     half.data[..(3 * w * h / 2) as usize].iter_mut().for_each(|v| *v = 0.3);
@@ -471,7 +511,7 @@ fn constant_images_and_flat_regions_give_finite_gradients() {
 
 #[test]
 fn cached_equals_uncached_exactly() {
-    let mut rng = Rng(77);
+    let mut rng = Rng::new(77);
     let target = to_image(&random_image::<f64>(&mut rng, 30, 26));
     let other_target = to_image(&random_image::<f64>(&mut rng, 30, 26));
     let x = to_image(&random_image::<f64>(&mut rng, 30, 26));
@@ -529,7 +569,7 @@ fn loss_options_parse_and_fail_cleanly() {
 #[test]
 fn sigma_maps_resize_like_the_reference() {
     // a constant map at any resolution is the constant σ
-    let mut rng = Rng(88);
+    let mut rng = Rng::new(88);
     let a = random_image::<f64>(&mut rng, 40, 30);
     let b = random_image::<f64>(&mut rng, 40, 30);
     let c = wd_of(&Pyramid, &a, &b, &Sigma::Constant(4.0));

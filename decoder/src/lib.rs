@@ -45,10 +45,14 @@ pub mod entropy;
 mod error;
 pub mod math;
 pub mod render;
+#[doc(hidden)]
+pub mod rng;
 #[cfg(feature = "gpu")]
 #[doc(hidden)]
 pub mod shaders;
 pub mod splats;
+#[doc(hidden)]
+pub mod testkit;
 
 pub use bitstream::info::EncoderInfo;
 pub use bitstream::layout::Group;

@@ -1,43 +1,16 @@
 //! wgpu renderer against the CPU renderer (PSNR ≥ 45 dB). Runs on any adapter, including Mesa's
-//! lavapipe (`apt-get install mesa-vulkan-drivers`); prints a skip message when none exists.
+//! lavapipe (`apt-get install mesa-vulkan-drivers`); without any adapter each test says it skipped
+//! (`testkit::gpu_renderer`).
 #![cfg(feature = "gpu")]
 
-mod common;
-
-use common::{random_scene, Rng};
 use glam::Vec3;
-use gscodec_decoder::render::gpu::{GpuError, GpuRenderer};
-use gscodec_decoder::render::render;
+use gscodec_decoder::render::{psnr, render};
+use gscodec_decoder::rng::Rng;
+use gscodec_decoder::testkit::{gpu_renderer, random_splats_in, SceneRanges};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
-use std::sync::OnceLock;
 
-/// One renderer for the whole test binary (device creation and shader compilation are slow on
-/// a software adapter); `None` when there is no adapter at all.
-fn renderer() -> Option<&'static GpuRenderer> {
-    static R: OnceLock<Option<GpuRenderer>> = OnceLock::new();
-    R.get_or_init(|| match GpuRenderer::new() {
-        Ok(r) => {
-            eprintln!("GPU tests use adapter: {}", r.adapter_name());
-            Some(r)
-        }
-        Err(GpuError::NoAdapter(e)) => {
-            eprintln!("SKIP: no GPU adapter available ({e}); install mesa-vulkan-drivers for lavapipe");
-            None
-        }
-        Err(e) => panic!("an adapter exists but the renderer failed: {e}"),
-    })
-    .as_ref()
-}
-
-fn psnr(a: &Image, b: &Image) -> f64 {
-    assert_eq!((a.width, a.height), (b.width, b.height));
-    let mse = a.data.iter().zip(&b.data).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / a.data.len() as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        10.0 * (1.0 / mse).log10()
-    }
-}
+/// Random scenes of the tests: centres in the unit ball, log-scales in [-4.5, −1.5].
+const SCENE: SceneRanges = SceneRanges { extent: [1.0; 3], log_scale: [-4.5, -1.5], opacity: [-3.0, 4.0], sh_dc: 1.5, sh_rest: 0.3 };
 
 fn camera(w: u32, h: u32) -> Camera {
     Camera::look_at(Vec3::new(0.3, -0.4, -3.5), Vec3::ZERO, Vec3::new(0.0, -1.0, 0.0), w, h, 0.9)
@@ -45,8 +18,8 @@ fn camera(w: u32, h: u32) -> Camera {
 
 #[test]
 fn gpu_matches_cpu_on_random_sh3_scene() {
-    let Some(r) = renderer() else { return };
-    let s = random_scene(3000, 3, 7, -4.5);
+    let Some(r) = gpu_renderer() else { return };
+    let s = random_splats_in(3000, 3, 7, &SCENE);
     // Odd size: partial tiles on the right and bottom edges.
     let cam = camera(157, 101);
     for opts in [RenderOptions::default(), RenderOptions { background: [1.0, 0.5, 0.0], max_sh_degree: 1 }] {
@@ -62,10 +35,10 @@ fn gpu_matches_cpu_on_random_sh3_scene() {
 
 #[test]
 fn gpu_sorts_many_overlaps_and_equal_depths() {
-    let Some(r) = renderer() else { return };
+    let Some(r) = gpu_renderer() else { return };
     // Many Gaussians at exactly the same depth and overlapping tiles: ties must break by index
     // (stable sort), as on the CPU.
-    let mut s = random_scene(2500, 0, 3, -4.5);
+    let mut s = random_splats_in(2500, 0, 3, &SCENE);
     for i in (1..s.len()).step_by(2) {
         s.positions[i] = s.positions[i - 1];
     }
@@ -78,13 +51,13 @@ fn gpu_sorts_many_overlaps_and_equal_depths() {
 
 #[test]
 fn gpu_empty_and_fully_culled_scenes_give_the_background() {
-    let Some(r) = renderer() else { return };
+    let Some(r) = gpu_renderer() else { return };
     let opts = RenderOptions { background: [0.1, 0.2, 0.3], max_sh_degree: 3 };
     let cam = camera(40, 30);
     let img = r.render(&Splats::new(3), &cam, &opts).unwrap();
     assert_eq!(img, Image::filled(40, 30, opts.background));
     // Everything behind the camera.
-    let mut s = random_scene(50, 2, 1, -4.5);
+    let mut s = random_splats_in(50, 2, 1, &SCENE);
     for p in &mut s.positions {
         *p = [p[0], p[1], p[2] - 10.0];
     }
@@ -93,10 +66,10 @@ fn gpu_empty_and_fully_culled_scenes_give_the_background() {
 
 #[test]
 fn gpu_scan_is_an_exclusive_prefix_sum() {
-    let Some(r) = renderer() else { return };
-    let mut rng = Rng(5);
+    let Some(r) = gpu_renderer() else { return };
+    let mut rng = Rng::new(5);
     for n in [1usize, 5, 1024, 1025, 3000, 1024 * 1024 + 17] {
-        let data: Vec<u32> = (0..n).map(|_| (rng.next() * 10.0) as u32).collect();
+        let data: Vec<u32> = (0..n).map(|_| rng.below(10) as u32).collect();
         let got = r.debug_scan(&data).unwrap();
         let mut acc = 0;
         let want: Vec<u32> = data
@@ -113,10 +86,10 @@ fn gpu_scan_is_an_exclusive_prefix_sum() {
 
 #[test]
 fn gpu_radix_sort_is_stable() {
-    let Some(r) = renderer() else { return };
-    let mut rng = Rng(9);
+    let Some(r) = gpu_renderer() else { return };
+    let mut rng = Rng::new(9);
     for n in [1usize, 100, 1024, 5000] {
-        let tiles: Vec<u32> = (0..n).map(|_| (rng.next() * 37.0) as u32).collect();
+        let tiles: Vec<u32> = (0..n).map(|_| rng.below(37) as u32).collect();
         let depths: Vec<u32> = (0..n).map(|_| rng.range(0.5, 1.0).to_bits() & !0xff).collect();
         let got = r.debug_sort(&tiles, &depths, 6).unwrap();
         let mut want: Vec<u32> = (0..n as u32).collect();
@@ -130,11 +103,11 @@ fn gpu_radix_sort_is_stable() {
 #[test]
 #[ignore]
 fn gpu_frame_time_1080p() {
-    let Some(r) = renderer() else { return };
+    let Some(r) = gpu_renderer() else { return };
     let cam = camera(1920, 1080);
     let opts = RenderOptions::default();
     for n in [100_000usize, 1_000_000] {
-        let mut s = random_scene(n, 3, 11, -4.5);
+        let mut s = random_splats_in(n, 3, 11, &SCENE);
         // Trained scenes have many small Gaussians: shrink them (more for the denser scene) so the
         // number of (tile, Gaussian) pairs stays realistic (a few per Gaussian).
         let shrink = 1.5 + (n as f32 / 100_000.0).log10() * 0.5;

@@ -1,13 +1,14 @@
 //! CPU renderer: analytic cases and the f32 tile renderer against the f64 brute-force reference,
 //! including the extreme Gaussians of DESIGN §8.
 
-mod common;
-
-use common::random_scene;
 use glam::{Mat3, Vec3};
 use gscodec_decoder::math::SH_C0;
 use gscodec_decoder::render::{reference::render_f64, render};
+use gscodec_decoder::testkit::{random_splats_in, SceneRanges};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
+
+/// Random scenes of the tests: centres in the unit ball, log-scales in [-4.0, −1.5].
+const SCENE: SceneRanges = SceneRanges { extent: [1.0; 3], log_scale: [-4.0, -1.5], opacity: [-3.0, 4.0], sh_dc: 1.5, sh_rest: 0.3 };
 
 fn front_camera(w: u32, h: u32) -> Camera {
     Camera::look_at(Vec3::new(0.3, -0.4, -3.5), Vec3::ZERO, Vec3::new(0.0, -1.0, 0.0), w, h, 0.9)
@@ -59,7 +60,7 @@ fn background_shows_through_by_transmittance() {
 
 #[test]
 fn f32_matches_f64_reference_on_random_sh3_scene() {
-    let s = random_scene(600, 3, 7, -4.0);
+    let s = random_splats_in(600, 3, 7, &SCENE);
     let cam = front_camera(80, 60);
     let opts = RenderOptions { background: [0.1, 0.2, 0.3], ..Default::default() };
     let (a, b) = (render(&s, &cam, &opts), render_f64(&s, &cam, &opts));
@@ -73,7 +74,7 @@ fn f32_matches_f64_reference_on_random_sh3_scene() {
 
 #[test]
 fn max_sh_degree_option_ignores_higher_bands() {
-    let s = random_scene(200, 3, 11, -4.0);
+    let s = random_splats_in(200, 3, 11, &SCENE);
     let cam = front_camera(48, 48);
     let low = RenderOptions { max_sh_degree: 1, ..Default::default() };
     let a = render(&s, &cam, &low);
@@ -140,7 +141,7 @@ fn empty_scene_renders_background() {
 
 #[test]
 fn render_is_deterministic_across_thread_counts() {
-    let s = random_scene(2000, 2, 3, -4.0);
+    let s = random_splats_in(2000, 2, 3, &SCENE);
     let cam = front_camera(96, 96);
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     let four = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();

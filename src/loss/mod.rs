@@ -48,7 +48,8 @@ pub struct LossArgs {
     /// see scripts/export_vgg16.py).
     #[arg(long, default_value = "pyramid", value_name = "pyramid|vgg16=PATH")]
     pub features: FeatureSpec,
-    /// Global scale γ of `wd` / `wdr` (default 0.03 / 0.025).
+    /// Global scale γ of `wd` / `wdr` (default: 0.03 / normalised to L1-SSIM's gradient scale,
+    /// see docs/wd.md).
     #[arg(long = "wd-gamma", value_name = "G")]
     pub wd_gamma: Option<f64>,
 }
@@ -72,9 +73,11 @@ pub fn build_loss(args: &LossArgs, total_iters: usize, default: LossKind) -> cra
             Box::new(l)
         }
         LossKind::Wdr => {
-            let mut l = wdr::WdrLoss::new(args.features.build()?, total_iters);
-            l.gamma = args.wd_gamma.unwrap_or(l.gamma);
-            Box::new(l)
+            let l = wdr::WdrLoss::new(args.features.build()?, total_iters);
+            Box::new(match args.wd_gamma {
+                Some(g) => l.with_fixed_gamma(g),
+                None => l,
+            })
         }
     })
 }

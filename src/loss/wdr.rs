@@ -185,18 +185,52 @@ impl ImageLoss for WdLoss {
     }
 }
 
+/// Training views over which [`WdrLoss`]'s normalised γ is measured after the warm-up.
+pub const NORMALISE_VIEWS: usize = 16;
+
 /// `wdr`: γ·(d_WD + β·L_orig) after a warm-up with `L_orig`.
+///
+/// γ is either fixed (`normalise = false`: the paper's per-dataset constant, `--wd-gamma`) or
+/// normalised (the default): over the first [`NORMALISE_VIEWS`] iterations after the warm-up,
+/// γ = Σ‖∇L_orig‖ / Σ‖∇(d_WD + β·L_orig)‖ (image gradients, summed over those views), then
+/// frozen. The objective's gradient then has the scale of the L1-SSIM loss it replaces, so the
+/// rate term's λ (calibrated in L1-SSIM units, `rate::lambda`) and the densification threshold
+/// mean the same for both losses; γ stays a single scene-wide constant, as in the paper.
 pub struct WdrLoss {
     pub distortion: WdDistortion,
     pub gamma: f64,
     pub beta: f64,
     pub warmup: usize,
+    pub normalise: bool,
+    /// Σ‖∇L_orig‖, Σ‖∇(d_WD + β·L_orig)‖ and the number of views measured so far.
+    sums: (f64, f64, usize),
 }
 
 impl WdrLoss {
     pub fn new(space: Box<dyn FeatureSpace<f32>>, total_iters: usize) -> Self {
-        WdrLoss { distortion: WdDistortion::new(space), gamma: DEFAULT_GAMMA_WDR, beta: BETA, warmup: warmup_iters(total_iters) }
+        WdrLoss {
+            distortion: WdDistortion::new(space),
+            gamma: DEFAULT_GAMMA_WDR,
+            beta: BETA,
+            warmup: warmup_iters(total_iters),
+            normalise: true,
+            sums: (0.0, 0.0, 0),
+        }
     }
+
+    /// The same loss with the fixed γ `gamma` (no normalisation).
+    pub fn with_fixed_gamma(self, gamma: f64) -> Self {
+        WdrLoss { gamma, normalise: false, ..self }
+    }
+
+    /// Whether γ is final (fixed, or normalised over [`NORMALISE_VIEWS`] views).
+    pub fn gamma_settled(&self) -> bool {
+        !self.normalise || self.sums.2 >= NORMALISE_VIEWS
+    }
+}
+
+fn l2(v: &[f32]) -> f64 {
+    v.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt()
 }
 
 impl ImageLoss for WdrLoss {
@@ -206,8 +240,17 @@ impl ImageLoss for WdrLoss {
             return (lo, go);
         }
         let (v, gw) = self.distortion.value_and_grad(rendered, target, Some(view));
-        let (g, b) = (self.gamma as f32, self.beta as f32);
-        let grad = gw.iter().zip(&go).map(|(w, o)| g * (w + b * o)).collect();
+        let b = self.beta as f32;
+        let mut grad: Vec<f32> = gw.iter().zip(&go).map(|(w, o)| w + b * o).collect();
+        if !self.gamma_settled() {
+            let (no, nc) = (l2(&go), l2(&grad));
+            if nc > 0.0 && no.is_finite() && nc.is_finite() {
+                self.sums = (self.sums.0 + no, self.sums.1 + nc, self.sums.2 + 1);
+                self.gamma = self.sums.0 / self.sums.1;
+            }
+        }
+        let g = self.gamma as f32;
+        grad.iter_mut().for_each(|x| *x *= g);
         (self.gamma * (v + self.beta * lo), grad)
     }
 

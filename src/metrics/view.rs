@@ -1,7 +1,9 @@
 //! Every metric of one rendered view against its reference, and their mean over views: what
-//! `gscodec eval` reports.
+//! `gscodec eval` reports; and the cheap held-out score that training reports.
 
-use gscodec_decoder::Image;
+use crate::io::Frame;
+use gscodec_decoder::render::render;
+use gscodec_decoder::{Image, RenderOptions, Splats};
 use serde::Serialize;
 
 use super::{flip, ms_ssim, psnr, ssim};
@@ -61,6 +63,24 @@ pub fn mean(views: &[ViewMetrics]) -> Option<ViewMetrics> {
         flip: avg(|v| v.flip),
         wd: avg_opt(|v| v.wd),
     })
+}
+
+/// Mean PSNR and SSIM of `splats` rendered (full SH, on `background`) at each frame's camera
+/// against the frame's image: the held-out score of training and of an encode report, cheaper
+/// than [`evaluate`]'s every metric. `None` without frames.
+pub fn mean_psnr_ssim(splats: &Splats, frames: &[&Frame], background: [f32; 3]) -> Option<(f64, f64)> {
+    if frames.is_empty() {
+        return None;
+    }
+    let opts = RenderOptions { background, max_sh_degree: 3 };
+    let (mut p, mut s) = (0.0, 0.0);
+    for f in frames {
+        let img = render(splats, &f.camera, &opts);
+        p += psnr(&img, &f.image);
+        s += ssim(&img, &f.image);
+    }
+    let n = frames.len() as f64;
+    Some((p / n, s / n))
 }
 
 #[cfg(test)]

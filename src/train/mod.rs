@@ -14,13 +14,13 @@ pub mod targets;
 
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::ImageLoss;
+use crate::metrics::view::mean_psnr_ssim;
 use crate::raster;
 use crate::rate::group::Group;
 use crate::rng::Rng;
 use crate::{Error, Result};
 use adam::{first_non_finite, Adam};
 use densify::{DensifyParams, DensifyStats};
-use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -199,22 +199,6 @@ pub struct TrainReport {
     pub stages: StageTimes,
     /// What the rate term learned (steps) and estimated (bits); None without one.
     pub rate: Option<RateOutcome>,
-}
-
-/// Mean held-out PSNR and SSIM of `splats` over `frames` (None without frames).
-pub fn evaluate(splats: &Splats, frames: &[&Frame], background: [f32; 3]) -> Option<(f64, f64)> {
-    if frames.is_empty() {
-        return None;
-    }
-    let opts = RenderOptions { background, max_sh_degree: 3 };
-    let (mut p, mut s) = (0.0, 0.0);
-    for f in frames {
-        let img = render(splats, &f.camera, &opts);
-        p += crate::metrics::psnr(&img, &f.image);
-        s += crate::metrics::ssim(&img, &f.image);
-    }
-    let n = frames.len() as f64;
-    Some((p / n, s / n))
 }
 
 /// The learning rate of group `g` at iteration `it` (1-based): the reference recipe, the position
@@ -461,7 +445,7 @@ pub fn train_with(
         // otherwise make the scene read as nearly empty. Its time is not training time.
         let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
         let t_eval = Instant::now();
-        let test_psnr = if eval_now { evaluate(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
+        let test_psnr = if eval_now { mean_psnr_ssim(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
         if cfg.densify {
             if sched.densifies(it) {
@@ -549,7 +533,7 @@ pub fn train_with(
             return Err(Error::Failure(format!("interrupted after iteration {it} of {}{resume}", cfg.iters)));
         }
     }
-    let final_eval = evaluate(&params, &test_frames, dataset.background);
+    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
         last.test_psnr = Some(p);
     }

@@ -35,6 +35,30 @@ impl Image {
     }
 }
 
+/// Mean squared error over all channels and pixels.
+///
+/// # Panics
+/// If the images differ in size.
+pub fn mse(a: &Image, b: &Image) -> f64 {
+    assert_eq!((a.width, a.height), (b.width, b.height), "MSE of images of different sizes");
+    let s: f64 = a.data.iter().zip(&b.data).map(|(x, y)| (*x as f64 - *y as f64).powi(2)).sum();
+    s / a.data.len().max(1) as f64
+}
+
+/// PSNR in dB for a peak of 1.0, capped at 100 dB (identical images): the one PSNR of the
+/// project (`gscodec::metrics::psnr` is this function).
+///
+/// # Panics
+/// If the images differ in size.
+pub fn psnr(a: &Image, b: &Image) -> f64 {
+    let m = mse(a, b);
+    if m <= 1e-10 {
+        100.0
+    } else {
+        -10.0 * m.log10()
+    }
+}
+
 /// Options of a render.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderOptions {

@@ -96,13 +96,8 @@ impl<T: Real> Vgg16<T> {
     /// A network of VGG-16 topology with the given output widths and He-initialised random
     /// weights (deterministic in `seed`): for tests and benchmarks, never for real use.
     pub fn random(widths: &[usize; 13], seed: u64) -> Self {
-        let mut state = seed.wrapping_mul(0x9e3779b97f4a7c15) | 1;
-        let mut uniform = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rng = crate::rng::Rng::new(seed);
+        let mut uniform = move || 2.0 * rng.uniform_f64() - 1.0;
         let mut cin = 3;
         let convs = widths
             .iter()

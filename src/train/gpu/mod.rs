@@ -24,9 +24,10 @@ pub use session::Session;
 use super::adam::Adam;
 use super::densify::{self, DensifyParams, DensifyStats};
 use super::MIN_KEEP_FRACTION;
-use super::{evaluate, init, learning_rate, non_finite_error, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
+use super::{init, learning_rate, non_finite_error, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::LossKind;
+use crate::metrics::view::mean_psnr_ssim;
 use crate::optim::AdamRule;
 use crate::rate::group::Group;
 use crate::rng::Rng;
@@ -280,7 +281,7 @@ pub fn train_on(
         let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
         let t_eval = Instant::now();
         let test_psnr = if eval_now && !test_frames.is_empty() {
-            evaluate(&session.download_params()?, &test_frames, dataset.background).map(|e| e.0)
+            mean_psnr_ssim(&session.download_params()?, &test_frames, dataset.background).map(|e| e.0)
         } else {
             None
         };
@@ -337,7 +338,7 @@ pub fn train_on(
     let params = session.download_params()?;
     train_seconds += t_end.elapsed().as_secs_f64();
     gpu.check()?;
-    let final_eval = evaluate(&params, &test_frames, dataset.background);
+    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
         last.test_psnr = Some(p);
     }
