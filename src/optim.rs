@@ -22,8 +22,8 @@ impl Default for AdamRule {
 /// The bias corrections of one step (see [`AdamRule::begin_step`]).
 #[derive(Debug, Clone, Copy)]
 pub struct Correction {
-    /// `1 / (1 − β₁ᵗ)`.
-    inv_bc1: f64,
+    /// `1 − β₁ᵗ`.
+    bc1: f64,
     /// `√(1 − β₂ᵗ)`.
     sqrt_bc2: f32,
 }
@@ -34,13 +34,13 @@ impl AdamRule {
         self.step += 1;
         let bc1 = 1.0 - f64::from(self.beta1).powf(self.step as f64);
         let bc2 = 1.0 - f64::from(self.beta2).powf(self.step as f64);
-        Correction { inv_bc1: 1.0 / bc1, sqrt_bc2: bc2.sqrt() as f32 }
+        Correction { bc1, sqrt_bc2: bc2.sqrt() as f32 }
     }
 
     /// Updates values `p` with gradients `g` and moments `m`, `v` (all the same length) at
     /// learning rate `lr`: `p −= lr·m̂ / (√v̂ + ε)` with bias-corrected moments.
     pub fn update(&self, c: Correction, lr: f32, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
-        let step_size = (f64::from(lr) * c.inv_bc1) as f32;
+        let step_size = (f64::from(lr) / c.bc1) as f32;
         let (b1, b2, eps) = (self.beta1, self.beta2, self.eps);
         for (((p, &g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
             *m = b1 * *m + (1.0 - b1) * g;

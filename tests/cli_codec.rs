@@ -90,5 +90,51 @@ fn fine_tuning_encode_writes_a_decodable_file_and_report() {
     assert!((est - bytes.len() as f64).abs() / (bytes.len() as f64) < 0.05, "{est} vs {}", bytes.len());
     assert!(r["orbit_psnr"].as_f64().unwrap() > 25.0);
     assert!(r["series"].as_array().unwrap().iter().any(|p| p["trial"] == "train"));
+    assert_eq!((&r["backend"], &r["train"]["backend"], &r["loss"], &r["lambda"]), (&"cpu".into(), &"cpu".into(), &"wdr".into(), &20.0.into()));
+    let stages = &r["stages"];
+    assert!(stages["train_s"].as_f64().unwrap() > 0.0 && stages["total_s"].as_f64().unwrap() >= stages["rd_search_s"].as_f64().unwrap());
+    assert!(r["steps"]["sh_dc"].as_f64().unwrap() > 0.0);
     gscodec_decoder::decode(&bytes).unwrap();
+}
+
+/// Without the `gpu` feature, `--backend gpu` is bad input (one line, exit 2, no output file);
+/// `cpu` and `auto` train.
+#[cfg(not(feature = "gpu"))]
+#[test]
+fn backend_gpu_is_refused_without_a_gpu_trainer() {
+    let dir = tempfile::tempdir().unwrap();
+    let gsc = dir.path().join("g.gsc");
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let o = gscodec(&["encode", input.to_str().unwrap(), "-o", gsc.to_str().unwrap(), "--iters", "2", "--backend", "gpu"]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.lines().count() == 1 && err.contains("GPU training not available"), "{err}");
+    assert!(!gsc.exists());
+}
+
+/// `--target-psnr`: the file `eval --reference INPUT --orbit 8` measures reaches the target, and
+/// the report lists the bisection's encodes; an unreachable target is bad input.
+#[test]
+fn target_psnr_is_reached_as_eval_measures_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let gsc = dir.path().join("t.gsc");
+    let report = dir.path().join("r.json");
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let (inp, out, rep) = (input.to_str().unwrap(), gsc.to_str().unwrap(), report.to_str().unwrap());
+    let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "38", "--report", rep, "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = gscodec(&["eval", out, "--reference", inp, "--orbit", "8", "--json", "--quiet"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let psnr = v["psnr"].as_f64().unwrap();
+    assert!(psnr >= 38.0 - 0.01, "{psnr}");
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert!((r["orbit_psnr"].as_f64().unwrap() - psnr).abs() < 0.01, "report {} vs eval {psnr}", r["orbit_psnr"]);
+    let probes = r["target"]["probes"].as_array().unwrap();
+    assert!(probes.len() > 2);
+    let bytes = std::fs::metadata(&gsc).unwrap().len();
+    assert!(probes.iter().filter(|p| p["psnr"].as_f64().unwrap() >= 38.0).all(|p| p["bytes"].as_u64().unwrap() >= bytes));
+    let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "190", "--quiet"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "30", "--lambda", "3"]);
+    assert_eq!(o.status.code(), Some(2), "a target and a λ conflict");
 }

@@ -1,4 +1,5 @@
-//! `gscodec sweep` machinery on fake per-point results: collect, tables, plots, BD-rates, jobs.
+//! `gscodec sweep` machinery on fake per-point results (collect, tables, plots, BD-rates, jobs),
+//! and one in-process sweep of the tiny sample with two jobs.
 
 use std::path::Path;
 use std::process::Command;
@@ -74,7 +75,13 @@ fn collect_writes_tables_plots_and_bd_rates() {
 
     let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["points"].as_array().unwrap().len(), 10);
-    assert_eq!(summary["bd_rate"].as_array().unwrap().len(), 5);
+    // bd_rate.<loss>.<metric>: percent against l1ssim, null (with a note) where not computable.
+    let bd = &summary["bd_rate"]["wdr"];
+    for m in ["psnr", "ssim", "flip", "wd"] {
+        assert!((bd[m].as_f64().unwrap() + 50.0).abs() < 0.5, "{m}: {bd}");
+    }
+    assert!(bd["ms_ssim"].is_null() && summary["bd_rate_notes"]["wdr"]["ms_ssim"].is_string(), "{summary}");
+    assert!(summary["bd_rate"].get("l1ssim").is_none(), "the anchor has no BD-rate against itself");
     assert_eq!(read_results(tmp.path()).unwrap().len(), 10);
 }
 
@@ -119,10 +126,8 @@ fn finished_points_are_skipped() {
     assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
     assert!(String::from_utf8_lossy(&res.stderr).contains("2 finished point(s) kept, 0 to run"));
     assert_eq!(std::fs::read_to_string(out.join("rd.csv")).unwrap().lines().count(), 3);
-    assert!(!out.join("points/l1ssim_lambda0.1/log.txt").exists(), "no child was run");
-
-    // Other settings (--iters) redo the points; here the encode fails (the input is no scene):
-    // exit 1 naming the point's log, the old results stay.
+    // Other settings (--iters) redo the points; here the input is no scene: bad input, exit 2
+    // naming it, the old results stay.
     let res = gscodec()
         .arg("sweep")
         .arg(&input)
@@ -131,11 +136,9 @@ fn finished_points_are_skipped() {
         .args(["--lambdas", "0.1", "--loss", "l1ssim", "--iters", "7"])
         .output()
         .unwrap();
-    assert_eq!(res.status.code(), Some(1));
+    assert_eq!(res.status.code(), Some(2));
     let err = String::from_utf8_lossy(&res.stderr);
-    assert!(err.contains("1 of 1 point(s) failed") && err.contains("l1ssim_lambda0.1/log.txt"), "{err}");
-    let log = std::fs::read_to_string(out.join("points/l1ssim_lambda0.1/log.txt")).unwrap();
-    assert!(log.starts_with("$ gscodec encode ") && log.contains("--iters 7"), "{log}");
+    assert!(err.starts_with("error: ") && err.contains("scene.ply") && err.lines().count() == 1, "{err}");
     assert!(out.join("points/l1ssim_lambda0.1/result.json").exists());
 }
 
@@ -161,4 +164,36 @@ fn emit_jobs_writes_slurm_and_parallel_lists() {
     assert_eq!(list.lines().count(), 6);
     assert!(list.lines().all(|l| l.contains(" sweep ") && l.contains("--points-only") && l.contains("--iters 100")));
     assert!(list.contains("--lambdas 0.001 --loss wdr"));
+}
+
+#[test]
+fn two_jobs_run_points_in_process_with_typed_reports() {
+    let truth = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("sw");
+    let res = gscodec()
+        .arg("sweep")
+        .arg(&truth)
+        .arg("-o")
+        .arg(&out)
+        .args(["--lambdas", "2,200", "--loss", "l1ssim,wdr", "--jobs", "2", "--backend", "cpu", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
+    let rows = read_results(&out).unwrap();
+    assert_eq!(rows.len(), 4);
+    for r in &rows {
+        let dir = out.join("points").join(format!("{}_lambda{}", r.loss, r.lambda));
+        assert_eq!(std::fs::metadata(dir.join("scene.gsc")).unwrap().len(), r.bytes);
+        let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+        assert_eq!(report["file_bytes"].as_u64(), Some(r.bytes));
+        assert_eq!(report["lambda"].as_f64(), Some(r.lambda));
+        // No training (--iters 0 for a .ply): the orbit PSNR of the report is the point's PSNR.
+        assert!((report["orbit_psnr"].as_f64().unwrap() - r.psnr.unwrap()).abs() < 0.05, "{report} vs {r:?}");
+        assert!(!r.timeline.is_empty(), "the RD search trials form the time series");
+    }
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["bd_rate"]["wdr"]["psnr"].is_number() || summary["bd_rate_notes"]["wdr"]["psnr"].is_string(), "{summary}");
+    let rd = std::fs::read_to_string(out.join("rd.svg")).unwrap();
+    assert!(rd.contains("l1ssim") && rd.contains("wdr"), "one curve per loss");
 }

@@ -1,4 +1,4 @@
-//! `gscodec sweep` end to end on `samples/tiny/truth.ply`: real encode, decode and eval children.
+//! `gscodec sweep` end to end on `samples/tiny/truth.ply`: real encodes, decodes and evals (in process).
 
 use std::path::PathBuf;
 use std::process::Command;

@@ -7,7 +7,8 @@ use crate::io::{read_scene, Split};
 use crate::views::UpAxis;
 use crate::{metrics, Error, Result};
 use gscodec_decoder::render::render;
-use gscodec_decoder::RenderOptions;
+use crate::metrics::view::ViewMetrics;
+use gscodec_decoder::{RenderOptions, Splats};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -49,6 +50,37 @@ pub struct Args {
     pub quiet: bool,
 }
 
+/// Renders `scene` from every view (on `background`) and measures it against the view's target;
+/// returns the per-view metrics and the total render time in milliseconds. `tick` runs after
+/// each view.
+///
+/// # Panics
+/// If a view has no target or a target's size differs from its camera's.
+pub fn measure(scene: &Splats, views: &[View], background: [f32; 3], tick: &mut dyn FnMut()) -> (Vec<ViewMetrics>, f64) {
+    let opts = RenderOptions { background, max_sh_degree: 3 };
+    let mut ms = 0.0;
+    let mut per_view = Vec::with_capacity(views.len());
+    for v in views {
+        let t = Instant::now();
+        let img = render(scene, &v.camera, &opts);
+        ms += t.elapsed().as_secs_f64() * 1e3;
+        let target = v.target.as_ref().expect("every eval view has a target");
+        per_view.push(metrics::view::evaluate(target, &img));
+        tick();
+    }
+    (per_view, ms)
+}
+
+/// The orbit views of `eval --reference`: `n` views of `reference` (at `size`, default 256²),
+/// each with the reference's render as its target, on a black background.
+pub fn reference_views(reference: &Splats, n: usize, size: Option<(u32, u32)>, up: UpAxis) -> (Vec<View>, [f32; 3]) {
+    let bg = [0.0; 3];
+    let opts = RenderOptions { background: bg, max_sh_degree: 3 };
+    let mut views = orbit_views(reference, n, size, up);
+    views.iter_mut().for_each(|v| v.target = Some(render(reference, &v.camera, &opts)));
+    (views, bg)
+}
+
 pub fn run(args: Args) -> Result<()> {
     let scene = read_scene(&args.scene)?;
     let bytes = std::fs::metadata(&args.scene).map_err(|e| Error::input(&args.scene, e))?.len();
@@ -60,24 +92,10 @@ pub fn run(args: Args) -> Result<()> {
             return Err(Error::input(path, "--orbit needs at least one view"));
         }
         let reference = read_scene(path)?;
-        let bg = [0.0; 3];
-        let opts = RenderOptions { background: bg, max_sh_degree: 3 };
-        let mut views = orbit_views(&reference, args.orbit, args.size, args.up);
-        views.iter_mut().for_each(|v| v.target = Some(render(&reference, &v.camera, &opts)));
-        (views, bg)
+        reference_views(&reference, args.orbit, args.size, args.up)
     };
-    let opts = RenderOptions { background, max_sh_degree: 3 };
     let pb = progress::bar(views.len() as u64, "eval", args.quiet);
-    let mut ms = 0.0;
-    let mut per_view = Vec::with_capacity(views.len());
-    for v in &views {
-        let t = Instant::now();
-        let img = render(&scene, &v.camera, &opts);
-        ms += t.elapsed().as_secs_f64() * 1e3;
-        let target = v.target.as_ref().expect("every eval view has a target");
-        per_view.push(metrics::view::evaluate(target, &img));
-        pb.inc(1);
-    }
+    let (per_view, ms) = measure(&scene, &views, background, &mut || pb.inc(1));
     pb.finish_and_clear();
     let n = views.len() as f64;
     let Some(mean) = metrics::view::mean(&per_view) else {

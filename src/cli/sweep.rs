@@ -5,7 +5,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 use crate::sweep::results::{bd_report, read_results, write_outputs};
-use crate::sweep::{jobs, run_point, Plan, DEFAULT_LAMBDAS, DEFAULT_LOSSES};
+use crate::encoder::Backend;
+use crate::sweep::{jobs, run_point, Input, Plan, DEFAULT_LAMBDAS, DEFAULT_LOSSES};
 use crate::{Error, Result};
 
 /// Encode a scene at several λ and losses, decode, evaluate, and write RD tables and plots.
@@ -25,7 +26,10 @@ pub struct Args {
     /// Training iterations per encode (encoder default when absent).
     #[arg(long)]
     pub iters: Option<usize>,
-    /// Points encoded at the same time (each encode is itself multi-threaded).
+    /// Training backend of every encode: cpu, gpu, or auto (a hardware GPU if there is one).
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    pub backend: Backend,
+    /// Points encoded at the same time, in this process (each encode is itself multi-threaded).
     #[arg(long, default_value_t = 1)]
     pub jobs: usize,
     /// Write the sweep as jobs instead of running it: FILE (Slurm array script) and
@@ -38,7 +42,7 @@ pub struct Args {
     /// Run the points and record their results, but write no tables or plots (what emitted jobs run).
     #[arg(long)]
     pub points_only: bool,
-    /// Dataset image options, passed on to each encode and eval.
+    /// Dataset image options, for each encode and the test views it is measured on.
     #[command(flatten)]
     pub dataset: super::dataset_args::DatasetArgs,
     /// No progress bar.
@@ -53,8 +57,7 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let lambdas = if args.lambdas.is_empty() { DEFAULT_LAMBDAS.to_vec() } else { args.lambdas.clone() };
     let losses = if args.losses.is_empty() { DEFAULT_LOSSES.iter().map(|s| s.to_string()).collect() } else { args.losses.clone() };
-    let mut plan =
-        Plan { input: args.input.clone(), out: args.out.clone(), lambdas, losses, iters: args.iters, dataset_args: args.dataset.to_args() };
+    let mut plan = Plan { input: args.input.clone(), out: args.out.clone(), lambdas, losses, iters: args.iters, backend: args.backend, dataset_args: args.dataset.to_args() };
     plan.validate()?;
 
     if let Some(dir) = &args.collect {
@@ -88,6 +91,8 @@ pub fn run(args: Args) -> Result<()> {
     if skipped > 0 && !args.quiet {
         eprintln!("sweep: {skipped} finished point(s) kept, {} to run", pending.len());
     }
+    // Loaded once for every point, and only when a point is to run.
+    let input = if pending.is_empty() { None } else { Some(Input::load(&plan.input, &args.dataset.load_options())?) };
     let bar = super::progress::bar(pending.len() as u64, "sweep", args.quiet || pending.is_empty());
     let next = AtomicUsize::new(0);
     let failures = Mutex::new(Vec::new());
@@ -96,7 +101,8 @@ pub fn run(args: Args) -> Result<()> {
             s.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::SeqCst);
                 let Some(p) = pending.get(i) else { break };
-                if let Err(e) = run_point(&exe, &plan, p) {
+                let input = input.as_ref().expect("loaded when points are pending");
+                if let Err(e) = run_point(input, &plan, p) {
                     failures.lock().unwrap_or_else(|e| e.into_inner()).push(format!("{}: {e}", p.dir_name()));
                 }
                 bar.inc(1);

@@ -1,8 +1,9 @@
 //! `gscodec train DATA -o OUT.ply`: train Gaussians on a posed-image dataset.
 
 use crate::io;
-use crate::loss::{build_loss, LossArgs};
-use crate::train::{train_with, TrainConfig};
+use crate::encoder::{Backend, LossSpec, TrainJob};
+use crate::loss::LossArgs;
+use crate::train::TrainConfig;
 use crate::{Error, Result};
 use std::path::{Path, PathBuf};
 
@@ -41,6 +42,10 @@ pub struct Args {
     /// Evaluate held-out PSNR every N iterations (0 = only at the end).
     #[arg(long, default_value_t = 500)]
     pub eval_every: usize,
+    /// Training backend: cpu, gpu (feature `gpu` and a GPU), or auto (a hardware GPU if there
+    /// is one, else cpu).
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    pub backend: Backend,
     /// Write the training record (JSON: time series of loss, Gaussians, held-out PSNR).
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -59,8 +64,10 @@ pub fn run(args: Args) -> Result<()> {
         return Err(Error::Input("--iters must be at least 1".into()));
     }
     check_output(&args.output, "ply")?;
-    // Before the dataset, so a bad --features file fails fast.
-    let loss = build_loss(&args.loss, args.iters, crate::loss::LossKind::L1ssim)?;
+    // Before the dataset, so a bad --features file or backend fails fast.
+    let loss = LossSpec::from_args(&args.loss, crate::loss::LossKind::L1ssim);
+    loss.build(args.iters)?;
+    let mut backend = args.backend.resolve()?;
     let ds = io::load_dataset(&args.data, &args.dataset.load_options())?;
     let init = args.init.as_deref().map(io::read_ply).transpose()?;
     let cfg = TrainConfig {
@@ -78,12 +85,9 @@ pub fn run(args: Args) -> Result<()> {
     let log_lines = !args.quiet && pb.is_hidden();
     let mut last_psnr = None;
     let run = args.checkpoint.run_options(args.report.clone());
-    let (splats, report) = train_with(
-        &ds,
-        init,
-        &cfg,
-        loss,
-        None,
+    let job = TrainJob { dataset: &ds, init, config: &cfg, loss: &loss, rate: None, run: &run };
+    let (splats, report) = backend.train(
+        job,
         &mut |p| {
             if p.test_psnr.is_some() {
                 last_psnr = p.test_psnr;
@@ -104,7 +108,6 @@ pub fn run(args: Args) -> Result<()> {
                 pb.set_message(format!("loss {:.4} n {}{psnr}", p.loss, p.gaussians));
             }
         },
-        &run,
     )
     .map_err(|e| match e {
         Error::Input(m) => Error::input(&args.data, m),

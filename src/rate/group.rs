@@ -11,7 +11,7 @@ use gscodec_decoder::Splats;
 use serde::ser::SerializeMap;
 use serde::Serialize;
 
-pub use gscodec_decoder::bitstream::layout::Group;
+pub use gscodec_decoder::Group;
 
 use super::quantise::Steps;
 

@@ -19,9 +19,9 @@ use crate::views::{orbit_cameras, UpAxis};
 pub const VIEWS: usize = 8;
 pub const SIZE: u32 = 96;
 
-/// One accepted step of the search.
+/// One trial of the search (a configuration it encoded and measured).
 #[derive(Debug, Clone, Serialize)]
-pub struct RdPoint {
+pub struct Trial {
     pub step: usize,
     pub change: String,
     pub bytes: usize,
@@ -87,7 +87,7 @@ fn with_knob(c: &EncodeConfig, g: Group, m: f32) -> EncodeConfig {
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the pruning threshold, then the SH degree, then per group
 /// the multiplier of the fine step minimising `ΔD_g + λ·R_g`. `on_step` sees each trial.
-pub fn search(scene: &Splats, lambda: Lambda, on_step: impl FnMut(&RdPoint)) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
+pub fn search(scene: &Splats, lambda: Lambda, on_step: impl FnMut(&Trial)) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
     search_from(scene, lambda, Steps::default().scaled(0.7), on_step)
 }
 
@@ -97,14 +97,14 @@ pub fn search_from(
     scene: &Splats,
     lambda: Lambda,
     fine: Steps,
-    mut on_step: impl FnMut(&RdPoint),
-) -> Result<(EncodeConfig, Vec<RdPoint>), SceneError> {
+    mut on_step: impl FnMut(&Trial),
+) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
     scene.validate()?;
     let ev = Evaluator::new(scene);
     let j = |bytes: usize, d: f64| d + lambda.rate_cost(bytes);
     let mut path = Vec::new();
-    let mut record = |change: String, bytes: usize, d: f64, path: &mut Vec<RdPoint>| {
-        let p = RdPoint { step: path.len(), change, bytes, d, psnr: psnr_of(d), j: j(bytes, d) };
+    let mut record = |change: String, bytes: usize, d: f64, path: &mut Vec<Trial>| {
+        let p = Trial { step: path.len(), change, bytes, d, psnr: psnr_of(d), j: j(bytes, d) };
         on_step(&p);
         path.push(p);
     };

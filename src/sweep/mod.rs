@@ -5,27 +5,33 @@
 //! | [`results`] | per-point results, `rd.csv`, plots, BD-rates, `summary.json` |
 //! | [`jobs`] | the sweep as independent jobs (Slurm array script, GNU parallel list) |
 //!
-//! Each point runs the `gscodec` executable itself (`encode`, `decode`, `eval --json`) as child
-//! processes, so a point is exactly what a user would run by hand and a crashed point cannot take
-//! the sweep down. A point is finished when `DIR/points/<loss>_lambda<λ>/result.json` exists;
-//! finished points are skipped, which makes sweeps resumable.
+//! Each point runs the encoder in process ([`crate::encoder::Encoder`]), decodes the file with
+//! `gscodec_decoder::decode` and measures it as `gscodec eval` does; points run `--jobs` at a
+//! time on threads. A point is finished when `DIR/points/<loss>_lambda<λ>/result.json` exists;
+//! finished points are skipped, which makes sweeps resumable. The jobs `--emit-jobs` writes call
+//! the CLI (`gscodec sweep … --points-only`), one point each.
 
 pub mod jobs;
 pub mod results;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Instant;
 
+use clap::ValueEnum;
+use gscodec_decoder::Splats;
 use serde_json::Value;
 
+use crate::cli::render::View;
+use crate::encoder::{Backend, EncodeReport, Encoder, EncoderConfig, Lambda, LossSpec};
 use crate::io::atomic::write_bytes_atomic;
+use crate::io::{Dataset, Split};
+use crate::loss::LossKind;
 use crate::{Error, Result};
 use results::{PointResult, TimelinePoint, RESULT_FILE};
 
 /// Default λ grid of `sweep`, largest first (smallest files first).
 ///
-/// `encode --lambda` is λ in `J = D + λ·R` with D = 255²·MSE of orbit renders and R in megabits
+/// λ is [`Lambda`]: `J = D + λ·R` with D = 255²·MSE of orbit renders and R in megabits
 /// (larger: smaller files; 0: finest; the encoder's default is 20). The grid steps ×≈3 around
 /// that default over two decades. Not yet re-measured with the RD-search encoder; see
 /// `docs/sweep.md`.
@@ -69,7 +75,10 @@ pub struct Plan {
     pub losses: Vec<String>,
     /// `encode --iters`, or the encoder's default.
     pub iters: Option<usize>,
-    /// Dataset options passed on to every `encode` and `eval` (`--downscale N`, …).
+    /// Training backend of every encode.
+    pub backend: Backend,
+    /// Dataset options (`--downscale N`, …) as command-line words, passed on to emitted jobs;
+    /// in process they are [`Input::load`]'s options.
     pub dataset_args: Vec<String>,
 }
 
@@ -135,82 +144,120 @@ impl Plan {
             c.extend(["--iters".into(), n.to_string()]);
         }
         c.extend(self.dataset_args.iter().cloned());
+        if self.backend != Backend::Auto {
+            let b = self.backend.to_possible_value().expect("no skipped variants");
+            c.extend(["--backend".into(), b.get_name().to_string()]);
+        }
         c.extend(["--points-only".into(), "--quiet".into()]);
         c
     }
-}
 
-/// Runs `exe` with `args`, appending its stdout/stderr to `log`; returns stdout and wall seconds.
-fn run_child(exe: &Path, args: &[String], log: &Path, what: &str) -> Result<(String, f64)> {
-    let start = Instant::now();
-    let out = Command::new(exe).args(args).output().map_err(|e| Error::failure(exe, format!("cannot run {what}: {e}")))?;
-    let secs = start.elapsed().as_secs_f64();
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    let mut text = format!("$ gscodec {}\n", args.join(" "));
-    text.push_str(&stdout);
-    text.push_str(&String::from_utf8_lossy(&out.stderr));
-    text.push_str(&format!("[exit {:?}, {secs:.3} s]\n", out.status.code()));
-    let old = std::fs::read_to_string(log).unwrap_or_default();
-    std::fs::write(log, old + &text).map_err(|e| Error::failure(log, e))?;
-    if !out.status.success() {
-        let last = String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("").to_string();
-        return Err(Error::failure(log, format!("{what} failed ({last}); see this log")));
+    /// The encoder settings of point `p`.
+    ///
+    /// # Errors
+    /// An unknown loss or a negative λ (exit 2); [`Plan::validate`] rules these out.
+    pub fn encoder_config(&self, p: &Point) -> Result<EncoderConfig> {
+        let kind = <LossKind as ValueEnum>::from_str(&p.loss, true).map_err(|e| Error::input(Path::new("--loss"), e))?;
+        let lambda = Lambda::new(p.lambda).ok_or_else(|| Error::input(Path::new("--lambdas"), format!("{} is not >= 0", p.lambda)))?;
+        Ok(EncoderConfig::default()
+            .with_lambda(lambda)
+            .with_iters(self.iters)
+            .with_loss(LossSpec { kind, ..LossSpec::default() })
+            .with_backend(self.backend))
     }
-    Ok((stdout, secs))
 }
 
-/// Encodes, decodes and evaluates one point with `exe` (the `gscodec` executable) and writes its
-/// `result.json`. Intermediate files stay in the point directory (`scene.gsc`, `decoded.ply`,
-/// `report.json`, `log.txt`).
+/// What a sweep encodes and measures against, loaded once for all points.
+pub struct Input {
+    /// The scene (a `.ply`) or the dataset to encode.
+    pub source: Source,
+    /// The views the decoded scenes are measured on, with targets: the reference scene's
+    /// [`PLY_EVAL_ORBIT`] orbit views, or the dataset's test split (as `gscodec eval`).
+    pub views: Vec<View>,
+    /// Background of the measuring renders.
+    pub background: [f32; 3],
+}
+
+/// A sweep's input.
+pub enum Source {
+    /// A trained scene.
+    Scene(Splats),
+    /// A posed-image dataset.
+    Dataset(Dataset),
+}
+
+impl Input {
+    /// Loads `path`: a `.ply` scene or a dataset directory (with `opts`).
+    ///
+    /// # Errors
+    /// An unreadable input (exit 2, naming it).
+    pub fn load(path: &Path, opts: &crate::io::LoadOptions) -> Result<Input> {
+        if is_ply(path) {
+            let scene = crate::io::read_ply(path)?;
+            let (views, background) =
+                crate::cli::eval::reference_views(&scene, PLY_EVAL_ORBIT, None, crate::views::UpAxis::NegY);
+            Ok(Input { source: Source::Scene(scene), views, background })
+        } else {
+            let ds = crate::io::load_dataset(path, opts)?;
+            let views: Vec<View> = ds
+                .split(Split::Test)
+                .into_iter()
+                .map(|f| View { index: f.index, camera: f.camera, target: Some(f.image.clone()) })
+                .collect();
+            if views.is_empty() {
+                return Err(Error::input(path, "the dataset has no test views to measure a sweep on"));
+            }
+            let background = ds.background;
+            Ok(Input { source: Source::Dataset(ds), views, background })
+        }
+    }
+}
+
+/// Encodes, decodes and measures one point and writes its `result.json`; the point directory
+/// also keeps `scene.gsc` and `report.json` (the typed [`EncodeReport`]).
 ///
 /// # Errors
-/// A failing child process (exit 1, naming the point's log) or an unparsable eval output.
-pub fn run_point(exe: &Path, plan: &Plan, p: &Point) -> Result<PointResult> {
+/// A failing encode (bad input: exit 2; training failure: exit 1) or an unwritable file.
+pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
     let dir = plan.point_dir(p);
     std::fs::create_dir_all(&dir).map_err(|e| Error::failure(&dir, e))?;
-    let s = |p: PathBuf| p.display().to_string();
-    let (gsc, ply, report, log) = (dir.join("scene.gsc"), dir.join("decoded.ply"), dir.join("report.json"), dir.join("log.txt"));
-    let _ = std::fs::remove_file(&log);
-
-    let mut enc = vec![
-        "encode".to_string(),
-        s(plan.input.clone()),
-        "-o".into(),
-        s(gsc.clone()),
-        "--lambda".into(),
-        p.lambda.to_string(),
-        "--loss".into(),
-        p.loss.clone(),
-        "--report".into(),
-        s(report.clone()),
-        "--quiet".into(),
-    ];
-    if let Some(n) = plan.iters {
-        enc.extend(["--iters".into(), n.to_string()]);
+    let encoder = Encoder::new(plan.encoder_config(p)?)?;
+    let t = Instant::now();
+    let mut out = match &input.source {
+        Source::Scene(s) => encoder.encode_scene(s, &mut |_| {}),
+        Source::Dataset(d) => encoder.encode_dataset(d, &mut |_| {}),
     }
-    enc.extend(plan.dataset_args.iter().cloned());
-    let (_, encode_s) = run_child(exe, &enc, &log, "encode")?;
-    let dec = vec!["decode".to_string(), s(gsc.clone()), "-o".into(), s(ply.clone()), "--quiet".into()];
-    let (_, decode_s) = run_child(exe, &dec, &log, "decode")?;
-    let mut ev = vec!["eval".to_string(), s(ply)];
-    if is_ply(&plan.input) {
-        ev.extend(["--reference".into(), s(plan.input.clone()), "--orbit".into(), PLY_EVAL_ORBIT.to_string()]);
-    } else {
-        ev.extend([s(plan.input.clone()), "--split".into(), "test".into()]);
-        ev.extend(plan.dataset_args.iter().cloned());
-    }
-    ev.extend(["--json".into(), "--quiet".into()]);
-    let (stdout, _) = run_child(exe, &ev, &log, "eval")?;
-    let eval: Value = serde_json::from_str(stdout.trim()).map_err(|e| Error::failure(&log, format!("eval printed no JSON object: {e}")))?;
+    .map_err(|e| match e {
+        Error::Input(m) => Error::input(&plan.input, m),
+        other => other,
+    })?;
+    let encode_s = t.elapsed().as_secs_f64();
+    out.report.input = plan.input.display().to_string();
+    write_bytes_atomic(&dir.join("scene.gsc"), &out.bytes)?;
+    let report = serde_json::to_string_pretty(&out.report).map_err(|e| Error::failure(&dir, e))?;
+    write_bytes_atomic(&dir.join("report.json"), report.as_bytes())?;
 
-    let bytes = std::fs::metadata(&gsc).map_err(|e| Error::failure(&gsc, e))?.len();
-    let timeline = std::fs::read_to_string(&report)
-        .ok()
-        .and_then(|t| serde_json::from_str::<Value>(&t).ok())
-        .map(|v| timeline_from_report(&v))
-        .unwrap_or_default();
-    let result = PointResult { iters: plan.iters, ..point_result(p, bytes, &eval, encode_s, decode_s, timeline) };
-    let json = serde_json::to_string_pretty(&result).unwrap_or_default();
+    let t = Instant::now();
+    let decoded = gscodec_decoder::decode(&out.bytes).map_err(|e| Error::failure(&dir.join("scene.gsc"), e))?;
+    let decode_s = t.elapsed().as_secs_f64();
+    let (per_view, _) = crate::cli::eval::measure(&decoded, &input.views, input.background, &mut || {});
+    let m = crate::metrics::view::mean(&per_view).ok_or_else(|| Error::input(&plan.input, "no views to measure"))?;
+    let result = PointResult {
+        lambda: p.lambda,
+        loss: p.loss.clone(),
+        iters: plan.iters,
+        bytes: out.bytes.len() as u64,
+        gaussians: decoded.len() as u64,
+        psnr: Some(m.psnr),
+        ssim: Some(m.ssim),
+        ms_ssim: m.ms_ssim,
+        flip: Some(m.flip),
+        wd: m.wd,
+        encode_s,
+        decode_s,
+        timeline: timeline(&out.report),
+    };
+    let json = serde_json::to_string_pretty(&result).map_err(|e| Error::failure(&dir, e))?;
     write_bytes_atomic(&dir.join(RESULT_FILE), json.as_bytes())?;
     Ok(result)
 }
@@ -219,73 +266,18 @@ fn is_ply(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("ply"))
 }
 
-/// A point result from the `eval --json` object (`bytes` is the `.gsc` size measured by the sweep).
-pub fn point_result(p: &Point, bytes: u64, eval: &Value, encode_s: f64, decode_s: f64, timeline: Vec<TimelinePoint>) -> PointResult {
-    let f = |k: &str| eval.get(k).and_then(Value::as_f64);
-    PointResult {
-        lambda: p.lambda,
-        loss: p.loss.clone(),
-        iters: None,
-        bytes,
-        gaussians: eval.get("gaussians").and_then(Value::as_u64).unwrap_or(0),
-        psnr: f("psnr"),
-        ssim: f("ssim"),
-        ms_ssim: f("ms_ssim"),
-        flip: f("flip"),
-        wd: f("wd"),
-        encode_s,
-        decode_s,
-        timeline,
-    }
-}
-
-/// Held-out error against wall time from an encode `--report` JSON. Accepts a top-level array or
-/// the first array under `timeline`, `series`, `history`, `evals` or `points`, whose objects carry
-/// a time (`time_s`, `wall_s`, `elapsed_s` or `seconds`) and `psnr` and/or `wd` (also with a
-/// `test_` / `heldout_` prefix or inside a `test` / `heldout` object). Entries without a time or
-/// without any error value are skipped.
-pub fn timeline_from_report(report: &Value) -> Vec<TimelinePoint> {
-    let arr = report
-        .as_array()
-        .or_else(|| ["timeline", "series", "history", "evals", "points"].iter().find_map(|k| report.get(*k).and_then(Value::as_array)));
-    let Some(arr) = arr else { return Vec::new() };
-    let num = |o: &Value, keys: &[&str]| keys.iter().find_map(|k| o.get(*k).and_then(Value::as_f64));
-    let metric = |o: &Value, name: &str| {
-        num(o, &[&format!("test_{name}"), &format!("heldout_{name}"), name])
-            .or_else(|| ["test", "heldout"].iter().find_map(|k| o.get(*k).and_then(|t| num(t, &[name]))))
-    };
-    arr.iter()
-        .filter_map(|o| {
-            let time_s = num(o, &["time_s", "wall_s", "elapsed_s", "seconds"])?;
-            let (psnr, wd) = (metric(o, "psnr"), metric(o, "wd"));
-            (psnr.is_some() || wd.is_some()).then_some(TimelinePoint { time_s, psnr, wd })
-        })
+/// Held-out PSNR against encode wall time: the report's series points that have a PSNR.
+pub fn timeline(report: &EncodeReport) -> Vec<TimelinePoint> {
+    report
+        .series
+        .iter()
+        .filter_map(|s| s.heldout_psnr.map(|psnr| TimelinePoint { time_s: s.wall_s, psnr: Some(psnr), wd: None }))
         .collect()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn timeline_accepts_the_usual_report_shapes() {
-        let a: Value = serde_json::json!({"timeline": [
-            {"iter": 0, "time_s": 0.5, "psnr": 20.0},
-            {"iter": 100, "time_s": 3.0, "psnr": 24.0, "wd": 0.3},
-            {"iter": 150, "psnr": 25.0},
-            {"iter": 200, "time_s": 5.0, "bytes": 1000}
-        ]});
-        let t = timeline_from_report(&a);
-        assert_eq!(t.len(), 2);
-        assert_eq!(t[1], TimelinePoint { time_s: 3.0, psnr: Some(24.0), wd: Some(0.3) });
-        let b: Value = serde_json::json!([{"wall_s": 1.0, "test": {"psnr": 21.5}}, {"elapsed_s": 2.0, "test_wd": 0.1}]);
-        let t = timeline_from_report(&b);
-        assert_eq!(
-            t,
-            vec![TimelinePoint { time_s: 1.0, psnr: Some(21.5), wd: None }, TimelinePoint { time_s: 2.0, psnr: None, wd: Some(0.1) }]
-        );
-        assert!(timeline_from_report(&serde_json::json!({"final": 1})).is_empty());
-    }
 
     #[test]
     fn plan_points_and_commands() {
@@ -295,6 +287,7 @@ mod tests {
             lambdas: vec![0.1, 0.01],
             losses: vec!["l1ssim".into(), "wdr".into()],
             iters: Some(300),
+            backend: Backend::Auto,
             dataset_args: Vec::new(),
         };
         let pts = plan.points();
@@ -305,9 +298,13 @@ mod tests {
             plan.point_command(&pts[1]).join(" "),
             "sweep data/lego -o sw --lambdas 0.01 --loss l1ssim --iters 300 --points-only --quiet"
         );
+        plan.validate().unwrap();
         let scaled = Plan { dataset_args: vec!["--downscale".into(), "2".into()], ..plan.clone() };
         assert!(scaled.point_command(&pts[1]).join(" ").ends_with("--iters 300 --downscale 2 --points-only --quiet"));
-        plan.validate().unwrap();
+        let cpu = Plan { backend: Backend::Cpu, ..plan.clone() };
+        assert!(cpu.point_command(&pts[0]).join(" ").ends_with("--iters 300 --backend cpu --points-only --quiet"));
+        let c = plan.encoder_config(&pts[3]).unwrap();
+        assert_eq!((c.lambda.get(), c.loss.kind, c.iters), (0.01, LossKind::Wdr, Some(300)));
         let bad = Plan { lambdas: vec![-1.0], ..plan.clone() };
         assert!(bad.validate().unwrap_err().to_string().contains("-1"));
         let bad = Plan { losses: vec!["mse".into()], ..plan };

@@ -153,7 +153,7 @@ pub fn to_csv(rows: &[PointResult]) -> String {
     let mut s = format!("{CSV_HEADER}\n");
     for r in rows {
         s.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{:.3},{:.3}\n",
+            "{},{},{},{},{},{},{},{},{},{:.6},{:.6}\n",
             r.lambda,
             r.loss,
             r.bytes,
@@ -273,8 +273,18 @@ pub fn time_figure(rows: &[PointResult]) -> Figure {
     Figure { columns, ..Figure::new(panels) }
 }
 
-/// `summary.json`: the rows, the BD-rates and how the sweep was run.
+/// `summary.json`: the rows, the BD-rates and how the sweep was run. `bd_rate.<loss>.<metric>`
+/// is the BD-rate of `loss` against [`ANCHOR_LOSS`] in percent (negative: a saving), or null
+/// with the reason in `bd_rate_notes.<loss>.<metric>`.
 pub fn summary_json(rows: &[PointResult], bd: &[BdEntry], settings: serde_json::Value) -> serde_json::Value {
+    let mut rates = serde_json::Map::new();
+    let mut notes = serde_json::Map::new();
+    for e in bd {
+        rates.entry(e.loss.clone()).or_insert_with(|| serde_json::json!({}))[e.metric] = serde_json::json!(e.bd_rate);
+        if let Some(n) = &e.note {
+            notes.entry(e.loss.clone()).or_insert_with(|| serde_json::json!({}))[e.metric] = serde_json::json!(n);
+        }
+    }
     serde_json::json!({
         "anchor": ANCHOR_LOSS,
         "bd_method": "pchip",
@@ -284,7 +294,8 @@ pub fn summary_json(rows: &[PointResult], bd: &[BdEntry], settings: serde_json::
             if let Some(o) = v.as_object_mut() { o.remove("timeline"); }
             v
         }).collect::<Vec<_>>(),
-        "bd_rate": bd,
+        "bd_rate": rates,
+        "bd_rate_notes": notes,
     })
 }
 

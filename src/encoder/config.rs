@@ -1,0 +1,176 @@
+//! [`EncoderConfig`]: what the encoder is asked to do, built with `with_*` setters and checked by
+//! [`EncoderConfig::validate`], which returns an [`InvalidConfig`] naming the bad value and its bound.
+
+use super::backend::{Backend, LossSpec};
+use crate::loss::LossKind;
+use crate::rate::Lambda;
+
+/// Training iterations when encoding a dataset without [`EncoderConfig::iters`].
+pub const DEFAULT_DATASET_ITERS: usize = 3000;
+/// Largest number of training iterations accepted.
+pub const MAX_ITERS: usize = 10_000_000;
+
+/// Encoder settings (plain data with `Default`; see the field docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EncoderConfig {
+    /// The rate–distortion trade-off (unit: see [`Lambda`]).
+    pub lambda: Lambda,
+    /// Training iterations under `D + λ·R`: fine-tuning for a scene (default 0: code as is),
+    /// training for a dataset (default [`DEFAULT_DATASET_ITERS`]).
+    pub iters: Option<usize>,
+    /// Learn the quantisation steps (per group) in training instead of keeping them.
+    pub learn_steps: bool,
+    /// The training distortion (default WD-R).
+    pub loss: LossSpec,
+    /// Which trainer runs the training.
+    pub backend: Backend,
+    /// Training seed.
+    pub seed: u64,
+}
+
+impl Default for EncoderConfig {
+    fn default() -> Self {
+        EncoderConfig {
+            lambda: Lambda::DEFAULT,
+            iters: None,
+            learn_steps: true,
+            loss: LossSpec { kind: LossKind::Wdr, ..LossSpec::default() },
+            backend: Backend::default(),
+            seed: 0,
+        }
+    }
+}
+
+impl EncoderConfig {
+    /// Sets λ.
+    pub fn with_lambda(mut self, lambda: Lambda) -> Self {
+        self.lambda = lambda;
+        self
+    }
+
+    /// Sets the training iterations (`None`: the default for the input).
+    pub fn with_iters(mut self, iters: Option<usize>) -> Self {
+        self.iters = iters;
+        self
+    }
+
+    /// Learns (true) or keeps (false) the quantisation steps in training.
+    pub fn with_learned_steps(mut self, learn: bool) -> Self {
+        self.learn_steps = learn;
+        self
+    }
+
+    /// Sets the training distortion.
+    pub fn with_loss(mut self, loss: LossSpec) -> Self {
+        self.loss = loss;
+        self
+    }
+
+    /// Sets the training backend.
+    pub fn with_backend(mut self, backend: Backend) -> Self {
+        self.backend = backend;
+        self
+    }
+
+    /// Sets the training seed.
+    pub fn with_seed(mut self, seed: u64) -> Self {
+        self.seed = seed;
+        self
+    }
+
+    /// Iterations for a scene (`dataset` false) or a dataset.
+    pub fn iters_for(&self, dataset: bool) -> usize {
+        self.iters.unwrap_or(if dataset { DEFAULT_DATASET_ITERS } else { 0 })
+    }
+
+    /// Checks the settings.
+    ///
+    /// # Errors
+    /// The first setting out of its range, as an [`InvalidConfig`].
+    pub fn validate(&self) -> Result<(), InvalidConfig> {
+        if let Some(v) = self.iters.filter(|&n| n > MAX_ITERS) {
+            return Err(InvalidConfig::Iters { value: v, max: MAX_ITERS });
+        }
+        if let Some(g) = self.loss.wd_gamma.filter(|g| !(g.is_finite() && *g > 0.0)) {
+            return Err(InvalidConfig::WdGamma { value: g });
+        }
+        Ok(())
+    }
+
+    /// [`Self::validate`] for a dataset input, which needs training.
+    ///
+    /// # Errors
+    /// As [`Self::validate`], and [`InvalidConfig::DatasetWithoutTraining`] for `iters = Some(0)`.
+    pub fn validate_for_dataset(&self) -> Result<(), InvalidConfig> {
+        self.validate()?;
+        if self.iters == Some(0) {
+            return Err(InvalidConfig::DatasetWithoutTraining);
+        }
+        Ok(())
+    }
+}
+
+/// A setting of [`EncoderConfig`] out of range; the message names the value and the bound.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum InvalidConfig {
+    /// More training iterations than [`MAX_ITERS`].
+    #[error("--iters {value}: at most {max}")]
+    Iters {
+        /// The value given.
+        value: usize,
+        /// The largest accepted.
+        max: usize,
+    },
+    /// γ of WD / WD-R must be a finite number > 0.
+    #[error("--wd-gamma {value}: must be a finite number > 0")]
+    WdGamma {
+        /// The value given.
+        value: f64,
+    },
+    /// A dataset is encoded by training: iterations must be ≥ 1.
+    #[error("--iters 0: encoding a dataset needs training, at least 1 iteration")]
+    DatasetWithoutTraining,
+    /// `--target-psnr` must be a finite number of dB in (0, 200].
+    #[error("--target-psnr {value}: must be in (0, {max}] dB")]
+    TargetPsnr {
+        /// The value given.
+        value: f64,
+        /// The largest accepted.
+        max: f64,
+    },
+    /// `--target-bytes` must be at least the size of an empty file.
+    #[error("--target-bytes {value}: must be at least {min} (an empty scene's file)")]
+    TargetBytes {
+        /// The value given.
+        value: u64,
+        /// The smallest accepted.
+        min: u64,
+    },
+}
+
+impl From<InvalidConfig> for crate::Error {
+    fn from(e: InvalidConfig) -> Self {
+        crate::Error::Input(e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn messages_carry_the_value_and_the_bound() {
+        assert_eq!(EncoderConfig::default().validate(), Ok(()));
+        let e = EncoderConfig::default().with_iters(Some(MAX_ITERS + 1)).validate().unwrap_err();
+        assert_eq!(e.to_string(), format!("--iters {}: at most {MAX_ITERS}", MAX_ITERS + 1));
+        let loss = LossSpec { wd_gamma: Some(-0.5), ..LossSpec::default() };
+        let e = EncoderConfig::default().with_loss(loss).validate().unwrap_err();
+        assert_eq!(e, InvalidConfig::WdGamma { value: -0.5 });
+        assert!(e.to_string().contains("-0.5") && e.to_string().contains("> 0"));
+        let c = EncoderConfig::default().with_iters(Some(0));
+        assert_eq!(c.validate(), Ok(()), "a scene may be coded as is");
+        assert_eq!(c.validate_for_dataset(), Err(InvalidConfig::DatasetWithoutTraining));
+        assert_eq!(crate::Error::from(InvalidConfig::DatasetWithoutTraining).exit_code(), 2);
+    }
+}

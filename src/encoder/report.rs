@@ -1,0 +1,85 @@
+//! [`EncodeReport`]: what an encode did, typed (what `encode --report` writes and `sweep` reads).
+
+use serde::Serialize;
+
+use crate::rate::group::GroupMap;
+use crate::rate::{GroupReport, Lambda};
+use crate::train::TrainReport;
+
+use super::TargetSearch;
+
+/// Wall time per encoder stage, seconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct EncodeStages {
+    /// The rendering RD search (per-group steps, pruning, SH degree).
+    pub rd_search_s: f64,
+    /// Training or fine-tuning under `D + λ·R` (the backend's own stages are in [`EncodeReport::train`]).
+    pub train_s: f64,
+    /// Quantisation and entropy coding of the final file.
+    pub write_s: f64,
+    /// Decoding the coded scene back and measuring [`EncodeReport::orbit_psnr`].
+    pub evaluate_s: f64,
+    /// The whole encode.
+    pub total_s: f64,
+}
+
+/// One point of the encode's time series: an RD-search trial, a training evaluation, the
+/// learned steps or the coded result.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SeriesPoint {
+    /// RD-search trial number or training iteration.
+    pub iteration: usize,
+    /// What this point is: the trial's change, `train`, `learned steps` or `coded`.
+    pub trial: String,
+    /// Wall time since the encode started, seconds.
+    pub wall_s: f64,
+    /// Size (trials, coded) or the rate term's estimate (training), bits.
+    pub estimated_bits: Option<f64>,
+    /// The trial's distortion (255²·MSE) or the training loss.
+    pub d: Option<f64>,
+    /// PSNR (dB): of the trial against the input scene (a `.ply`), or on held-out images
+    /// (training from a dataset).
+    pub heldout_psnr: Option<f64>,
+}
+
+/// What an encode did.
+#[derive(Debug, Clone, Serialize)]
+pub struct EncodeReport {
+    /// The input, as the caller named it (empty when it did not).
+    pub input: String,
+    /// λ (unit: see [`Lambda`]).
+    pub lambda: Lambda,
+    /// Training distortion, when the encode trained.
+    pub loss: Option<&'static str>,
+    /// Training iterations (0: coded as is).
+    pub iters: usize,
+    /// The training backend that ran (`cpu`, `gpu`), when the encode trained.
+    pub backend: Option<&'static str>,
+    /// Size of the file.
+    pub file_bytes: usize,
+    /// The entropy model's estimate of the size, bytes.
+    pub estimated_bytes: f64,
+    /// Gaussians in the file.
+    pub gaussians: usize,
+    /// Gaussians before pruning (after training).
+    pub input_gaussians: usize,
+    /// SH degree of the file.
+    pub sh_degree: u8,
+    /// Position grid bits per axis.
+    pub position_bits: u8,
+    /// Bytes and bits per attribute group.
+    pub groups: Vec<GroupReport>,
+    /// Quantisation steps per group (Position: relative to the Gaussians' size).
+    pub steps: GroupMap<f32>,
+    /// Mean PSNR of the decoded scene against the input scene (for a dataset: against the trained
+    /// scene before coding) over the 8 orbit views at 256×256, as `eval --reference --orbit 8`.
+    pub orbit_psnr: f64,
+    /// Wall time per stage.
+    pub stages: EncodeStages,
+    /// The training run's report (backend, per-stage times, held-out PSNR), when it trained.
+    pub train: Option<TrainReport>,
+    /// RD-search trials and training evaluations against wall time.
+    pub series: Vec<SeriesPoint>,
+    /// With a target (`--target-psnr`, `--target-bytes`): the target and every λ tried.
+    pub target: Option<TargetSearch>,
+}
