@@ -64,12 +64,15 @@ pub fn run(args: Args) -> Result<()> {
         return Err(Error::Input("--iters must be at least 1".into()));
     }
     check_output(&args.output, "ply")?;
-    // Before the dataset, so a bad --features file or backend fails fast.
+    // Before the dataset, so a bad --features file fails fast.
     let loss = LossSpec::from_args(&args.loss, crate::loss::LossKind::L1ssim);
     loss.build(args.iters)?;
-    let mut backend = args.backend.resolve()?;
     let ds = io::load_dataset(&args.data, &args.dataset.load_options())?;
     let init = args.init.as_deref().map(io::read_ply).transpose()?;
+    // After the inputs are checked: probing GPU adapters can print driver warnings (Mesa's
+    // lavapipe prints two lines when XDG_RUNTIME_DIR is unset), which must not precede a
+    // bad-input error's one line.
+    let mut backend = args.backend.resolve()?;
     let cfg = TrainConfig {
         iters: args.iters,
         seed: args.seed,
