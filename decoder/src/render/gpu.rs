@@ -3,7 +3,8 @@
 //! Pipeline (WGSL kernels in `decoder/shaders/`, sources in [`crate::shaders`]):
 //! 1. `project` — per Gaussian: camera transform, 3D → 2D covariance (EWA), conic and 3σ radius,
 //!    SH colour, opacity, and the number of 16×16 tiles its rectangle touches. The scene is
-//!    uploaded in chunks so that no storage binding exceeds 128 MiB.
+//!    uploaded once ([`GpuRenderer::upload`]) in chunks so that no storage binding exceeds the
+//!    device limit (at most 1 GiB).
 //! 2. `scan` — exclusive prefix sum of the tile counts (workgroup-shared Hillis–Steele scans,
 //!    recursive over blocks); the total number of (tile, Gaussian) pairs is read back once.
 //! 3. `emit` — one `(tile, depth, id)` key per overlap, in Gaussian order.
@@ -13,7 +14,8 @@
 //!    tile composites front to back, staging Gaussians through workgroup memory.
 //!
 //! No subgroup operations or optional features are used, so any WebGPU-capable adapter works
-//! (including Mesa's lavapipe software Vulkan). The image is read back to the host as RGB f32.
+//! (including Mesa's lavapipe software Vulkan). [`GpuRenderer::render_frame`] leaves the RGB f32
+//! image in a GPU buffer ([`GpuFrame`]); [`GpuRenderer::render`] uploads, renders and reads back.
 
 use super::{Image, RenderOptions};
 use crate::camera::Camera;
