@@ -1,31 +1,63 @@
-//! One training iteration (forward + L1/SSIM loss + backward + Adam step) at 200x200 with 10k and
-//! 50k Gaussians (SH degree 3). The per-stage split is printed by
-//! `cargo run --release --example train_stages`.
+//! One training iteration at 200x200 with 10k Gaussians (SH degree 3), split by stage (forward
+//! render, L1+SSIM loss, backward, Adam), each at 1 and 2 threads; plus the whole iteration with
+//! 10k and 50k Gaussians. Figures in docs/train.md.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use gscodec::loss::L1Ssim;
 use gscodec::raster;
-use gscodec::train::adam::{Adam, Group};
+use gscodec::rate::group::Group;
+use gscodec::train::adam::Adam;
 use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
-use gscodec_decoder::RenderOptions;
+use gscodec_decoder::{Image, RenderOptions, Splats};
+
+fn setup(n: usize) -> (Splats, Image, gscodec_decoder::Camera) {
+    let shrink = (n as f32 / 120.0).cbrt().ln();
+    let mut truth = toy_scene(n, 1).with_sh_degree(3);
+    truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+    let ds = render_targets(&truth, &orbit_cameras(2, 4.0, 200, 200), [1.0; 3]);
+    let mut params = toy_scene(n, 2).with_sh_degree(3);
+    params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+    (params, ds.frames[0].image.clone(), ds.frames[0].camera)
+}
+
+const OPTS: RenderOptions = RenderOptions { background: [1.0; 3], max_sh_degree: 3 };
+
+fn bench_stages(c: &mut Criterion) {
+    let (params, target, cam) = setup(10_000);
+    let (img, st) = raster::forward(&params, &cam, &OPTS);
+    let (_, dl) = L1Ssim::default().eval(&img, &target);
+    let grads = raster::backward(&params, &st, &dl);
+    let mut group = c.benchmark_group("train_stage_200x200_10k");
+    group.sample_size(10);
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        group.bench_with_input(BenchmarkId::new("forward", threads), &threads, |b, _| {
+            b.iter(|| pool.install(|| raster::forward(&params, &cam, &OPTS)))
+        });
+        group.bench_with_input(BenchmarkId::new("loss", threads), &threads, |b, _| {
+            b.iter(|| pool.install(|| L1Ssim::default().eval(&img, &target)))
+        });
+        group.bench_with_input(BenchmarkId::new("backward", threads), &threads, |b, _| {
+            b.iter(|| pool.install(|| raster::backward(&params, &st, &dl)))
+        });
+        let (mut p, mut adam) = (params.clone(), Adam::new(&params));
+        group.bench_with_input(BenchmarkId::new("adam", threads), &threads, |b, _| {
+            b.iter(|| pool.install(|| adam.step(&mut p, &grads.params, |g| if g == Group::Position { 1e-5 } else { 1e-4 })))
+        });
+    }
+    group.finish();
+}
 
 fn bench_iteration(c: &mut Criterion) {
     let mut group = c.benchmark_group("train_iteration_200x200");
     group.sample_size(10);
     for n in [10_000usize, 50_000] {
-        let shrink = (n as f32 / 120.0).cbrt().ln();
-        let mut truth = toy_scene(n, 1).with_sh_degree(3);
-        truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-        let ds = render_targets(&truth, &orbit_cameras(2, 4.0, 200, 200), [1.0; 3]);
-        let mut params = toy_scene(n, 2).with_sh_degree(3);
-        params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+        let (mut params, target, cam) = setup(n);
         let mut adam = Adam::new(&params);
-        let opts = RenderOptions { background: [1.0; 3], max_sh_degree: 3 };
-        let frame = &ds.frames[0];
         group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
             b.iter(|| {
-                let (img, st) = raster::forward(&params, &frame.camera, &opts);
-                let (_, dl) = L1Ssim::default().eval(&img, &frame.image);
+                let (img, st) = raster::forward(&params, &cam, &OPTS);
+                let (_, dl) = L1Ssim::default().eval(&img, &target);
                 let g = raster::backward(&params, &st, &dl);
                 adam.step(&mut params, &g.params, |grp| if grp == Group::Position { 1e-5 } else { 1e-4 });
             })
@@ -34,5 +66,5 @@ fn bench_iteration(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_iteration);
+criterion_group!(benches, bench_stages, bench_iteration);
 criterion_main!(benches);

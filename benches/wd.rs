@@ -44,7 +44,8 @@ fn bench(c: &mut Criterion) {
 
 fn bench_iteration(c: &mut Criterion) {
     use gscodec::raster;
-    use gscodec::train::adam::{Adam, Group};
+    use gscodec::rate::group::Group;
+    use gscodec::train::adam::Adam;
     use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
     use gscodec_decoder::RenderOptions;
     let n = 10_000;

@@ -37,7 +37,7 @@ fn class(v: i32) -> u32 {
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let scene = read_ply(Path::new(&args[1])).unwrap();
-    let lambda: f64 = args[2].parse().unwrap();
+    let lambda: rate::Lambda = args[2].parse().unwrap();
     let (config, _) = rate::rd::search(&scene, lambda, |_| {}).unwrap();
     let s = quantise::prune(&scene, config.min_opacity);
     let q = quantise::quantise(&s, &config.steps);

@@ -14,7 +14,7 @@ use gscodec_decoder::{decode, RenderOptions};
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let data = args.get(1).cloned().unwrap_or_else(|| "../shared/data".into());
-    let lambdas: Vec<f64> = args.get(2).map_or(vec![0.0, 1.0, 3.0, 10.0], |s| s.split(',').map(|x| x.parse().expect("λ")).collect());
+    let lambdas: Vec<rate::Lambda> = args.get(2).map_or(vec!["0", "1", "3", "10"].into_iter().map(|x| x.parse().unwrap()).collect(), |s| s.split(',').map(|x| x.parse().expect("λ")).collect());
     let only = args.get(3).cloned();
     let opts = RenderOptions::default();
     for (name, spz) in [("k7000", "k7000"), ("fruit-drops", "fruit"), ("playbot-lod3", "playbot_lod3")] {

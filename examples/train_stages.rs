@@ -8,7 +8,8 @@
 
 use gscodec::loss::L1Ssim;
 use gscodec::raster;
-use gscodec::train::adam::{Adam, Group};
+use gscodec::rate::group::Group;
+use gscodec::train::adam::Adam;
 use gscodec::train::targets::{orbit_cameras, render_targets, toy_scene};
 use gscodec_decoder::RenderOptions;
 use std::time::Instant;

@@ -15,6 +15,11 @@ impl Rng {
         Rng(state)
     }
 
+    /// The internal state (for checkpoints: `from_state(state())` continues the same stream).
+    pub fn state(&self) -> u64 {
+        self.0
+    }
+
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;

@@ -122,10 +122,14 @@ fn training_on_distorted_photos_matches_training_on_pinhole_images() {
     // Held out for both: exact pinhole renders of the frames every 8th (the test split).
     let held_out: Vec<_> = reference.split(Split::Test).into_iter().cloned().collect();
     let held = Dataset { frames: held_out, background: bg, ..Default::default() };
-    let cfg = TrainConfig { iters: 300, seed: 3, init_points: 600, eval_interval: 0, ..Default::default() };
+    // Mean over two seeds: one 300-iteration run varies by about a dB.
     let run = |ds: &Dataset| {
-        let (s, _) = train(ds, None, &cfg, Box::new(L1Ssim::default()), None, &mut |_| {}).unwrap();
-        evaluate(&s, &held.split(Split::All), bg).unwrap().0
+        let psnr = |seed| {
+            let cfg = TrainConfig { iters: 300, seed, init_points: 600, eval_interval: 0, ..Default::default() };
+            let (s, _) = train(ds, None, &cfg, Box::new(L1Ssim::default()), None, &mut |_| {}).unwrap();
+            evaluate(&s, &held.split(Split::All), bg).unwrap().0
+        };
+        (psnr(3) + psnr(4)) / 2.0
     };
     let (p_ref, p_dist) = (run(&reference), run(&distorted));
     eprintln!("held-out PSNR: trained on pinhole images {p_ref:.2} dB, on distorted photos {p_dist:.2} dB");

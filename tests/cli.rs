@@ -70,14 +70,14 @@ fn bad_inputs_exit_2_with_one_error_line_and_no_output() {
     let truth = tiny().join("truth.ply");
     assert_bad(&["convert", s(&truth), s(&d.join("x.unknown"))], "x.unknown", &d.join("x.unknown"));
     assert_bad(&["render", s(&truth), "--cameras", s(&missing), "-o", s(&out)], "missing.ply", &out);
-    // A distorted COLMAP model.
+    // A COLMAP camera model gscodec does not know (distorted models are undistorted when loading).
     let colmap = d.join("colmap");
     std::fs::create_dir_all(colmap.join("sparse/0")).unwrap();
     std::fs::create_dir_all(colmap.join("images")).unwrap();
     std::fs::copy(tiny().join("train/r_0.png"), colmap.join("images/a.png")).unwrap();
-    std::fs::write(colmap.join("sparse/0/cameras.txt"), "1 OPENCV 64 64 50 50 32 32 0.1 0 0 0\n").unwrap();
+    std::fs::write(colmap.join("sparse/0/cameras.txt"), "1 EQUIRECTANGULAR 64 64 50 50 32 32\n").unwrap();
     std::fs::write(colmap.join("sparse/0/images.txt"), "1 1 0 0 0 0 0 4 1 a.png\n\n").unwrap();
-    assert_bad(&["render", s(&truth), "--cameras", s(&colmap), "-o", s(&out)], "undistorted", &out);
+    assert_bad(&["render", s(&truth), "--cameras", s(&colmap), "-o", s(&out)], "unknown camera model", &out);
     assert_bad(&["render", s(&truth), "--cameras", s(&colmap), "-o", s(&out)], "cameras.txt", &out);
     // Bad flags.
     assert_bad(&["render", s(&truth), "--orbit", "2", "--size", "0x5", "-o", s(&out)], "0x5", &out);

@@ -264,3 +264,33 @@ fn colmap_every_camera_model_loads_from_bin_and_txt() {
     let again = load_dataset(b.path(), &LoadOptions::default()).unwrap();
     assert!(again.frames.iter().zip(&db.frames).all(|(x, y)| x.image == y.image && x.camera == y.camera));
 }
+
+#[test]
+fn random_initial_points_lie_in_the_cameras_frusta_and_the_aabb() {
+    let dir = tempfile::tempdir().unwrap();
+    write_png(&dir.path().join("x.png"), &gradient(40, 30)).unwrap();
+    // Two cameras at z = 6 and x = 6 looking at the origin with a narrow field (0.4 rad).
+    let json = serde_json::json!({"camera_angle_x": 0.4, "aabb_scale": 2, "frames": [
+        {"file_path": "x", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 6], [0, 0, 0, 1]]},
+        {"file_path": "x", "transform_matrix": [[0, 0, 1, 6], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1]]},
+    ]});
+    std::fs::write(dir.path().join("transforms.json"), json.to_string()).unwrap();
+    let ds = load_dataset(dir.path(), &LoadOptions::default()).unwrap();
+    // instant-ngp: the cube of side aabb_scale in its units (scale 0.33) around the origin.
+    let (c, half) = ds.bounds.unwrap();
+    assert_eq!(c, [0.0; 3]);
+    assert!((half - 2.0 / 0.66).abs() < 1e-5);
+    let s = gscodec::train::init::random(&ds, 500, 0, &mut gscodec::rng::Rng::new(1));
+    assert_eq!(s.len(), 500);
+    let seen = |p: Vec3| {
+        ds.frames.iter().any(|f| {
+            let q = f.camera.to_camera(p);
+            let (u, v) = (f.camera.fx * q.x / q.z + f.camera.cx, f.camera.fy * q.y / q.z + f.camera.cy);
+            q.z > f.camera.znear && (0.0..40.0).contains(&u) && (0.0..30.0).contains(&v)
+        })
+    };
+    for p in &s.positions {
+        assert!(p.iter().all(|v| v.abs() <= half), "{p:?} outside the aabb");
+        assert!(seen(Vec3::from_array(*p)), "{p:?} is in no camera's view");
+    }
+}

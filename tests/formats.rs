@@ -3,7 +3,7 @@
 //! splat-transform from samples/tiny/truth.ply) read back to the source, and bad input through
 //! `gscodec convert`.
 
-use gscodec::decoder::math::{normalize_quat, sh_rest_coeffs, sigmoid, SH_C0};
+use gscodec::decoder::math::{covariance_3d, normalize_quat, sh_rest_coeffs, sigmoid, SH_C0};
 use gscodec::decoder::Splats;
 use gscodec::io::compressed_ply::{decode_compressed_ply, encode_compressed_ply, CHUNK_SIZE};
 use gscodec::io::gltf::{decode_gltf, encode_glb, encode_gltf};
@@ -461,4 +461,50 @@ fn mutated_files_never_panic() {
     std::fs::write(dir.path().join("meta.json"), serde_json::to_vec(&meta).unwrap()).unwrap();
     let e = read_scene(&dir.path().join("meta.json")).unwrap_err().to_string();
     assert!(e.contains("fewer than count"), "{e}");
+}
+
+/// Accessors in the extension's integer forms (normalized unsigned-byte opacity, normalized
+/// signed-short rotation) and a buffer in an external `.bin` file beside the `.gltf`.
+#[test]
+fn gltf_integer_accessors_and_external_buffer() {
+    use base64::Engine;
+    let s = scene(8, 0);
+    let mut doc: serde_json::Value = serde_json::from_slice(&encode_gltf(&s).unwrap()).unwrap();
+    let b64 = doc["buffers"][0]["uri"].as_str().unwrap().split_once(";base64,").unwrap().1.to_string();
+    let mut bin = base64::engine::general_purpose::STANDARD.decode(b64).unwrap();
+    // Opacity as u8 normalized: byte b reads as b/255.
+    let op: Vec<u8> = (0..8).map(|i| (i * 30 + 10) as u8).collect();
+    // Rotation (x, y, z, w) as i16 normalized: the identity and a quarter turn about z.
+    let rot: Vec<i16> = (0..8).flat_map(|i| if i % 2 == 0 { [0, 0, 0, 32767] } else { [0, 0, 23170, 23170] }).collect();
+    let (op_at, rot_at) = (bin.len(), bin.len() + 8);
+    bin.extend_from_slice(&op);
+    bin.extend(rot.iter().flat_map(|v| v.to_le_bytes()));
+    let views = doc["bufferViews"].as_array_mut().unwrap();
+    views.push(serde_json::json!({ "buffer": 0, "byteOffset": op_at, "byteLength": 8 }));
+    views.push(serde_json::json!({ "buffer": 0, "byteOffset": rot_at, "byteLength": 64 }));
+    let nv = views.len();
+    let accs = doc["accessors"].as_array_mut().unwrap();
+    accs.push(serde_json::json!({ "bufferView": nv - 2, "componentType": 5121, "normalized": true, "count": 8, "type": "SCALAR" }));
+    accs.push(serde_json::json!({ "bufferView": nv - 1, "componentType": 5122, "normalized": true, "count": 8, "type": "VEC4" }));
+    let na = accs.len();
+    let attrs = &mut doc["meshes"][0]["primitives"][0]["attributes"];
+    attrs["KHR_gaussian_splatting:OPACITY"] = serde_json::json!(na - 2);
+    attrs["KHR_gaussian_splatting:ROTATION"] = serde_json::json!(na - 1);
+    doc["buffers"][0] = serde_json::json!({ "byteLength": bin.len(), "uri": "scene.bin" });
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("scene.bin"), &bin).unwrap();
+    std::fs::write(dir.path().join("scene.gltf"), serde_json::to_vec(&doc).unwrap()).unwrap();
+    let d = read_scene(&dir.path().join("scene.gltf")).unwrap();
+    assert_eq!(d.positions, s.positions);
+    for i in 0..8 {
+        assert!((sigmoid(d.opacity_logits[i]) - op[i] as f32 / 255.0).abs() < 1e-6);
+        // The covariance in the .ply frame is the glTF one turned back: T Σ' T, T = diag(−1, −1, 1).
+        let q_gltf = if i % 2 == 0 { [1.0, 0.0, 0.0, 0.0] } else { [0.70710677, 0.0, 0.0, 0.70710677] };
+        let t = glam::Mat3::from_diagonal(glam::Vec3::new(-1.0, -1.0, 1.0));
+        let want = t * covariance_3d(s.log_scales[i], q_gltf) * t;
+        let got = covariance_3d(d.log_scales[i], d.rotations[i]);
+        assert!(want.abs_diff_eq(got, 1e-4 * want.abs().to_cols_array().iter().fold(1e-6f32, |m, v| m.max(*v))), "{i}: {got} vs {want}");
+    }
+    std::fs::remove_file(dir.path().join("scene.bin")).unwrap();
+    assert!(read_scene(&dir.path().join("scene.gltf")).unwrap_err().to_string().contains("scene.bin"));
 }

@@ -46,3 +46,56 @@ impl DatasetArgs {
         v
     }
 }
+
+/// Checkpoints of long training runs (`train`).
+#[derive(Debug, Clone, Default, PartialEq, clap::Args)]
+pub struct CheckpointArgs {
+    /// Write checkpoints (scene, optimiser, RNG, schedule position) into DIR: every
+    /// --checkpoint-every iterations (default: every 10 minutes) and at Ctrl-C.
+    #[arg(long, value_name = "DIR")]
+    pub checkpoint: Option<std::path::PathBuf>,
+    /// Checkpoint every N iterations instead of every 10 minutes.
+    #[arg(long, value_name = "N", requires = "checkpoint", value_parser = clap::value_parser!(u64).range(1..))]
+    pub checkpoint_every: Option<u64>,
+    /// Continue the run checkpointed in DIR (same dataset and settings); gives the same result as
+    /// an uninterrupted run. Usually DIR is also the --checkpoint folder.
+    #[arg(long, value_name = "DIR")]
+    pub resume: Option<std::path::PathBuf>,
+}
+
+impl CheckpointArgs {
+    /// The trainer's run options, with `report` rewritten as training goes.
+    pub fn run_options(&self, report: Option<std::path::PathBuf>) -> crate::train::RunOptions {
+        crate::train::RunOptions {
+            checkpoint: self.checkpoint.clone(),
+            checkpoint_every: self.checkpoint_every.map(|n| n as usize),
+            resume: self.resume.clone(),
+            report,
+            catch_interrupt: self.checkpoint.is_some(),
+            ..Default::default()
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        d: DatasetArgs,
+    }
+
+    #[test]
+    fn to_args_parses_back_to_the_same_options() {
+        for words in [&[][..], &["--downscale", "4", "--max-size", "1600", "--background", "0.5,0,1", "--no-cache"][..]] {
+            let a = Cli::try_parse_from(std::iter::once("x").chain(words.iter().copied())).unwrap().d;
+            let b = Cli::try_parse_from(std::iter::once("x".to_string()).chain(a.to_args())).unwrap().d;
+            assert_eq!(a, b);
+        }
+        assert!(Cli::try_parse_from(["x", "--downscale", "0"]).is_err());
+        assert!(Cli::try_parse_from(["x", "--max-size", "0"]).is_err());
+    }
+}

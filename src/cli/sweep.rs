@@ -38,6 +38,9 @@ pub struct Args {
     /// Run the points and record their results, but write no tables or plots (what emitted jobs run).
     #[arg(long)]
     pub points_only: bool,
+    /// Dataset image options, passed on to each encode and eval.
+    #[command(flatten)]
+    pub dataset: super::dataset_args::DatasetArgs,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -50,7 +53,8 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let lambdas = if args.lambdas.is_empty() { DEFAULT_LAMBDAS.to_vec() } else { args.lambdas.clone() };
     let losses = if args.losses.is_empty() { DEFAULT_LOSSES.iter().map(|s| s.to_string()).collect() } else { args.losses.clone() };
-    let mut plan = Plan { input: args.input.clone(), out: args.out.clone(), lambdas, losses, iters: args.iters };
+    let mut plan =
+        Plan { input: args.input.clone(), out: args.out.clone(), lambdas, losses, iters: args.iters, dataset_args: args.dataset.to_args() };
     plan.validate()?;
 
     if let Some(dir) = &args.collect {

@@ -2,7 +2,7 @@
 
 use crate::io;
 use crate::loss::{build_loss, LossArgs};
-use crate::train::{train, TrainConfig};
+use crate::train::{train_with, TrainConfig};
 use crate::{Error, Result};
 use std::path::{Path, PathBuf};
 
@@ -47,6 +47,8 @@ pub struct Args {
     /// Dataset image options.
     #[command(flatten)]
     pub dataset: super::dataset_args::DatasetArgs,
+    #[command(flatten)]
+    pub checkpoint: super::dataset_args::CheckpointArgs,
     /// No progress bar or summary.
     #[arg(long)]
     pub quiet: bool,
@@ -75,26 +77,35 @@ pub fn run(args: Args) -> Result<()> {
     // Without a terminal (logs), a line per evaluation instead of the bar.
     let log_lines = !args.quiet && pb.is_hidden();
     let mut last_psnr = None;
-    let (splats, report) = train(&ds, init, &cfg, loss, None, &mut |p| {
-        if p.test_psnr.is_some() {
-            last_psnr = p.test_psnr;
-            if log_lines {
-                eprintln!(
-                    "iteration {}/{}: loss {:.4}, {} Gaussians, held-out PSNR {:.2} dB",
-                    p.iteration,
-                    p.iters,
-                    p.loss,
-                    p.gaussians,
-                    p.test_psnr.unwrap_or(0.0)
-                );
+    let run = args.checkpoint.run_options(args.report.clone());
+    let (splats, report) = train_with(
+        &ds,
+        init,
+        &cfg,
+        loss,
+        None,
+        &mut |p| {
+            if p.test_psnr.is_some() {
+                last_psnr = p.test_psnr;
+                if log_lines {
+                    eprintln!(
+                        "iteration {}/{}: loss {:.4}, {} Gaussians, held-out PSNR {:.2} dB",
+                        p.iteration,
+                        p.iters,
+                        p.loss,
+                        p.gaussians,
+                        p.test_psnr.unwrap_or(0.0)
+                    );
+                }
             }
-        }
-        pb.set_position(p.iteration as u64);
-        if p.iteration % 10 == 0 || p.test_psnr.is_some() {
-            let psnr = last_psnr.map(|v| format!(" test {v:.2} dB")).unwrap_or_default();
-            pb.set_message(format!("loss {:.4} n {}{psnr}", p.loss, p.gaussians));
-        }
-    })
+            pb.set_position(p.iteration as u64);
+            if p.iteration % 10 == 0 || p.test_psnr.is_some() {
+                let psnr = last_psnr.map(|v| format!(" test {v:.2} dB")).unwrap_or_default();
+                pb.set_message(format!("loss {:.4} n {}{psnr}", p.loss, p.gaussians));
+            }
+        },
+        &run,
+    )
     .map_err(|e| match e {
         Error::Input(m) => Error::input(&args.data, m),
         other => other,

@@ -136,7 +136,7 @@ pub fn load_colmap(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
         eprintln!("warning: {}: skipped {missing} of {total} images whose file is missing", image_dir.display());
     }
     let points = model.points.iter().map(|(p, c)| (p.map(|v| v as f32), c.map(|v| v as f32 / 255.0))).collect();
-    Ok(Dataset { frames: loaded.into_iter().flatten().collect(), background, points, test_indices: None })
+    Ok(Dataset { frames: loaded.into_iter().flatten().collect(), background, points, test_indices: None, bounds: None })
 }
 
 // ---------------------------------------------------------------------------------------------

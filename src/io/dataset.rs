@@ -24,6 +24,9 @@ pub struct Dataset {
     pub points: Vec<([f32; 3], [f32; 3])>,
     /// Explicit test frame indices when the dataset has its own test list; otherwise `index % 8 == 0`.
     pub test_indices: Option<Vec<usize>>,
+    /// The cube the scene lies in, as `(centre, half side)`, when the dataset says (NeRF
+    /// `aabb_scale`): random initial points are drawn in it.
+    pub bounds: Option<([f32; 3], f32)>,
 }
 
 /// Which frames to use.

@@ -261,15 +261,32 @@ impl Lens {
             let (x, y) = self.from_pixel(qx, qy);
             self.undistort(x, y)
         };
+        // Each edge's inner bound. A point with no pinhole image (beyond 90° for a fisheye, e.g.
+        // the corners of a full-frame fisheye) lies infinitely far out and bounds nothing; an edge
+        // with fewer than half of its points invertible is not trusted.
         let (mut left, mut right, mut top, mut bottom) = (f64::MIN, f64::MAX, f64::MIN, f64::MAX);
+        let mut found = [0usize; 4];
         for i in 0..=steps {
             let t = i as f64 / steps as f64;
-            // Where an edge point has no pinhole image, the valid region is bounded inside it:
-            // give up on this lens rather than guess.
-            left = left.max(edge(t, &|t| (0.0, t * h))?.0);
-            right = right.min(edge(t, &|t| (w, t * h))?.0);
-            top = top.max(edge(t, &|t| (t * w, 0.0))?.1);
-            bottom = bottom.min(edge(t, &|t| (t * w, h))?.1);
+            if let Some((u, _)) = edge(t, &|t| (0.0, t * h)) {
+                left = left.max(u);
+                found[0] += 1;
+            }
+            if let Some((u, _)) = edge(t, &|t| (w, t * h)) {
+                right = right.min(u);
+                found[1] += 1;
+            }
+            if let Some((_, v)) = edge(t, &|t| (t * w, 0.0)) {
+                top = top.max(v);
+                found[2] += 1;
+            }
+            if let Some((_, v)) = edge(t, &|t| (t * w, h)) {
+                bottom = bottom.min(v);
+                found[3] += 1;
+            }
+        }
+        if found.iter().any(|&n| 2 * n < steps + 1) {
+            return None;
         }
         if !(left < right && top < bottom) {
             return None;
@@ -483,7 +500,10 @@ mod tests {
 
     #[test]
     fn pinhole_target_has_no_blank_pixels() {
-        for (model, p) in lenses() {
+        let mut all = lenses();
+        // A full-frame fisheye whose corners are beyond 90° (θ = 80/45 rad).
+        all.push(("OPENCV_FISHEYE", vec![45.0, 45.0, 64.0, 48.0, 0.0, 0.0, 0.0, 0.0]));
+        for (model, p) in all {
             let lens = Lens::from_colmap(model, 128, 96, &p).unwrap();
             let t = lens.pinhole_target().unwrap_or_else(|| panic!("{model}"));
             assert!(t.width > 32 && t.height > 24 && t.width <= 256 && t.height <= 192, "{model}: {t:?}");

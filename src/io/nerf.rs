@@ -24,6 +24,7 @@ pub const NERF_BACKGROUND: [f32; 3] = [1.0; 3];
 
 /// Loads `train` (and, when given, `test`, whose frames become the test split) transforms files.
 pub fn load_nerf(train: &Path, test: Option<&Path>, opts: &LoadOptions) -> Result<Dataset> {
+    let bounds = read_bounds(train)?;
     let mut specs = parse_transforms(train)?;
     let n_train = specs.len();
     if let Some(test) = test {
@@ -41,7 +42,7 @@ pub fn load_nerf(train: &Path, test: Option<&Path>, opts: &LoadOptions) -> Resul
     }
     let frames: Vec<Frame> = loaded.into_iter().flatten().collect();
     let test_indices = test.map(|_| frames.iter().map(|f| f.index).filter(|&i| i >= n_train).collect());
-    Ok(Dataset { frames, background: opts.background.unwrap_or(NERF_BACKGROUND), points: Vec::new(), test_indices })
+    Ok(Dataset { frames, background: opts.background.unwrap_or(NERF_BACKGROUND), points: Vec::new(), test_indices, bounds })
 }
 
 /// One frame as the JSON describes it, before its image is read.
@@ -109,6 +110,28 @@ impl Intrinsics {
             h: get("h", base.h)?,
         })
     }
+}
+
+/// instant-ngp's default scale from the transforms' units to its unit cube.
+pub const NGP_SCALE: f64 = 0.33;
+
+/// The scene cube of an instant-ngp style `aabb_scale` (with its `scale`, default
+/// [`NGP_SCALE`]): instant-ngp maps `p ↦ p·scale + 0.5` and bounds the scene by the cube of side
+/// `aabb_scale` around `(0.5, 0.5, 0.5)`, i.e. the cube of half side `aabb_scale / (2·scale)` around
+/// the origin in the file's units. (`offset` is not read: the default centring is assumed.)
+fn read_bounds(path: &Path) -> Result<Option<([f32; 3], f32)>> {
+    let bad = |msg: String| Error::input(path, msg);
+    let text = std::fs::read_to_string(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let root: Value = serde_json::from_str(&text).map_err(|e| bad(format!("invalid JSON: {e}")))?;
+    let positive = |key: &str| match root.get(key) {
+        None | Some(Value::Null) => Ok(None),
+        Some(x) => match x.as_f64() {
+            Some(f) if f.is_finite() && f > 0.0 => Ok(Some(f)),
+            _ => Err(bad(format!("`{key}` must be a positive number, got {x}"))),
+        },
+    };
+    let scale = positive("scale")?.unwrap_or(NGP_SCALE);
+    Ok(positive("aabb_scale")?.map(|k| ([0.0; 3], (k / (2.0 * scale)) as f32)))
 }
 
 /// The distortion keys, in [`Intrinsics::dist`]'s order.

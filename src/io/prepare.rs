@@ -29,6 +29,9 @@ const CACHE_VERSION: u64 = 1;
 /// The cache folder's name inside a dataset folder.
 pub const CACHE_DIR: &str = ".gscodec-cache";
 
+/// Whether the cache-write warning was printed (once per process, not once per image).
+static CACHE_WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 /// What [`prepare`] needs to know about one frame's image.
 pub struct Source<'a> {
     pub path: &'a Path,
@@ -71,8 +74,8 @@ pub fn prepare(src: &Source, opts: &LoadOptions, cache_dir: Option<&Path>) -> Re
         if let Some(c) = &cache {
             // A cache that cannot be written is only slower.
             let ok = c.parent().is_some_and(|d| std::fs::create_dir_all(d).is_ok()) && write_bytes_atomic(c, &bytes).is_ok();
-            if !ok {
-                eprintln!("warning: {}: cannot write the image cache", c.display());
+            if !ok && !CACHE_WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                eprintln!("warning: {}: cannot write the image cache (images are prepared again next time)", c.display());
             }
         }
     }

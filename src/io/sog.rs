@@ -233,7 +233,17 @@ fn decode_sog(load: &mut Loader) -> Result<Splats, String> {
                         sh.bands
                     ));
                 }
-                check_indices(&centroids, centroids.width * centroids.height, 3, sh.codebook.len(), cen_name)?;
+                // Only the palette's `count` centroids are ever looked up (padding texels may hold anything).
+                let used = sh.count.min(CENTROIDS_PER_ROW * centroids.height);
+                let max = (0..used)
+                    .flat_map(|c| {
+                        let base = (c / CENTROIDS_PER_ROW) * centroids.width + (c % CENTROIDS_PER_ROW) * k;
+                        (base..base + k).flat_map(|t| centroids.texel(t)[..3].to_vec())
+                    })
+                    .max();
+                if let Some(m) = max.filter(|&m| m as usize >= sh.codebook.len()) {
+                    return Err(format!("{cen_name}: index {m} is beyond the {}-entry codebook", sh.codebook.len()));
+                }
                 let labels = per_gaussian(texture(lab_name)?, lab_name)?;
                 (sh.bands, Some((centroids, labels, sh)))
             }

@@ -22,11 +22,16 @@ pub fn gaussian_taps() -> [f64; WINDOW] {
     t
 }
 
-/// Separable "same" blur with zero padding into `out`, using `tmp` (both `w*h`).
+/// Rows per parallel work item: enough that small images stay on one thread.
+const ROWS_PER_TASK: usize = 16;
+
+/// Separable "same" blur with zero padding into `out`, using `tmp` (both `w*h`). Rows are
+/// computed in parallel; every output value is the same sum in the same order whatever the
+/// thread count, so results are bit-identical across thread counts.
 fn blur_into(plane: &[f64], w: usize, h: usize, taps: &[f64; WINDOW], tmp: &mut [f64], out: &mut [f64]) {
     let r = WINDOW / 2;
     // Horizontal pass.
-    for (src, dst) in plane.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
+    plane.par_chunks_exact(w).zip(tmp.par_chunks_exact_mut(w)).with_min_len(ROWS_PER_TASK).for_each(|(src, dst)| {
         for (x, d) in dst.iter_mut().enumerate() {
             let k0 = r.saturating_sub(x);
             let k1 = (w + r - x).min(WINDOW);
@@ -37,10 +42,10 @@ fn blur_into(plane: &[f64], w: usize, h: usize, taps: &[f64; WINDOW], tmp: &mut 
             }
             *d = s;
         }
-    }
+    });
     // Vertical pass: whole rows at a time (vectorises).
-    for y in 0..h {
-        let dst = &mut out[y * w..(y + 1) * w];
+    let tmp = &*tmp;
+    out[..w * h].par_chunks_exact_mut(w).enumerate().with_min_len(ROWS_PER_TASK).for_each(|(y, dst)| {
         dst.fill(0.0);
         let k0 = r.saturating_sub(y);
         let k1 = (h + r - y).min(WINDOW);
@@ -51,7 +56,7 @@ fn blur_into(plane: &[f64], w: usize, h: usize, taps: &[f64; WINDOW], tmp: &mut 
                 *d += t * s;
             }
         }
-    }
+    });
 }
 
 /// Separable "same" convolution of a single-channel `w x h` plane with zero padding.
@@ -80,29 +85,30 @@ fn channel_ssim(x: &[f64], y: &[f64], w: usize, h: usize, grad: Option<&mut [f64
     let prod = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
     let (mx, my) = (bl(x), bl(y));
     let (sxx, syy, sxy) = (bl(&prod(x, x)), bl(&prod(y, y)), bl(&prod(x, y)));
-    let mut map = vec![0.0; n];
-    let mut g_m = vec![0.0; n];
-    let mut g_sxx = vec![0.0; n];
-    let mut g_sxy = vec![0.0; n];
-    for i in 0..n {
-        let (vx, vy, cxy) = (sxx[i] - mx[i] * mx[i], syy[i] - my[i] * my[i], sxy[i] - mx[i] * my[i]);
-        let (a1, a2) = (2.0 * mx[i] * my[i] + C1, 2.0 * cxy + C2);
-        let (b1, b2) = (mx[i] * mx[i] + my[i] * my[i] + C1, vx + vy + C2);
-        let s = (a1 * a2) / (b1 * b2);
-        map[i] = s;
-        let ds_dm = 2.0 * my[i] * a2 / (b1 * b2) - s * 2.0 * mx[i] / b1;
-        let ds_dv = -s / b2;
-        let ds_dc = 2.0 * a1 / (b1 * b2);
-        g_m[i] = ds_dm - 2.0 * mx[i] * ds_dv - my[i] * ds_dc;
-        g_sxx[i] = ds_dv;
-        g_sxy[i] = ds_dc;
-    }
+    // Per pixel (in parallel, each value computed alone): the map and d(map)/d(statistics).
+    let stats: Vec<[f64; 4]> = (0..n)
+        .into_par_iter()
+        .with_min_len(ROWS_PER_TASK * w)
+        .map(|i| {
+            let (vx, vy, cxy) = (sxx[i] - mx[i] * mx[i], syy[i] - my[i] * my[i], sxy[i] - mx[i] * my[i]);
+            let (a1, a2) = (2.0 * mx[i] * my[i] + C1, 2.0 * cxy + C2);
+            let (b1, b2) = (mx[i] * mx[i] + my[i] * my[i] + C1, vx + vy + C2);
+            let s = (a1 * a2) / (b1 * b2);
+            let ds_dm = 2.0 * my[i] * a2 / (b1 * b2) - s * 2.0 * mx[i] / b1;
+            let ds_dv = -s / b2;
+            let ds_dc = 2.0 * a1 / (b1 * b2);
+            [s, ds_dm - 2.0 * mx[i] * ds_dv - my[i] * ds_dc, ds_dv, ds_dc]
+        })
+        .collect();
+    let map: Vec<f64> = stats.iter().map(|v| v[0]).collect();
+    // Summed in pixel order (a fixed order, whatever the thread count).
     let total = map.iter().sum();
     if let Some(grad) = grad {
-        let (bm, bxx, bxy) = (bl(&g_m), bl(&g_sxx), bl(&g_sxy));
-        for i in 0..n {
-            grad[i] = bm[i] + 2.0 * x[i] * bxx[i] + y[i] * bxy[i];
-        }
+        let pick = |k: usize| stats.iter().map(|v| v[k]).collect::<Vec<f64>>();
+        let (bm, bxx, bxy) = (bl(&pick(1)), bl(&pick(2)), bl(&pick(3)));
+        grad.par_iter_mut().enumerate().with_min_len(ROWS_PER_TASK * w).for_each(|(i, g)| {
+            *g = bm[i] + 2.0 * x[i] * bxx[i] + y[i] * bxy[i];
+        });
     }
     (total, map)
 }
@@ -116,8 +122,8 @@ pub fn ssim_map(x: &[f64], y: &[f64], w: usize, h: usize) -> Vec<f64> {
 pub fn ssim(a: &Image, b: &Image) -> f64 {
     assert_eq!((a.width, a.height), (b.width, b.height), "SSIM of images of different sizes");
     let (w, h) = (a.width as usize, a.height as usize);
-    let total: f64 = (0..3usize).into_par_iter().map(|c| channel_ssim(&channel(a, c), &channel(b, c), w, h, None).0).sum();
-    total / (3 * w * h) as f64
+    let per: Vec<f64> = (0..3usize).into_par_iter().map(|c| channel_ssim(&channel(a, c), &channel(b, c), w, h, None).0).collect();
+    per.iter().sum::<f64>() / (3 * w * h) as f64
 }
 
 /// Mean SSIM and its gradient with respect to `a` (interleaved RGB like the image).

@@ -69,6 +69,8 @@ pub struct Plan {
     pub losses: Vec<String>,
     /// `encode --iters`, or the encoder's default.
     pub iters: Option<usize>,
+    /// Dataset options passed on to every `encode` and `eval` (`--downscale N`, …).
+    pub dataset_args: Vec<String>,
 }
 
 impl Plan {
@@ -132,6 +134,7 @@ impl Plan {
         if let Some(n) = self.iters {
             c.extend(["--iters".into(), n.to_string()]);
         }
+        c.extend(self.dataset_args.iter().cloned());
         c.extend(["--points-only".into(), "--quiet".into()]);
         c
     }
@@ -185,6 +188,7 @@ pub fn run_point(exe: &Path, plan: &Plan, p: &Point) -> Result<PointResult> {
     if let Some(n) = plan.iters {
         enc.extend(["--iters".into(), n.to_string()]);
     }
+    enc.extend(plan.dataset_args.iter().cloned());
     let (_, encode_s) = run_child(exe, &enc, &log, "encode")?;
     let dec = vec!["decode".to_string(), s(gsc.clone()), "-o".into(), s(ply.clone()), "--quiet".into()];
     let (_, decode_s) = run_child(exe, &dec, &log, "decode")?;
@@ -193,6 +197,7 @@ pub fn run_point(exe: &Path, plan: &Plan, p: &Point) -> Result<PointResult> {
         ev.extend(["--reference".into(), s(plan.input.clone()), "--orbit".into(), PLY_EVAL_ORBIT.to_string()]);
     } else {
         ev.extend([s(plan.input.clone()), "--split".into(), "test".into()]);
+        ev.extend(plan.dataset_args.iter().cloned());
     }
     ev.extend(["--json".into(), "--quiet".into()]);
     let (stdout, _) = run_child(exe, &ev, &log, "eval")?;
@@ -290,6 +295,7 @@ mod tests {
             lambdas: vec![0.1, 0.01],
             losses: vec!["l1ssim".into(), "wdr".into()],
             iters: Some(300),
+            dataset_args: Vec::new(),
         };
         let pts = plan.points();
         assert_eq!(pts.len(), 4);
@@ -299,6 +305,8 @@ mod tests {
             plan.point_command(&pts[1]).join(" "),
             "sweep data/lego -o sw --lambdas 0.01 --loss l1ssim --iters 300 --points-only --quiet"
         );
+        let scaled = Plan { dataset_args: vec!["--downscale".into(), "2".into()], ..plan.clone() };
+        assert!(scaled.point_command(&pts[1]).join(" ").ends_with("--iters 300 --downscale 2 --points-only --quiet"));
         plan.validate().unwrap();
         let bad = Plan { lambdas: vec![-1.0], ..plan.clone() };
         assert!(bad.validate().unwrap_err().to_string().contains("-1"));

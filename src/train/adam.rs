@@ -2,6 +2,7 @@
 //! update rule [`AdamRule`] (which the rate term's learned log steps use too).
 
 use gscodec_decoder::Splats;
+use rayon::prelude::*;
 
 pub use crate::optim::AdamRule;
 use crate::rate::group::{self, Group};
@@ -32,6 +33,9 @@ pub fn first_non_finite(s: &Splats) -> Option<(usize, Group)> {
     None
 }
 
+/// Values per parallel work item of [`Adam::step`].
+const ADAM_CHUNK: usize = 1 << 14;
+
 /// Adam state for the Gaussian parameters (moments shaped like the scene).
 #[derive(Debug, Clone)]
 pub struct Adam {
@@ -54,16 +58,26 @@ impl Adam {
             let lr = lr(g);
             let (p, gr) = (group::values_mut(params, g), group::values(grad, g));
             let (m, v) = (group::values_mut(&mut self.m, g), group::values_mut(&mut self.v, g));
+            // Element-wise, so parallel chunks give bit-identical results for any thread count.
+            let rule = &self.rule;
             if r.len() == stride {
-                self.rule.update(c, lr, p, gr, m, v); // the whole field: one pass
+                // The whole field: chunks of values.
+                p.par_chunks_mut(ADAM_CHUNK)
+                    .zip(gr.par_chunks(ADAM_CHUNK))
+                    .zip(m.par_chunks_mut(ADAM_CHUNK))
+                    .zip(v.par_chunks_mut(ADAM_CHUNK))
+                    .for_each(|(((p, gr), m), v)| rule.update(c, lr, p, gr, m, v));
                 continue;
             }
-            for (((p, gr), m), v) in
-                p.chunks_exact_mut(stride).zip(gr.chunks_exact(stride)).zip(m.chunks_exact_mut(stride)).zip(v.chunks_exact_mut(stride))
-            {
-                let r = r.clone();
-                self.rule.update(c, lr, &mut p[r.clone()], &gr[r.clone()], &mut m[r.clone()], &mut v[r]);
-            }
+            p.par_chunks_exact_mut(stride)
+                .zip(gr.par_chunks_exact(stride))
+                .zip(m.par_chunks_exact_mut(stride))
+                .zip(v.par_chunks_exact_mut(stride))
+                .with_min_len(ADAM_CHUNK / stride.max(1))
+                .for_each(|(((p, gr), m), v)| {
+                    let r = r.clone();
+                    rule.update(c, lr, &mut p[r.clone()], &gr[r.clone()], &mut m[r.clone()], &mut v[r]);
+                });
         }
     }
 }

@@ -63,14 +63,42 @@ pub fn from_points(points: &[[f32; 3]], colors: &[[f32; 3]], sh_degree: u8) -> S
     s
 }
 
-/// `n` random Gaussians in the cube of half-size `0.3 × extent` around the cameras' look-at point
-/// (for NeRF-synthetic scenes this is the reference's [-1.3, 1.3]³ cube), random colours.
+/// `n` random Gaussians with random colours, drawn uniformly in the dataset's `bounds` (NeRF
+/// `aabb_scale`) or else in the cube of half-size `0.3 × extent` around the cameras' look-at point
+/// (for NeRF-synthetic scenes the reference's [-1.3, 1.3]³ cube), keeping only points that some
+/// camera sees (in front of its near plane, inside its image): the cameras' frusta bound them.
+/// When too few candidates are seen (cameras looking away from the cube), unseen ones fill up.
 pub fn random(ds: &Dataset, n: usize, sh_degree: u8, rng: &mut Rng) -> Splats {
-    let half = 0.3 * camera_extent(ds);
-    let c = look_at_point(ds);
-    let pts: Vec<[f32; 3]> =
-        (0..n).map(|_| (c + Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * (2.0 * half) - half).to_array()).collect();
-    let cols: Vec<[f32; 3]> = (0..n).map(|_| [rng.uniform(), rng.uniform(), rng.uniform()]).collect();
+    let (c, half) = match ds.bounds {
+        Some((c, h)) => (Vec3::from_array(c), h),
+        None => (look_at_point(ds), 0.3 * camera_extent(ds)),
+    };
+    let seen = |p: Vec3| {
+        ds.frames.iter().any(|f| {
+            let q = f.camera.to_camera(p);
+            if q.z <= f.camera.znear {
+                return false;
+            }
+            let (u, v) = (f.camera.fx * q.x / q.z + f.camera.cx, f.camera.fy * q.y / q.z + f.camera.cy);
+            (0.0..f.camera.width as f32).contains(&u) && (0.0..f.camera.height as f32).contains(&v)
+        })
+    };
+    let mut pts: Vec<[f32; 3]> = Vec::with_capacity(n);
+    let mut unseen: Vec<[f32; 3]> = Vec::new();
+    for _ in 0..n.saturating_mul(20) {
+        if pts.len() == n {
+            break;
+        }
+        let p = c + Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * (2.0 * half) - half;
+        if ds.frames.is_empty() || seen(p) {
+            pts.push(p.to_array());
+        } else if unseen.len() < n {
+            unseen.push(p.to_array());
+        }
+    }
+    let missing = n - pts.len();
+    pts.extend(unseen.into_iter().take(missing));
+    let cols: Vec<[f32; 3]> = (0..pts.len()).map(|_| [rng.uniform(), rng.uniform(), rng.uniform()]).collect();
     from_points(&pts, &cols, sh_degree)
 }
 

@@ -3,22 +3,27 @@
 //! ([`RdTerm`]).
 
 pub mod adam;
+pub mod checkpoint;
 pub mod densify;
 pub mod init;
+/// The GPU trainer (wgpu), feature `gpu`.
+#[cfg(feature = "gpu")]
+pub mod gpu;
 
 pub mod targets;
 
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::ImageLoss;
 use crate::raster;
+use crate::rate::group::Group;
 use crate::rng::Rng;
 use crate::{Error, Result};
-use crate::rate::group::Group;
 use adam::{first_non_finite, Adam};
 use densify::{DensifyParams, DensifyStats};
 use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
 use std::time::Instant;
 
 pub use crate::rate::term::{RateOutcome, RdTerm};
@@ -151,7 +156,7 @@ pub struct Progress {
 }
 
 /// One point of the error-against-run-time record.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ReportPoint {
     pub iteration: usize,
     /// Training wall time so far (evaluation excluded).
@@ -159,12 +164,12 @@ pub struct ReportPoint {
     /// Mean training loss since the previous point.
     pub loss: f64,
     pub gaussians: usize,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub test_psnr: Option<f64>,
 }
 
 /// Accumulated wall time per training stage, seconds.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
 pub struct StageTimes {
     pub project: f64,
     pub sort: f64,
@@ -212,7 +217,26 @@ pub fn evaluate(splats: &Splats, frames: &[&Frame], background: [f32; 3]) -> Opt
     Some((p / n, s / n))
 }
 
-fn non_finite_error(what: &str, iter: usize, i: usize, g: Group) -> Error {
+/// The learning rate of group `g` at iteration `it` (1-based): the reference recipe, the position
+/// rate decaying log-linearly over `cfg.iters` and relative to the scene `extent`, all times
+/// `cfg.lr_scale`. Shared by the CPU and GPU trainers.
+pub fn learning_rate(g: Group, it: usize, cfg: &TrainConfig, extent: f32) -> f32 {
+    let base = match g {
+        Group::Position => {
+            let t = (it as f64 / cfg.iters.max(1) as f64).clamp(0.0, 1.0);
+            let l = ((LR_POSITION_INIT as f64).ln() * (1.0 - t) + (LR_POSITION_FINAL as f64).ln() * t).exp();
+            (l * extent as f64) as f32
+        }
+        Group::Scale => LR_SCALE,
+        Group::Rotation => LR_ROTATION,
+        Group::Opacity => LR_OPACITY,
+        Group::ShDc => LR_SH_DC,
+        Group::Sh1 | Group::Sh2 | Group::Sh3 => LR_SH_REST,
+    };
+    base * cfg.lr_scale
+}
+
+pub(crate) fn non_finite_error(what: &str, iter: usize, i: usize, g: Group) -> Error {
     Error::Failure(format!("training diverged at iteration {iter}: non-finite {what} in parameter group `{}` (Gaussian {i})", g.name()))
 }
 
@@ -228,10 +252,73 @@ pub fn train(
     dataset: &Dataset,
     init: Option<Splats>,
     cfg: &TrainConfig,
+    loss: Box<dyn ImageLoss>,
+    rd: Option<Box<dyn RdTerm>>,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<(Splats, TrainReport)> {
+    train_with(dataset, init, cfg, loss, rd, progress, &RunOptions::default())
+}
+
+/// Checkpoints and the live report of a long run (all off by default).
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Folder to write checkpoints into.
+    pub checkpoint: Option<PathBuf>,
+    /// Checkpoint every this many iterations; `None`: every `checkpoint_seconds` of wall time.
+    pub checkpoint_every: Option<usize>,
+    pub checkpoint_seconds: f64,
+    /// Continue the run checkpointed in this folder (same settings and dataset).
+    pub resume: Option<PathBuf>,
+    /// Rewrite this JSON report (a [`TrainReport`] so far) atomically as training goes: at each
+    /// evaluation, each checkpoint, and at most every [`LIVE_REPORT_SECONDS`] otherwise.
+    pub report: Option<PathBuf>,
+    /// Stop after this iteration as if interrupted (checkpoint written); for tests.
+    pub stop_after: Option<usize>,
+    /// Stop at Ctrl-C (SIGINT) after the current iteration, writing a checkpoint.
+    pub catch_interrupt: bool,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            checkpoint: None,
+            checkpoint_every: None,
+            checkpoint_seconds: 600.0,
+            resume: None,
+            report: None,
+            stop_after: None,
+            catch_interrupt: false,
+        }
+    }
+}
+
+/// Seconds between two rewrites of the live report (besides evaluations and checkpoints).
+pub const LIVE_REPORT_SECONDS: f64 = 10.0;
+
+/// The run's identity for checkpoints: its settings and its dataset's frames.
+fn fingerprint(cfg: &TrainConfig, dataset: &Dataset, loss: &str) -> String {
+    let names: Vec<&str> = dataset.frames.iter().map(|f| f.name.as_str()).collect();
+    serde_json::json!({ "config": cfg, "loss": loss, "frames": names }).to_string()
+}
+
+/// [`train`] with checkpoints, resume and a live report.
+///
+/// # Errors
+/// As [`train`]; also a checkpoint that does not match the run (input error), and an interrupted
+/// run (failure: the message names the checkpoint to resume from).
+#[allow(clippy::too_many_arguments)]
+pub fn train_with(
+    dataset: &Dataset,
+    init: Option<Splats>,
+    cfg: &TrainConfig,
     mut loss: Box<dyn ImageLoss>,
     mut rd: Option<Box<dyn RdTerm>>,
     progress: &mut dyn FnMut(&Progress),
+    run: &RunOptions,
 ) -> Result<(Splats, TrainReport)> {
+    if rd.is_some() && (run.checkpoint.is_some() || run.resume.is_some()) {
+        return Err(Error::Input("checkpoints do not cover the rate term yet: train without --checkpoint/--resume".into()));
+    }
     let train_frames = dataset.split(Split::Train);
     let test_frames = dataset.split(Split::Test);
     if train_frames.is_empty() {
@@ -261,24 +348,58 @@ pub fn train(
     let mut stages = StageTimes::default();
     let (mut loss_sum, mut loss_n) = (0.0f64, 0usize);
     let mut train_seconds = 0.0;
-    let log_every = (cfg.iters / 500).max(1);
-    let lr = |g: Group, it: usize| -> f32 {
-        let base = match g {
-            Group::Position => {
-                let t = (it as f64 / cfg.iters.max(1) as f64).clamp(0.0, 1.0);
-                let l = ((LR_POSITION_INIT as f64).ln() * (1.0 - t) + (LR_POSITION_FINAL as f64).ln() * t).exp();
-                (l * extent as f64) as f32
-            }
-            Group::Scale => LR_SCALE,
-            Group::Rotation => LR_ROTATION,
-            Group::Opacity => LR_OPACITY,
-            Group::ShDc => LR_SH_DC,
-            Group::Sh1 | Group::Sh2 | Group::Sh3 => LR_SH_REST,
-        };
-        base * cfg.lr_scale
+    let print = fingerprint(cfg, dataset, loss.name());
+    let mut first = 1;
+    if let Some(dir) = &run.resume {
+        let path = checkpoint::file(dir);
+        let st = checkpoint::load(dir)?;
+        if st.fingerprint != print {
+            return Err(Error::input(&path, "the checkpoint is of another run (settings, loss or dataset differ)"));
+        }
+        st.check(&path)?;
+        if st.iteration as usize >= cfg.iters || st.order.iter().any(|&o| o as usize >= train_frames.len()) {
+            return Err(Error::input(&path, format!("iteration {} is not inside this {}-iteration run", st.iteration, cfg.iters)));
+        }
+        first = st.iteration as usize + 1;
+        params = st.params.into_splats();
+        adam.m = st.adam_m.into_splats();
+        adam.v = st.adam_v.into_splats();
+        adam.rule.step = st.adam_step;
+        rng = Rng::from_state(st.rng);
+        order = st.order.iter().map(|&o| o as usize).collect();
+        degree = st.degree.min(max_degree);
+        peak = st.peak as usize;
+        stats = DensifyStats { grad_accum: st.grad_accum, count: st.count, max_radius: st.max_radius };
+        points = st.points.into_iter().map(ReportPoint::from).collect();
+        stages = st.stages;
+        (loss_sum, loss_n) = (st.loss_sum, st.loss_n as usize);
+        train_seconds = st.train_seconds;
+    }
+    if run.catch_interrupt && run.checkpoint.is_some() {
+        checkpoint::catch_interrupt();
+    }
+    let mut last_checkpoint = Instant::now();
+    let mut last_report = Instant::now();
+    let loss_name = loss.name().to_string();
+    let partial = |points: &Vec<ReportPoint>, n: usize, train_seconds: f64, stages: StageTimes| TrainReport {
+        backend: "cpu",
+        loss: loss_name.clone(),
+        config: cfg.clone(),
+        schedule: sched,
+        extent,
+        points: points.clone(),
+        gaussians: n,
+        train_seconds,
+        test_views: test_frames.len(),
+        test_psnr: None,
+        test_ssim: None,
+        stages,
+        rate: None,
     };
+    let log_every = (cfg.iters / 500).max(1);
+    let lr = |g: Group, it: usize| learning_rate(g, it, cfg, extent);
 
-    for it in 1..=cfg.iters {
+    for it in first..=cfg.iters {
         let t_iter = Instant::now();
         if it % sched.sh_up_every == 0 && degree < max_degree {
             degree += 1;
@@ -381,6 +502,52 @@ pub fn train(
             (loss_sum, loss_n) = (0.0, 0);
         }
         progress(&Progress { iteration: it, iters: cfg.iters, loss: l, gaussians: params.len(), test_psnr, rate_bits });
+
+        // Checkpoint (periodic, or stopping), then the live report.
+        let stop = it < cfg.iters && (run.stop_after == Some(it) || (run.catch_interrupt && checkpoint::interrupted()));
+        let due = match run.checkpoint_every {
+            Some(n) => n > 0 && it % n == 0,
+            None => last_checkpoint.elapsed().as_secs_f64() >= run.checkpoint_seconds,
+        };
+        let mut wrote = false;
+        if let Some(dir) = run.checkpoint.as_ref().filter(|_| (due || stop) && it < cfg.iters) {
+            let st = checkpoint::State {
+                fingerprint: print.clone(),
+                iteration: it as u64,
+                params: (&params).into(),
+                adam_m: (&adam.m).into(),
+                adam_v: (&adam.v).into(),
+                adam_step: adam.rule.step,
+                rng: rng.state(),
+                order: order.iter().map(|&o| o as u64).collect(),
+                degree,
+                peak: peak as u64,
+                grad_accum: stats.grad_accum.clone(),
+                count: stats.count.clone(),
+                max_radius: stats.max_radius.clone(),
+                points: points.iter().map(checkpoint::PointData::from).collect(),
+                stages,
+                loss_sum,
+                loss_n: loss_n as u64,
+                train_seconds,
+            };
+            checkpoint::save(dir, &st)?;
+            last_checkpoint = Instant::now();
+            wrote = true;
+        }
+        if let Some(r) = &run.report {
+            if wrote || stop || test_psnr.is_some() || last_report.elapsed().as_secs_f64() >= LIVE_REPORT_SECONDS {
+                write_report(r, &partial(&points, params.len(), train_seconds, stages))?;
+                last_report = Instant::now();
+            }
+        }
+        if stop {
+            let resume = match &run.checkpoint {
+                Some(dir) => format!("; resume with --resume {}", dir.display()),
+                None => String::new(),
+            };
+            return Err(Error::Failure(format!("interrupted after iteration {it} of {}{resume}", cfg.iters)));
+        }
     }
     let final_eval = evaluate(&params, &test_frames, dataset.background);
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
@@ -388,7 +555,7 @@ pub fn train(
     }
     let report = TrainReport {
         backend: "cpu",
-        loss: loss.name().to_string(),
+        loss: loss_name.clone(),
         config: cfg.clone(),
         schedule: sched,
         extent,
@@ -402,4 +569,10 @@ pub fn train(
         rate: rd.as_ref().and_then(|r| r.outcome()),
     };
     Ok((params, report))
+}
+
+/// Writes a report as pretty JSON, atomically.
+pub fn write_report(path: &std::path::Path, report: &TrainReport) -> Result<()> {
+    let json = serde_json::to_string_pretty(report).map_err(|e| Error::failure(path, e))?;
+    crate::io::atomic::write_bytes_atomic(path, json.as_bytes())
 }

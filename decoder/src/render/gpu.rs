@@ -70,7 +70,8 @@ const SORT_BLOCK: u32 = 1024;
 const MAX_GROUPS: u32 = 65535;
 
 /// Minimal executor for wgpu's futures (they complete after `Device::poll` on native backends).
-fn block_on<F: Future>(fut: F) -> F::Output {
+#[doc(hidden)]
+pub fn block_on<F: Future>(fut: F) -> F::Output {
     use std::task::{Context, Poll, Wake, Waker};
     struct Unpark(std::thread::Thread);
     impl Wake for Unpark {
@@ -145,6 +146,12 @@ impl GpuRenderer {
             ..Default::default()
         }))
         .map_err(|e| GpuError::Device(e.to_string()))?;
+        Self::from_device(device, queue, adapter.get_info(), required.max_storage_buffer_binding_size)
+    }
+
+    /// Compiles the kernels on an existing device (the GPU trainer shares its device).
+    #[doc(hidden)]
+    pub fn from_device(device: wgpu::Device, queue: wgpu::Queue, info: wgpu::AdapterInfo, max_binding: u64) -> Result<Self, GpuError> {
         let errors: Arc<Mutex<Option<String>>> = Arc::new(Mutex::new(None));
         let sink = errors.clone();
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
@@ -192,8 +199,8 @@ impl GpuRenderer {
             radix_scatter: pipeline(&sort_m, "radix_scatter"),
             tile_ranges: pipeline(&raster_m, "tile_ranges"),
             rasterize: pipeline(&raster_m, "rasterize"),
-            info: adapter.get_info(),
-            max_binding: required.max_storage_buffer_binding_size,
+            info,
+            max_binding,
             device,
             queue,
             errors,
@@ -254,7 +261,8 @@ impl GpuRenderer {
     }
 
     /// Records an in-place exclusive scan of the first `n` u32 of `data`.
-    fn record_scan(&self, enc: &mut wgpu::CommandEncoder, data: &wgpu::Buffer, n: u32) {
+    #[doc(hidden)]
+    pub fn record_scan(&self, enc: &mut wgpu::CommandEncoder, data: &wgpu::Buffer, n: u32) {
         let blocks = n.div_ceil(SCAN_BLOCK);
         let sums = self.storage("scan sums", blocks as u64 * 4);
         let params = self.uniform(&[n, 0u32, 0, 0]);
@@ -269,7 +277,8 @@ impl GpuRenderer {
 
     /// Records a stable sort of `pairs` (tile, depth, id) triples in `a` by (tile, depth), using
     /// `b` as scratch; the result ends up in `a`.
-    fn record_radix_sort(
+    #[doc(hidden)]
+    pub fn record_radix_sort(
         &self,
         enc: &mut wgpu::CommandEncoder,
         a: &mut [wgpu::Buffer; 3],

@@ -1,0 +1,461 @@
+//! The GPU-resident training state (parameters, gradients, Adam moments, densification statistics,
+//! per-view images) and the recording of one iteration.
+
+use super::context::{dims, projected_bytes, stride_for, AdamUniform, FrameUniform, Gpu, G2};
+use crate::{Error, Result};
+use gscodec_decoder::math::TILE;
+use gscodec_decoder::{Camera, Image, Splats};
+
+/// Parameter records of a scene: `[pos3, log_scale3, rot4, opacity, dc3, rest 3K]` per Gaussian.
+pub fn to_records(s: &Splats) -> Vec<f32> {
+    let stride = stride_for(s.sh_degree);
+    let mut r = Vec::with_capacity(s.len() * stride);
+    for i in 0..s.len() {
+        r.extend_from_slice(&s.positions[i]);
+        r.extend_from_slice(&s.log_scales[i]);
+        r.extend_from_slice(&s.rotations[i]);
+        r.push(s.opacity_logits[i]);
+        r.extend_from_slice(&s.sh_dc[i]);
+        r.extend_from_slice(s.rest_of(i));
+    }
+    r
+}
+
+/// Inverse of [`to_records`].
+pub fn from_records(r: &[f32], degree: u8) -> Splats {
+    let stride = stride_for(degree);
+    let mut s = Splats::new(degree);
+    for rec in r.chunks_exact(stride) {
+        s.push(
+            [rec[0], rec[1], rec[2]],
+            [rec[3], rec[4], rec[5]],
+            [rec[6], rec[7], rec[8], rec[9]],
+            rec[10],
+            [rec[11], rec[12], rec[13]],
+            &rec[14..],
+        );
+    }
+    s
+}
+
+/// Buffers sized by the scene.
+pub struct SceneBufs {
+    pub n: usize,
+    pub degree: u8,
+    pub stride: usize,
+    pub params: wgpu::Buffer,
+    pub grads: wgpu::Buffer,
+    pub m: wgpu::Buffer,
+    pub v: wgpu::Buffer,
+    pub projected: wgpu::Buffer,
+    pub counts: wgpu::Buffer,
+    pub grad2d: wgpu::Buffer,
+    pub stats: wgpu::Buffer,
+}
+
+/// Buffers sized by the image.
+pub struct ImageBufs {
+    pub width: u32,
+    pub height: u32,
+    pub image: wgpu::Buffer,
+    pub final_t: wgpu::Buffer,
+    pub last: wgpu::Buffer,
+    pub dl: wgpu::Buffer,
+    pub planes: wgpu::Buffer,
+    pub gplanes: wgpu::Buffer,
+    pub gblur: wgpu::Buffer,
+    pub ranges: wgpu::Buffer,
+}
+
+/// Bytes of the per-iteration read-back: pair count, first bad gradient / value index, previous
+/// iteration's loss, then 2 × 7 stage timestamps.
+const SCALARS: u64 = 16;
+pub const READBACK: u64 = SCALARS + 12 * 8;
+
+/// What the per-iteration read-back says.
+#[derive(Debug, Clone, Copy)]
+pub struct Scalars {
+    pub pairs: u32,
+    pub bad_grad: u32,
+    pub bad_value: u32,
+    /// Loss of the previous iteration.
+    pub loss: f32,
+    /// GPU seconds per stage of the previous iteration (project, sort, rasterize, loss, backward,
+    /// optimiser), from timestamp queries when the adapter has them.
+    pub stage_seconds: Option<[f64; 6]>,
+}
+
+/// GPU training state.
+pub struct Session<'g> {
+    pub gpu: &'g Gpu,
+    pub scene: SceneBufs,
+    pub img: Option<ImageBufs>,
+    frame: wgpu::Buffer,
+    chunk: wgpu::Buffer,
+    adam_u: wgpu::Buffer,
+    keys_a: [wgpu::Buffer; 3],
+    keys_b: [wgpu::Buffer; 3],
+    key_cap: u32,
+    /// Loss accumulators (2 slots, alternating by iteration).
+    pub loss_acc: wgpu::Buffer,
+    /// First non-finite gradient / value index (u32::MAX = none).
+    bad: wgpu::Buffer,
+    query: Option<wgpu::QuerySet>,
+    resolve: Option<wgpu::Buffer>,
+    staging: wgpu::Buffer,
+    period_ns: f64,
+    pub step: u64,
+    /// Whether the previous iteration wrote timestamps.
+    timed: bool,
+}
+
+impl<'g> Session<'g> {
+    /// Uploads `splats` (parameters; zero moments).
+    pub fn new(gpu: &'g Gpu, splats: &Splats) -> Result<Self> {
+        let scene = scene_bufs(gpu, splats, None)?;
+        let key = |name| gpu.storage(name, 1024);
+        let query = gpu.timestamps.then(|| {
+            gpu.device.create_query_set(&wgpu::QuerySetDescriptor { label: Some("stages"), ty: wgpu::QueryType::Timestamp, count: 14 })
+        });
+        let resolve = gpu.timestamps.then(|| {
+            gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamps"),
+                size: 16 * 8,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            })
+        });
+        let s = Session {
+            scene,
+            img: None,
+            frame: gpu.uniform_buffer(std::mem::size_of::<FrameUniform>() as u64),
+            chunk: gpu.uniform_buffer(16),
+            adam_u: gpu.uniform_buffer(std::mem::size_of::<AdamUniform>() as u64),
+            keys_a: [key("tile A"), key("depth A"), key("id A")],
+            keys_b: [key("tile B"), key("depth B"), key("id B")],
+            key_cap: 256,
+            loss_acc: gpu.storage("loss", 16),
+            bad: gpu.storage_init("bad", bytemuck::cast_slice(&[u32::MAX; 4])),
+            query,
+            resolve,
+            staging: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("scalars"),
+                size: READBACK,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            period_ns: gpu.queue.get_timestamp_period() as f64,
+            step: 0,
+            timed: false,
+            gpu,
+        };
+        gpu.check()?;
+        Ok(s)
+    }
+
+    /// Replaces the scene (after densification): parameters and moments given.
+    pub fn replace_scene(&mut self, splats: &Splats, m: &Splats, v: &Splats) -> Result<()> {
+        self.scene = scene_bufs(self.gpu, splats, Some((m, v)))?;
+        Ok(())
+    }
+
+    /// Reads parameters and Adam moments back.
+    pub fn download(&self) -> Result<(Splats, Splats, Splats)> {
+        let sc = &self.scene;
+        let total = sc.n * sc.stride;
+        let p = from_records(&self.gpu.read_f32(&sc.params, total)?, sc.degree);
+        let m = from_records(&self.gpu.read_f32(&sc.m, total)?, sc.degree);
+        let v = from_records(&self.gpu.read_f32(&sc.v, total)?, sc.degree);
+        Ok((p, m, v))
+    }
+
+    pub fn download_params(&self) -> Result<Splats> {
+        let sc = &self.scene;
+        Ok(from_records(&self.gpu.read_f32(&sc.params, sc.n * sc.stride)?, sc.degree))
+    }
+
+    /// Densification statistics `(Σ|dL/dmean2d|, count, max radius)` per Gaussian.
+    pub fn download_stats(&self) -> Result<Vec<f32>> {
+        self.gpu.read_f32(&self.scene.stats, self.scene.n * 3)
+    }
+
+    pub fn clear_stats(&self) {
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&self.scene.stats, 0, None);
+        self.gpu.queue.submit([enc.finish()]);
+    }
+
+    fn ensure_image(&mut self, w: u32, h: u32) -> Result<()> {
+        if self.img.as_ref().is_some_and(|b| b.width == w && b.height == h) {
+            return Ok(());
+        }
+        let g = self.gpu;
+        let n = w as u64 * h as u64;
+        g.fits("the SSIM planes", n * 15 * 4)?;
+        let tiles = w.div_ceil(TILE) as u64 * h.div_ceil(TILE) as u64;
+        self.img = Some(ImageBufs {
+            width: w,
+            height: h,
+            image: g.storage("image", n * 12),
+            final_t: g.storage("final T", n * 4),
+            last: g.storage("last", n * 4),
+            dl: g.storage("dL/dimage", n * 12),
+            planes: g.storage("ssim planes", n * 15 * 4),
+            gplanes: g.storage("ssim grad planes", n * 9 * 4),
+            gblur: g.storage("ssim grad blur", n * 9 * 4),
+            ranges: g.storage("tile ranges", tiles * 8),
+        });
+        Ok(())
+    }
+
+    fn pass(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        p: &wgpu::ComputePipeline,
+        bg: &wgpu::BindGroup,
+        groups: (u32, u32),
+        ts: (Option<u32>, Option<u32>),
+    ) {
+        let timestamp_writes = match (&self.query, ts) {
+            (Some(q), (b, e)) if b.is_some() || e.is_some() => {
+                Some(wgpu::ComputePassTimestampWrites { query_set: q, beginning_of_pass_write_index: b, end_of_pass_write_index: e })
+            }
+            _ => None,
+        };
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes });
+        pass.set_pipeline(p);
+        pass.set_bind_group(0, bg, &[]);
+        pass.dispatch_workgroups(groups.0, groups.1, 1);
+    }
+
+    /// Step 1 of an iteration: projection (+ SH colour) and the tile-count scan, then one
+    /// read-back of the pair count together with the previous iteration's scalars.
+    pub fn project(&mut self, cam: &Camera, background: [f32; 3], degree: u8) -> Result<Scalars> {
+        let g = self.gpu;
+        let sc = &self.scene;
+        let frame = FrameUniform::new(cam, background, degree.min(sc.degree), sc.stride, sc.n);
+        g.queue.write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
+        g.queue.write_buffer(&self.chunk, 0, bytemuck::cast_slice(&[0u32, sc.n as u32, 0, 0]));
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&sc.counts, 0, None);
+        let bg = g.bind(&g.project, &[(0, &self.frame), (1, &self.chunk), (2, &sc.params), (3, &sc.projected), (4, &sc.counts)]);
+        self.pass(&mut enc, &g.project, &bg, dims((sc.n as u32).div_ceil(256)), (Some(0), Some(1)));
+        g.renderer.record_scan(&mut enc, &sc.counts, sc.n as u32 + 1);
+        enc.copy_buffer_to_buffer(&sc.counts, sc.n as u64 * 4, &self.staging, 0, 4);
+        enc.copy_buffer_to_buffer(&self.bad, 0, &self.staging, 4, 8);
+        enc.copy_buffer_to_buffer(&self.loss_acc, ((self.step + 1) % 2) * 4, &self.staging, 12, 4);
+        if let (Some(r), true) = (&self.resolve, self.timed) {
+            enc.copy_buffer_to_buffer(r, 0, &self.staging, SCALARS, 12 * 8);
+        }
+        g.queue.submit([enc.finish()]);
+        let bytes = g.map_wait(&self.staging)?;
+        let u = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
+        let stage_seconds = (self.timed && self.resolve.is_some()).then(|| {
+            let t = |k: usize| u64::from_le_bytes(bytes[SCALARS as usize + 8 * k..SCALARS as usize + 8 * k + 8].try_into().unwrap());
+            std::array::from_fn(|s| t(2 * s + 1).saturating_sub(t(2 * s)) as f64 * self.period_ns * 1e-9)
+        });
+        Ok(Scalars { pairs: u(0), bad_grad: u(4), bad_value: u(8), loss: f32::from_bits(u(12)), stage_seconds })
+    }
+
+    /// Step 2: keys, sort, tile ranges and the saving rasterizer (into the image buffers), recorded
+    /// into `enc`.
+    pub fn rasterize(&mut self, enc: &mut wgpu::CommandEncoder, cam: &Camera, pairs: u32) -> Result<()> {
+        let g = self.gpu;
+        self.ensure_image(cam.width, cam.height)?;
+        if pairs > self.key_cap {
+            let cap = pairs.saturating_add(pairs / 2);
+            g.fits("the sort keys", cap as u64 * 4)?;
+            let key = |name| g.storage(name, cap as u64 * 4);
+            self.keys_a = [key("tile A"), key("depth A"), key("id A")];
+            self.keys_b = [key("tile B"), key("depth B"), key("id B")];
+            self.key_cap = cap;
+        }
+        let sc = &self.scene;
+        let img = self.img.as_ref().unwrap();
+        let (tiles_x, tiles_y) = (cam.width.div_ceil(TILE), cam.height.div_ceil(TILE));
+        enc.clear_buffer(&img.ranges, 0, None);
+        if pairs > 0 {
+            let bg = g.bind(
+                &g.emit,
+                &[(0, &self.frame), (1, &sc.projected), (2, &sc.counts), (3, &self.keys_a[0]), (4, &self.keys_a[1]), (5, &self.keys_a[2])],
+            );
+            self.pass(enc, &g.emit, &bg, dims((sc.n as u32).div_ceil(256)), (Some(2), None));
+            let tile_bits = 32 - (tiles_x * tiles_y - 1).leading_zeros();
+            g.renderer.record_radix_sort(enc, &mut self.keys_a, &mut self.keys_b, pairs, tile_bits);
+            let rp = g.uniform(&[pairs, 0u32, 0, 0]);
+            let bg = g.bind(&g.tile_ranges, &[(1, &rp), (2, &self.keys_a[0]), (4, &img.ranges)]);
+            self.pass(enc, &g.tile_ranges, &bg, dims(pairs.div_ceil(256)), (None, Some(3)));
+        }
+        let bg = g.bind(
+            &g.raster_forward,
+            &[
+                (0, &self.frame),
+                (1, &img.ranges),
+                (2, &self.keys_a[2]),
+                (3, &sc.projected),
+                (4, &img.image),
+                (5, &img.final_t),
+                (6, &img.last),
+            ],
+        );
+        self.pass(enc, &g.raster_forward, &bg, (tiles_x, tiles_y), (Some(4), Some(5)));
+        Ok(())
+    }
+
+    /// Step 3: the L1+SSIM loss of the rendered image against `target` (same size), its value
+    /// into loss slot `step % 2`, its gradient into the image-gradient buffer.
+    pub fn loss(&self, enc: &mut wgpu::CommandEncoder, target: &wgpu::Buffer, ssim_weight: f32) {
+        let g = self.gpu;
+        let slot = (self.step % 2) as u32;
+        let img = self.img.as_ref().expect("rasterize before the loss");
+        let n = img.width * img.height;
+        let lp = g.uniform(&[img.width, img.height, ssim_weight.to_bits(), slot]);
+        let groups = dims(n.div_ceil(256));
+        enc.clear_buffer(&self.loss_acc, slot as u64 * 4, Some(4));
+        let bg = g.bind(&g.ssim_h, &[(0, &lp), (1, &img.image), (2, target), (3, &img.planes)]);
+        self.pass(enc, &g.ssim_h, &bg, groups, (Some(6), None));
+        let bg = g.bind(&g.ssim_v, &[(0, &lp), (1, &img.image), (2, target), (3, &img.planes), (4, &img.gplanes), (7, &self.loss_acc)]);
+        self.pass(enc, &g.ssim_v, &bg, groups, (None, None));
+        let bg = g.bind(&g.ssim_bh, &[(0, &lp), (4, &img.gplanes), (5, &img.gblur)]);
+        self.pass(enc, &g.ssim_bh, &bg, groups, (None, None));
+        let bg = g.bind(&g.ssim_bv, &[(0, &lp), (1, &img.image), (2, target), (5, &img.gblur), (6, &img.dl)]);
+        self.pass(enc, &g.ssim_bv, &bg, groups, (None, Some(7)));
+    }
+
+    /// Step 4: rasterizer backward (image gradient in the `dl` buffer) and projection backward
+    /// into the parameter gradients; densification statistics when `stats`.
+    pub fn backward(&self, enc: &mut wgpu::CommandEncoder, cam: &Camera, stats: bool) {
+        let g = self.gpu;
+        let sc = &self.scene;
+        let img = self.img.as_ref().expect("rasterize before the backward pass");
+        enc.clear_buffer(&sc.grad2d, 0, None);
+        let bg = g.bind(
+            &g.raster_backward,
+            &[
+                (0, &self.frame),
+                (1, &img.ranges),
+                (2, &self.keys_a[2]),
+                (3, &sc.projected),
+                (4, &img.dl),
+                (5, &img.final_t),
+                (6, &img.last),
+                (7, &sc.grad2d),
+            ],
+        );
+        self.pass(enc, &g.raster_backward, &bg, (cam.width.div_ceil(TILE), cam.height.div_ceil(TILE)), (Some(8), None));
+        let r_scale = 800.0 / cam.width.max(cam.height) as f32;
+        let bw = g.uniform(&[sc.n as u32, stats as u32, r_scale.to_bits(), 0]);
+        let bg = g.bind(
+            &g.project_backward,
+            &[(0, &self.frame), (1, &bw), (2, &sc.params), (3, &sc.projected), (4, &sc.grad2d), (5, &sc.grads), (6, &sc.stats)],
+        );
+        self.pass(enc, &g.project_backward, &bg, dims((sc.n as u32).div_ceil(256)), (None, Some(9)));
+    }
+
+    /// Step 5: one Adam step with per-group learning rates `lr` (position, scale, rotation,
+    /// opacity, dc, rest), with [`crate::optim::AdamRule`]'s hyper-parameters and update.
+    pub fn adam(&mut self, enc: &mut wgpu::CommandEncoder, lr: [f32; 6]) {
+        let g = self.gpu;
+        let sc = &self.scene;
+        self.step += 1;
+        let crate::optim::AdamRule { beta1, beta2, eps, .. } = crate::optim::AdamRule::default();
+        let bc1 = 1.0 - (beta1 as f64).powf(self.step as f64);
+        let bc2 = 1.0 - (beta2 as f64).powf(self.step as f64);
+        let total = (sc.n * sc.stride) as u32;
+        let u = AdamUniform {
+            step_size: lr.map(|l| (l as f64 / bc1) as f32),
+            sqrt_bc2: bc2.sqrt() as f32,
+            beta1,
+            beta2,
+            eps,
+            total,
+            stride: sc.stride as u32,
+            n: sc.n as u32,
+            ..Default::default()
+        };
+        g.queue.write_buffer(&self.adam_u, 0, bytemuck::bytes_of(&u));
+        let bg = g.bind(&g.adam, &[(0, &self.adam_u), (1, &sc.params), (2, &sc.grads), (3, &sc.m), (4, &sc.v), (5, &self.bad)]);
+        self.pass(enc, &g.adam, &bg, dims(total.div_ceil(256)), (Some(10), Some(11)));
+    }
+
+    /// Ends an iteration's recording: resolves the timestamps and submits.
+    pub fn submit(&mut self, mut enc: wgpu::CommandEncoder) {
+        if let (Some(q), Some(r)) = (&self.query, &self.resolve) {
+            enc.resolve_query_set(q, 0..12, r, 0);
+            self.timed = true;
+        }
+        self.gpu.queue.submit([enc.finish()]);
+    }
+
+    /// Caps every opacity logit at `logit(max_opacity)` and zeroes its moments.
+    pub fn reset_opacity(&self, max_opacity: f32) {
+        let g = self.gpu;
+        let sc = &self.scene;
+        let u =
+            AdamUniform { cap: (max_opacity / (1.0 - max_opacity)).ln(), stride: sc.stride as u32, n: sc.n as u32, ..Default::default() };
+        let ub = g.uniform(&u);
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        let bg = g.bind(&g.reset_opacity, &[(0, &ub), (1, &sc.params), (3, &sc.m), (4, &sc.v)]);
+        self.pass(&mut enc, &g.reset_opacity, &bg, dims((sc.n as u32).div_ceil(256)), (None, None));
+        g.queue.submit([enc.finish()]);
+    }
+
+    /// The saved forward state, for tests: image, final transmittance, list end per pixel.
+    pub fn read_image(&self) -> Result<Image> {
+        let img = self.img.as_ref().ok_or_else(|| Error::Failure("nothing rendered".into()))?;
+        let n = (img.width * img.height) as usize;
+        Ok(Image { width: img.width, height: img.height, data: self.gpu.read_f32(&img.image, n * 3)? })
+    }
+
+    pub fn read_dl(&self) -> Result<Vec<f32>> {
+        let img = self.img.as_ref().ok_or_else(|| Error::Failure("nothing rendered".into()))?;
+        self.gpu.read_f32(&img.dl, (img.width * img.height * 3) as usize)
+    }
+
+    pub fn write_dl(&self, dl: &[f32]) {
+        self.gpu.queue.write_buffer(&self.img.as_ref().expect("rasterize first").dl, 0, bytemuck::cast_slice(dl));
+    }
+
+    pub fn read_grads(&self) -> Result<(Splats, Vec<f32>)> {
+        let sc = &self.scene;
+        let grads = from_records(&self.gpu.read_f32(&sc.grads, sc.n * sc.stride)?, sc.degree);
+        let g2 = self.gpu.read_f32(&sc.grad2d, sc.n * G2)?;
+        Ok((grads, g2))
+    }
+
+    /// Sum of the loss slot `slot`.
+    pub fn read_loss(&self, slot: u32) -> Result<f32> {
+        Ok(self.gpu.read_f32(&self.loss_acc, 2)?[slot as usize])
+    }
+}
+
+fn scene_bufs(gpu: &Gpu, splats: &Splats, moments: Option<(&Splats, &Splats)>) -> Result<SceneBufs> {
+    let n = splats.len();
+    let degree = splats.sh_degree;
+    let stride = stride_for(degree);
+    let bytes = n as u64 * stride as u64 * 4;
+    gpu.fits("the scene parameters", bytes)?;
+    gpu.fits("the projected Gaussians", projected_bytes(n))?;
+    u32::try_from(n * stride).map_err(|_| Error::Input(format!("GPU training: {n} Gaussians are too many")))?;
+    let records = to_records(splats);
+    let (m, v) = match moments {
+        Some((m, v)) => (
+            gpu.storage_init("adam m", bytemuck::cast_slice(&to_records(m))),
+            gpu.storage_init("adam v", bytemuck::cast_slice(&to_records(v))),
+        ),
+        None => (gpu.storage("adam m", bytes), gpu.storage("adam v", bytes)),
+    };
+    Ok(SceneBufs {
+        n,
+        degree,
+        stride,
+        params: gpu.storage_init("params", bytemuck::cast_slice(&records)),
+        grads: gpu.storage("grads", bytes),
+        m,
+        v,
+        projected: gpu.storage("projected", projected_bytes(n)),
+        counts: gpu.storage("tile counts", (n as u64 + 1) * 4),
+        grad2d: gpu.storage("grad2d", n as u64 * G2 as u64 * 4),
+        stats: gpu.storage("densify stats", n as u64 * 12),
+    })
+}
