@@ -68,6 +68,8 @@ const PROJECTED_BYTES: u64 = 48;
 const SCAN_BLOCK: u32 = 1024;
 const SORT_BLOCK: u32 = 1024;
 const MAX_GROUPS: u32 = 65535;
+/// Device features for the per-stage GPU timestamps (requested when the adapter has them).
+const TIMESTAMP_FEATURES: wgpu::Features = wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS);
 
 /// Minimal executor for wgpu's futures (they complete after `Device::poll` on native backends).
 #[doc(hidden)]
@@ -138,11 +140,10 @@ impl GpuRenderer {
         required.max_buffer_size = limits.max_buffer_size.min(1 << 31);
         required.max_storage_buffers_per_shader_stage = 8.min(limits.max_storage_buffers_per_shader_stage);
         required.max_compute_workgroup_storage_size = limits.max_compute_workgroup_storage_size.min(16384);
-        let timestamp_features = wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS;
         let (device, queue) = block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("gscodec"),
             required_limits: required.clone(),
-            required_features: adapter.features() & timestamp_features,
+            required_features: adapter.features() & TIMESTAMP_FEATURES,
             ..Default::default()
         }))
         .map_err(|e| GpuError::Device(e.to_string()))?;
@@ -179,7 +180,7 @@ impl GpuRenderer {
         let scan_m = module("scan", SCAN);
         let sort_m = module("radix_sort", RADIX_SORT);
         let raster_m = module("rasterize", RASTERIZE);
-        let timestamps = adapter.features().contains(timestamp_features).then(|| {
+        let timestamps = device.features().contains(TIMESTAMP_FEATURES).then(|| {
             let qs = device.create_query_set(&wgpu::QuerySetDescriptor { label: Some("stages"), ty: wgpu::QueryType::Timestamp, count: 5 });
             let resolve = device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("timestamps"),
