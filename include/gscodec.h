@@ -81,6 +81,30 @@ const float *gsc_scene_opacity_logits(const GscScene *scene); /* count: opacity 
 const float *gsc_scene_sh_dc(const GscScene *scene);      /* count*3: SH DC per channel */
 const float *gsc_scene_sh_rest(const GscScene *scene);    /* count*K*3: [(i*K + k)*3 + c] */
 
+/* A pinhole camera (OpenCV axes: x right, y down, z forward): p_cam = R p_world + t. */
+typedef struct GscCamera {
+    uint32_t width, height; /* image size in pixels */
+    float fx, fy;           /* focal lengths in pixels */
+    float cx, cy;           /* principal point (pixel centres at i + 0.5) */
+    float rotation[9];      /* world-to-camera R, row-major */
+    float translation[3];   /* world-to-camera t */
+    float znear;            /* Gaussians at depth z <= znear are not drawn; <= 0: 0.05 */
+} GscCamera;
+
+#define GSC_PIXEL_RGBA_F32 0 /* 4 floats per pixel: linear RGB as rendered, alpha 1 */
+#define GSC_PIXEL_RGBA_U8 1  /* 4 bytes per pixel: RGB clamped to [0,1] and rounded to 0..255, alpha 255 */
+#define GSC_RENDERER_CPU 1   /* gsc_render ran the CPU renderer */
+#define GSC_RENDERER_GPU 2   /* gsc_render ran the GPU (wgpu) renderer */
+
+/* Renders `scene` from `*camera` into the caller's buffer `out` of `out_len` bytes (at least
+ * width*height*16 for GSC_PIXEL_RGBA_F32, 4-byte aligned, or width*height*4 for GSC_PIXEL_RGBA_U8),
+ * rows top to bottom. `background` is RGB (NULL: black); `max_sh_degree` 0..3. `use_gpu` != 0
+ * renders on the GPU when the library was built with the `gpu` feature and an adapter exists,
+ * else (or if the GPU render fails) on the CPU; *renderer (if not NULL) receives
+ * GSC_RENDERER_GPU or GSC_RENDERER_CPU. On failure `out` is left untouched. */
+int gsc_render(const GscScene *scene, const GscCamera *camera, const float *background, int max_sh_degree,
+               int pixel_format, int use_gpu, void *out, size_t out_len, int *renderer);
+
 /* Message of the last failure on this thread ("" if none); never NULL. */
 const char *gsc_last_error(void);
 

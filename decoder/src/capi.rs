@@ -316,3 +316,138 @@ pub extern "C" fn gsc_last_error() -> *const c_char {
 pub extern "C" fn gsc_version() -> *const c_char {
     concat!(env!("CARGO_PKG_VERSION"), "\0").as_ptr() as *const c_char
 }
+
+/// A pinhole camera (OpenCV axes: x right, y down, z forward): `p_cam = R p_world + t`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct GscCamera {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Focal length along x, in pixels.
+    pub fx: f32,
+    /// Focal length along y, in pixels.
+    pub fy: f32,
+    /// Principal point x, in continuous pixel coordinates (pixel centres at i + 0.5).
+    pub cx: f32,
+    /// Principal point y.
+    pub cy: f32,
+    /// World-to-camera rotation `R`, row-major.
+    pub rotation: [f32; 9],
+    /// World-to-camera translation `t`.
+    pub translation: [f32; 3],
+    /// Near plane: Gaussians at camera depth `z <= znear` are not drawn (<= 0: 0.05).
+    pub znear: f32,
+}
+
+/// Output pixels: 4 floats per pixel, linear RGB as rendered plus alpha 1.
+pub const GSC_PIXEL_RGBA_F32: c_int = 0;
+/// Output pixels: 4 bytes per pixel, RGB clamped to [0, 1] and rounded to 0..=255, alpha 255.
+pub const GSC_PIXEL_RGBA_U8: c_int = 1;
+/// `gsc_render` ran the CPU renderer.
+pub const GSC_RENDERER_CPU: c_int = 1;
+/// `gsc_render` ran the GPU (wgpu) renderer.
+pub const GSC_RENDERER_GPU: c_int = 2;
+
+/// The process-wide GPU renderer, created on first use; `None` when there is no adapter.
+#[cfg(feature = "gpu")]
+fn gpu_renderer() -> Option<&'static crate::render::gpu::GpuRenderer> {
+    static R: std::sync::OnceLock<Option<crate::render::gpu::GpuRenderer>> = std::sync::OnceLock::new();
+    R.get_or_init(|| crate::render::gpu::GpuRenderer::new().ok()).as_ref()
+}
+
+/// Renders with the GPU when asked and possible, else the CPU; says which ran.
+fn render_any(s: &Splats, cam: &crate::Camera, opts: &crate::RenderOptions, use_gpu: bool) -> (crate::Image, c_int) {
+    #[cfg(feature = "gpu")]
+    if use_gpu {
+        if let Some(Ok(img)) = gpu_renderer().map(|r| r.render(s, cam, opts)) {
+            return (img, GSC_RENDERER_GPU);
+        }
+    }
+    #[cfg(not(feature = "gpu"))]
+    let _ = use_gpu;
+    (crate::render::render(s, cam, opts), GSC_RENDERER_CPU)
+}
+
+/// Renders `scene` from `*camera` into the caller's `out` buffer (`out_len` bytes, at least
+/// `width × height × 16` for `GSC_PIXEL_RGBA_F32` or `× 4` for `GSC_PIXEL_RGBA_U8`), rows top
+/// to bottom. `background` (NULL: black) is RGB; `max_sh_degree` 0..=3. `use_gpu` != 0 renders
+/// with the GPU renderer when the library was built with feature `gpu` and an adapter exists
+/// (falling back to the CPU renderer otherwise); `*renderer` (if not NULL) receives
+/// `GSC_RENDERER_GPU` or `GSC_RENDERER_CPU`. On failure `out` is left untouched.
+///
+/// # Safety
+/// `scene` is a live scene from [`gsc_decode`]; `camera` is readable; `background` is NULL or
+/// 3 readable floats; `out` points to `out_len` writable bytes (4-byte aligned for f32);
+/// `renderer` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn gsc_render(
+    scene: *const GscScene,
+    camera: *const GscCamera,
+    background: *const f32,
+    max_sh_degree: c_int,
+    pixel_format: c_int,
+    use_gpu: c_int,
+    out: *mut std::ffi::c_void,
+    out_len: usize,
+    renderer: *mut c_int,
+) -> c_int {
+    guarded(|| {
+        if scene.is_null() || camera.is_null() || out.is_null() {
+            set_error("gsc_render: `scene`, `camera` and `out` must not be NULL");
+            return GSC_ERR_ARGUMENT;
+        }
+        // SAFETY: non-null and readable per the contract.
+        let (c, s) = unsafe { (*camera, &(*scene).splats) };
+        let bg = if background.is_null() { [0.0; 3] } else { unsafe { *(background as *const [f32; 3]) } };
+        let per_pixel = match pixel_format {
+            GSC_PIXEL_RGBA_F32 => 16,
+            GSC_PIXEL_RGBA_U8 => 4,
+            _ => {
+                set_error(format!("gsc_render: unknown pixel format {pixel_format}"));
+                return GSC_ERR_ARGUMENT;
+            }
+        };
+        let needed = (c.width as u64 * c.height as u64).checked_mul(per_pixel);
+        let finite = c.rotation.iter().chain(&c.translation).chain(&[c.fx, c.fy, c.cx, c.cy, c.znear]).chain(&bg).all(|v| v.is_finite());
+        if !(0..=3).contains(&max_sh_degree) || !finite || c.fx <= 0.0 || c.fy <= 0.0 || needed.is_none_or(|n| n > out_len as u64) {
+            set_error(format!(
+                "gsc_render: need max_sh_degree 0..=3 ({max_sh_degree}), finite camera and background, fx, fy > 0, and {} output bytes ({out_len} given)",
+                needed.map_or("too many".into(), |n| n.to_string())
+            ));
+            return GSC_ERR_ARGUMENT;
+        }
+        if pixel_format == GSC_PIXEL_RGBA_F32 && (out as usize) % 4 != 0 {
+            set_error("gsc_render: `out` must be 4-byte aligned for GSC_PIXEL_RGBA_F32");
+            return GSC_ERR_ARGUMENT;
+        }
+        let mut cam = crate::Camera::new(c.width, c.height, c.fx, c.fy, glam::Mat3::from_cols_array(&c.rotation).transpose(), glam::Vec3::from(c.translation));
+        (cam.cx, cam.cy) = (c.cx, c.cy);
+        if c.znear > 0.0 {
+            cam.znear = c.znear;
+        }
+        let opts = crate::RenderOptions { background: bg, max_sh_degree: max_sh_degree as u8 };
+        let (img, which) = render_any(s, &cam, &opts, use_gpu != 0);
+        let pixels = img.data.chunks_exact(3);
+        if pixel_format == GSC_PIXEL_RGBA_F32 {
+            // SAFETY: `out_len >= needed` writable, aligned bytes per the checks and contract.
+            let dst = unsafe { std::slice::from_raw_parts_mut(out as *mut f32, pixels.len() * 4) };
+            for (d, p) in dst.chunks_exact_mut(4).zip(pixels) {
+                d.copy_from_slice(&[p[0], p[1], p[2], 1.0]);
+            }
+        } else {
+            // SAFETY: as above.
+            let dst = unsafe { std::slice::from_raw_parts_mut(out as *mut u8, pixels.len() * 4) };
+            let q = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+            for (d, p) in dst.chunks_exact_mut(4).zip(pixels) {
+                d.copy_from_slice(&[q(p[0]), q(p[1]), q(p[2]), 255]);
+            }
+        }
+        if !renderer.is_null() {
+            // SAFETY: writable per the contract.
+            unsafe { *renderer = which };
+        }
+        GSC_OK
+    })
+}

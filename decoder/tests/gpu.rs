@@ -98,35 +98,29 @@ fn gpu_radix_sort_is_stable() {
     }
 }
 
-/// Frame times at 1080p for 100k and 1M Gaussians (GPU vs CPU), printed; `--ignored` only.
-/// `cargo test --release -p gscodec-decoder --features gpu --test gpu -- --ignored --nocapture`
+/// The frame-resident path (scene uploaded once, several frames rendered into GPU buffers, read
+/// back afterwards) gives exactly the images of the one-shot `render` from each camera, and the
+/// timed variant gives the same image with a stage split. Frame times: `benches/gpu_frame.rs`.
 #[test]
-#[ignore]
-fn gpu_frame_time_1080p() {
+fn gpu_frames_from_one_upload_equal_one_shot_renders() {
     let Some(r) = gpu_renderer() else { return };
-    let cam = camera(1920, 1080);
-    let opts = RenderOptions::default();
-    for n in [100_000usize, 1_000_000] {
-        let mut s = random_splats_in(n, 3, 11, &SCENE);
-        // Trained scenes have many small Gaussians: shrink them (more for the denser scene) so the
-        // number of (tile, Gaussian) pairs stays realistic (a few per Gaussian).
-        let shrink = 1.5 + (n as f32 / 100_000.0).log10() * 0.5;
-        s.log_scales.iter_mut().flatten().for_each(|v| *v -= shrink);
-        r.render(&s, &cam, &opts).unwrap(); // warm-up
-        let t = std::time::Instant::now();
-        let frames = 3;
-        for _ in 0..frames {
-            r.render(&s, &cam, &opts).unwrap();
-        }
-        let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
-        let t = std::time::Instant::now();
-        let cpu = render(&s, &cam, &opts);
-        let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
-        let p = psnr(&cpu, &r.render(&s, &cam, &opts).unwrap());
-        let pairs = gscodec_decoder::render::bin_tiles(&gscodec_decoder::render::preprocess(&s, &cam, 3), 1920, 1080).ids.len();
-        eprintln!(
-            "{n} Gaussians SH3 ({pairs} tile pairs) 1920x1080 on {}: GPU {gpu_ms:.0} ms/frame, CPU {cpu_ms:.0} ms/frame, PSNR {p:.1} dB",
-            r.adapter_name()
-        );
+    let s = random_splats_in(2000, 3, 21, &SCENE);
+    let opts = RenderOptions { background: [0.1, 0.0, 0.3], max_sh_degree: 3 };
+    let scene = r.upload(&s, 3).unwrap();
+    assert_eq!(scene.len(), s.len());
+    let cams = [camera(64, 48), Camera::look_at(Vec3::new(-2.5, 1.0, 2.0), Vec3::ZERO, Vec3::new(0.0, -1.0, 0.0), 80, 40, 1.1)];
+    let frames: Vec<_> = cams.iter().map(|c| r.render_frame(&scene, c, &opts).unwrap()).collect();
+    for (cam, frame) in cams.iter().zip(&frames) {
+        let resident = r.read_image(frame).unwrap();
+        assert_eq!(resident, r.render(&s, cam, &opts).unwrap());
+        assert!(psnr(&resident, &render(&s, cam, &opts)) >= 45.0);
     }
+    // Degree clamped per frame below the uploaded degree, as the one-shot render does.
+    let sh1 = RenderOptions { max_sh_degree: 1, ..opts };
+    assert_eq!(r.read_image(&r.render_frame(&scene, &cams[0], &sh1).unwrap()).unwrap(), r.render(&s, &cams[0], &sh1).unwrap());
+    let (frame, t) = r.render_frame_timed(&scene, &cams[0], &opts).unwrap();
+    assert_eq!(r.read_image(&frame).unwrap(), r.read_image(&frames[0]).unwrap());
+    eprintln!("stage times: {t:?}");
+    assert!(t.project > 0.0 && t.sort > 0.0 && t.rasterize > 0.0, "{t:?}");
+    assert_eq!(t.gpu_timestamps, r.has_timestamps());
 }

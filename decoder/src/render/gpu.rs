@@ -3,7 +3,8 @@
 //! Pipeline (WGSL kernels in `decoder/shaders/`, sources in [`crate::shaders`]):
 //! 1. `project` — per Gaussian: camera transform, 3D → 2D covariance (EWA), conic and 3σ radius,
 //!    SH colour, opacity, and the number of 16×16 tiles its rectangle touches. The scene is
-//!    uploaded in chunks so that no storage binding exceeds 128 MiB.
+//!    uploaded once ([`GpuRenderer::upload`]) in chunks so that no storage binding exceeds the
+//!    device limit (at most 1 GiB).
 //! 2. `scan` — exclusive prefix sum of the tile counts (workgroup-shared Hillis–Steele scans,
 //!    recursive over blocks); the total number of (tile, Gaussian) pairs is read back once.
 //! 3. `emit` — one `(tile, depth, id)` key per overlap, in Gaussian order.
@@ -13,7 +14,8 @@
 //!    tile composites front to back, staging Gaussians through workgroup memory.
 //!
 //! No subgroup operations or optional features are used, so any WebGPU-capable adapter works
-//! (including Mesa's lavapipe software Vulkan). The image is read back to the host as RGB f32.
+//! (including Mesa's lavapipe software Vulkan). [`GpuRenderer::render_frame`] leaves the RGB f32
+//! image in a GPU buffer ([`GpuFrame`]); [`GpuRenderer::render`] uploads, renders and reads back.
 
 use super::{Image, RenderOptions};
 use crate::camera::Camera;
@@ -48,6 +50,8 @@ pub struct GpuRenderer {
     info: wgpu::AdapterInfo,
     max_binding: u64,
     errors: Arc<Mutex<Option<String>>>,
+    /// Five stage-boundary timestamps and their resolve buffer, when the adapter has them.
+    timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
     project: wgpu::ComputePipeline,
     emit: wgpu::ComputePipeline,
     scan_blocks: wgpu::ComputePipeline,
@@ -64,6 +68,8 @@ const PROJECTED_BYTES: u64 = 48;
 const SCAN_BLOCK: u32 = 1024;
 const SORT_BLOCK: u32 = 1024;
 const MAX_GROUPS: u32 = 65535;
+/// Device features for the per-stage GPU timestamps (requested when the adapter has them).
+const TIMESTAMP_FEATURES: wgpu::Features = wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS);
 
 /// Minimal executor for wgpu's futures (they complete after `Device::poll` on native backends).
 #[doc(hidden)]
@@ -129,14 +135,15 @@ impl GpuRenderer {
     pub fn with_adapter(adapter: &wgpu::Adapter) -> Result<Self, GpuError> {
         let limits = adapter.limits();
         let mut required = wgpu::Limits::downlevel_defaults();
-        // Ask for as much as the adapter offers, but never bind more than 128 MiB at once.
-        required.max_storage_buffer_binding_size = limits.max_storage_buffer_binding_size.min(128 << 20);
-        required.max_buffer_size = limits.max_buffer_size.min(1 << 30);
+        // Ask for as much as the adapter offers, but never bind more than 1 GiB at once.
+        required.max_storage_buffer_binding_size = limits.max_storage_buffer_binding_size.min(1 << 30);
+        required.max_buffer_size = limits.max_buffer_size.min(1 << 31);
         required.max_storage_buffers_per_shader_stage = 8.min(limits.max_storage_buffers_per_shader_stage);
         required.max_compute_workgroup_storage_size = limits.max_compute_workgroup_storage_size.min(16384);
         let (device, queue) = block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("gscodec"),
             required_limits: required.clone(),
+            required_features: adapter.features() & TIMESTAMP_FEATURES,
             ..Default::default()
         }))
         .map_err(|e| GpuError::Device(e.to_string()))?;
@@ -173,7 +180,18 @@ impl GpuRenderer {
         let scan_m = module("scan", SCAN);
         let sort_m = module("radix_sort", RADIX_SORT);
         let raster_m = module("rasterize", RASTERIZE);
+        let timestamps = device.features().contains(TIMESTAMP_FEATURES).then(|| {
+            let qs = device.create_query_set(&wgpu::QuerySetDescriptor { label: Some("stages"), ty: wgpu::QueryType::Timestamp, count: 5 });
+            let resolve = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamps"),
+                size: 5 * 8,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            (qs, resolve)
+        });
         let r = GpuRenderer {
+            timestamps,
             project: pipeline(&project_m, "project"),
             emit: pipeline(&emit_m, "emit"),
             scan_blocks: pipeline(&scan_m, "scan_blocks"),
@@ -352,48 +370,27 @@ impl GpuRenderer {
     }
 
     /// Renders `splats` from `cam`: the same image as [`super::render`] up to float rounding.
+    /// Uploads the scene, renders one frame and reads it back; for many frames of one scene use
+    /// [`Self::upload`], [`Self::render_frame`] and [`Self::read_image`].
     pub fn render(&self, splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Result<Image, GpuError> {
-        let (w, h) = (cam.width, cam.height);
+        let scene = self.upload(splats, opts.max_sh_degree)?;
+        let frame = self.render_frame(&scene, cam, opts)?;
+        self.read_image(&frame)
+    }
+
+    /// Uploads `splats` (SH bands up to `max_sh_degree`) once, to render many frames from.
+    pub fn upload(&self, splats: &Splats, max_sh_degree: u8) -> Result<GpuScene, GpuError> {
         let n = splats.len();
-        if n == 0 || w == 0 || h == 0 {
-            return Ok(Image::filled(w, h, opts.background));
-        }
         let n32 = u32::try_from(n).map_err(|_| GpuError::TooLarge(format!("{n} Gaussians")))?;
-        let degree = opts.max_sh_degree.min(splats.sh_degree);
+        let degree = max_sh_degree.min(splats.sh_degree);
         let k_used = sh_rest_coeffs(degree);
         let k_all = splats.rest_coeffs();
         let stride = RECORD_BASE + 3 * k_used;
-        let (tiles_x, tiles_y) = (w.div_ceil(TILE), h.div_ceil(TILE));
         self.fits("the projected Gaussians", n as u64 * PROJECTED_BYTES)?;
-        self.fits("the image", w as u64 * h as u64 * 12)?;
-        self.fits("the tile table", tiles_x as u64 * tiles_y as u64 * 8)?;
-
-        let r = cam.rotation;
-        let c = cam.center();
-        let frame = FrameUniform {
-            rot: [r.x_axis.extend(0.0).to_array(), r.y_axis.extend(0.0).to_array(), r.z_axis.extend(0.0).to_array()],
-            trans: cam.translation.extend(0.0).to_array(),
-            center: c.extend(0.0).to_array(),
-            focal: [cam.fx, cam.fy, cam.cx, cam.cy],
-            background: [opts.background[0], opts.background[1], opts.background[2], 0.0],
-            znear: cam.znear,
-            width: w,
-            height: h,
-            tiles_x,
-            tiles_y,
-            degree: degree as u32,
-            stride: stride as u32,
-            n: n32,
-        };
-        let frame_buf = self.uniform(&frame);
-        let projected = self.storage("projected", n as u64 * PROJECTED_BYTES);
-        let counts = self.storage("tile counts", (n as u64 + 1) * 4);
-
-        // 1. project, chunk by chunk (each chunk's records stay under the binding limit)
-        let mut enc = self.device.create_command_encoder(&Default::default());
-        enc.clear_buffer(&counts, 0, None);
+        // each chunk's records stay under the binding limit
         let per_chunk = ((self.max_binding / (stride as u64 * 4)) as usize).clamp(1, 1 << 22);
         let mut record = Vec::with_capacity(per_chunk.min(n) * stride);
+        let mut chunks = Vec::new();
         for base in (0..n).step_by(per_chunk) {
             let end = (base + per_chunk).min(n);
             record.clear();
@@ -410,31 +407,141 @@ impl GpuRenderer {
                 contents: bytemuck::cast_slice(&record),
                 usage: wgpu::BufferUsages::STORAGE,
             });
-            let chunk = self.uniform(&[base as u32, (end - base) as u32, 0, 0]);
-            let bg = self.bind(&self.project, &[(0, &frame_buf), (1, &chunk), (2, &records), (3, &projected), (4, &counts)]);
-            Self::dispatch(&mut enc, &self.project, &bg, dims(((end - base) as u32).div_ceil(256)));
+            chunks.push((records, self.uniform(&[base as u32, (end - base) as u32, 0, 0]), (end - base) as u32));
+        }
+        self.check()?;
+        Ok(GpuScene { chunks, n: n32, degree, stride: stride as u32 })
+    }
+
+    /// Renders an uploaded scene from `cam` into a GPU-resident RGB f32 image (no readback of
+    /// the image; the tile-pair count is read back once, mid-frame).
+    pub fn render_frame(&self, scene: &GpuScene, cam: &Camera, opts: &RenderOptions) -> Result<GpuFrame, GpuError> {
+        self.frame(scene, cam, opts, None)
+    }
+
+    /// As [`Self::render_frame`], waiting for the GPU after the frame and returning the time of
+    /// each stage: from GPU timestamps when the adapter has `TIMESTAMP_QUERY` and
+    /// `TIMESTAMP_QUERY_INSIDE_ENCODERS`, else host time around stage-by-stage submissions.
+    pub fn render_frame_timed(&self, scene: &GpuScene, cam: &Camera, opts: &RenderOptions) -> Result<(GpuFrame, StageTimes), GpuError> {
+        let mut times = StageTimes::default();
+        let frame = self.frame(scene, cam, opts, Some(&mut times))?;
+        Ok((frame, times))
+    }
+
+    /// Whether [`Self::render_frame_timed`] uses GPU timestamps (else host time per stage).
+    pub fn has_timestamps(&self) -> bool {
+        self.timestamps.is_some()
+    }
+
+    /// Waits until the GPU has finished all submitted work (e.g. a [`Self::render_frame`]).
+    pub fn sync(&self) -> Result<(), GpuError> {
+        self.wait()
+    }
+
+    /// Reads a frame back to the host.
+    pub fn read_image(&self, frame: &GpuFrame) -> Result<Image, GpuError> {
+        let bytes = self.read_back(&frame.image, 0, frame.width as u64 * frame.height as u64 * 12)?;
+        Ok(Image { width: frame.width, height: frame.height, data: bytemuck::pod_collect_to_vec(&bytes) })
+    }
+
+    fn filled_frame(&self, w: u32, h: u32, rgb: [f32; 3]) -> GpuFrame {
+        let image = self.storage("image", w as u64 * h as u64 * 12);
+        if w > 0 && h > 0 {
+            self.queue.write_buffer(&image, 0, bytemuck::cast_slice(&Image::filled(w, h, rgb).data));
+        }
+        GpuFrame { image, width: w, height: h }
+    }
+
+    fn wait(&self) -> Result<(), GpuError> {
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Backend(e.to_string()))?;
+        self.check()
+    }
+
+    /// Marks a stage boundary: a GPU timestamp `index` when available, else (when timing) a host
+    /// clock reading after submitting `enc` and waiting for the GPU.
+    fn mark(&self, enc: &mut wgpu::CommandEncoder, timing: &mut Option<&mut StageTimes>, host: &mut [Option<std::time::Instant>; 5], index: usize) -> Result<(), GpuError> {
+        if timing.is_none() {
+            return Ok(());
+        }
+        if let Some((qs, _)) = &self.timestamps {
+            enc.write_timestamp(qs, index as u32);
+        } else {
+            let done = std::mem::replace(enc, self.device.create_command_encoder(&Default::default()));
+            self.queue.submit([done.finish()]);
+            self.wait()?;
+            host[index] = Some(std::time::Instant::now());
+        }
+        Ok(())
+    }
+
+    fn frame(&self, scene: &GpuScene, cam: &Camera, opts: &RenderOptions, mut timing: Option<&mut StageTimes>) -> Result<GpuFrame, GpuError> {
+        let (w, h) = (cam.width, cam.height);
+        let n = scene.n;
+        if n == 0 || w == 0 || h == 0 {
+            return Ok(self.filled_frame(w, h, opts.background));
+        }
+        let degree = opts.max_sh_degree.min(scene.degree);
+        let (tiles_x, tiles_y) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        self.fits("the image", w as u64 * h as u64 * 12)?;
+        self.fits("the tile table", tiles_x as u64 * tiles_y as u64 * 8)?;
+        let mut host = [None; 5];
+
+        let r = cam.rotation;
+        let c = cam.center();
+        let frame = FrameUniform {
+            rot: [r.x_axis.extend(0.0).to_array(), r.y_axis.extend(0.0).to_array(), r.z_axis.extend(0.0).to_array()],
+            trans: cam.translation.extend(0.0).to_array(),
+            center: c.extend(0.0).to_array(),
+            focal: [cam.fx, cam.fy, cam.cx, cam.cy],
+            background: [opts.background[0], opts.background[1], opts.background[2], 0.0],
+            znear: cam.znear,
+            width: w,
+            height: h,
+            tiles_x,
+            tiles_y,
+            degree: degree as u32,
+            stride: scene.stride,
+            n,
+        };
+        let frame_buf = self.uniform(&frame);
+        let projected = self.storage("projected", n as u64 * PROJECTED_BYTES);
+        let counts = self.storage("tile counts", (n as u64 + 1) * 4);
+
+        // 1. project, chunk by chunk
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        self.mark(&mut enc, &mut timing, &mut host, 0)?;
+        enc.clear_buffer(&counts, 0, None);
+        for (records, chunk, len) in &scene.chunks {
+            let bg = self.bind(&self.project, &[(0, &frame_buf), (1, chunk), (2, records), (3, &projected), (4, &counts)]);
+            Self::dispatch(&mut enc, &self.project, &bg, dims(len.div_ceil(256)));
         }
         // 2. offsets = exclusive scan of the counts; counts[n] (zero) becomes the total
-        self.record_scan(&mut enc, &counts, n32 + 1);
+        self.record_scan(&mut enc, &counts, n + 1);
+        self.mark(&mut enc, &mut timing, &mut host, 1)?;
         self.queue.submit([enc.finish()]);
         let total = self.read_back(&counts, n as u64 * 4, 4)?;
         let pairs = u32::from_le_bytes(total[..4].try_into().unwrap());
         if pairs == 0 {
-            return Ok(Image::filled(w, h, opts.background));
+            if let Some(t) = timing {
+                *t = self.stage_times(&host, false)?;
+            }
+            return Ok(self.filled_frame(w, h, opts.background));
         }
         self.fits("the sort keys", pairs as u64 * 4)?;
 
         // 3. keys
         let mut enc = self.device.create_command_encoder(&Default::default());
+        self.mark(&mut enc, &mut timing, &mut host, 2)?;
         let key = |name| self.storage(name, pairs as u64 * 4);
         let mut a = [key("tile A"), key("depth A"), key("id A")];
         let mut b = [key("tile B"), key("depth B"), key("id B")];
         let bg = self.bind(&self.emit, &[(0, &frame_buf), (1, &projected), (2, &counts), (3, &a[0]), (4, &a[1]), (5, &a[2])]);
-        Self::dispatch(&mut enc, &self.emit, &bg, dims(n32.div_ceil(256)));
+        Self::dispatch(&mut enc, &self.emit, &bg, dims(n.div_ceil(256)));
 
         // 4. stable radix sort: depth word first, then the tile word
         let tile_bits = 32 - (tiles_x * tiles_y - 1).leading_zeros();
         self.record_radix_sort(&mut enc, &mut a, &mut b, pairs, tile_bits);
+        self.mark(&mut enc, &mut timing, &mut host, 3)?;
 
         // 5. tile ranges and rasterization
         let ranges = self.storage("tile ranges", tiles_x as u64 * tiles_y as u64 * 8);
@@ -450,8 +557,85 @@ impl GpuRenderer {
             pass.set_bind_group(0, &bg, &[]);
             pass.dispatch_workgroups(tiles_x, tiles_y, 1);
         }
+        self.mark(&mut enc, &mut timing, &mut host, 4)?;
+        if let (Some(_), Some((qs, resolve))) = (&timing, &self.timestamps) {
+            enc.resolve_query_set(qs, 0..5, resolve, 0);
+        }
         self.queue.submit([enc.finish()]);
-        let bytes = self.read_back(&image, 0, w as u64 * h as u64 * 12)?;
-        Ok(Image { width: w, height: h, data: bytemuck::pod_collect_to_vec(&bytes) })
+        if let Some(t) = timing {
+            self.wait()?;
+            *t = self.stage_times(&host, true)?;
+        }
+        self.check()?;
+        Ok(GpuFrame { image, width: w, height: h })
     }
+
+    /// Stage durations from the five boundary marks (timestamps or host instants).
+    fn stage_times(&self, host: &[Option<std::time::Instant>; 5], complete: bool) -> Result<StageTimes, GpuError> {
+        let t: Vec<f64> = if let Some((_, resolve)) = &self.timestamps {
+            if !complete {
+                return Ok(StageTimes::default());
+            }
+            let period = self.queue.get_timestamp_period() as f64 * 1e-9;
+            let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&self.read_back(resolve, 0, 40)?);
+            ticks.iter().map(|&v| v.wrapping_sub(ticks[0]) as f64 * period).collect()
+        } else {
+            let t0 = host[0].expect("timing mark 0");
+            host.iter().map(|m| m.map_or(0.0, |m| (m - t0).as_secs_f64())).collect()
+        };
+        let span = |a: usize, b: usize| (t[b] - t[a]).max(0.0);
+        Ok(StageTimes { project: span(0, 1), sort: span(2, 3), rasterize: span(3, 4), gpu_timestamps: self.timestamps.is_some() })
+    }
+}
+
+/// A scene uploaded to the GPU by [`GpuRenderer::upload`] (input records, chunked so that no
+/// binding exceeds the device limit).
+pub struct GpuScene {
+    /// (records, chunk uniform: first index and length, length)
+    chunks: Vec<(wgpu::Buffer, wgpu::Buffer, u32)>,
+    n: u32,
+    degree: u8,
+    stride: u32,
+}
+
+impl GpuScene {
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.n as usize
+    }
+
+    /// Whether the scene has no Gaussians.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+}
+
+/// A rendered frame resident on the GPU: `width × height` RGB f32, row-major (the layout of
+/// [`Image::data`]); read it with [`GpuRenderer::read_image`] or bind [`Self::buffer`].
+pub struct GpuFrame {
+    image: wgpu::Buffer,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+}
+
+impl GpuFrame {
+    /// The storage buffer holding the image.
+    pub fn buffer(&self) -> &wgpu::Buffer {
+        &self.image
+    }
+}
+
+/// Seconds spent in each stage of a frame ([`GpuRenderer::render_frame_timed`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimes {
+    /// Projection (with SH colour) and the scan of tile counts.
+    pub project: f64,
+    /// Key emission and the radix sort.
+    pub sort: f64,
+    /// Tile ranges and compositing.
+    pub rasterize: f64,
+    /// Whether these are GPU timestamps (else host time around stage-by-stage submissions).
+    pub gpu_timestamps: bool,
 }
