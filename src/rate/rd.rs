@@ -61,10 +61,6 @@ impl<'a> Evaluator<'a> {
     }
 }
 
-fn psnr_of(d: f64) -> f64 {
-    10.0 * (255.0f64 * 255.0 / d.max(1e-12)).log10()
-}
-
 const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 /// Pruning thresholds tried, in units of 1/255 opacity.
 const PRUNE_THRESHOLDS: [f32; 12] = [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 64.0, 512.0];
@@ -104,7 +100,7 @@ pub fn search_from(
     let j = |bytes: usize, d: f64| d + lambda.rate_cost(bytes);
     let mut path = Vec::new();
     let mut record = |change: String, bytes: usize, d: f64, path: &mut Vec<Trial>| {
-        let p = Trial { step: path.len(), change, bytes, d, psnr: psnr_of(d), j: j(bytes, d) };
+        let p = Trial { step: path.len(), change, bytes, d, psnr: gscodec_decoder::render::psnr_of_mse(d / (255.0 * 255.0)), j: j(bytes, d) };
         on_step(&p);
         path.push(p);
     };

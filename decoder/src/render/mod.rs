@@ -51,7 +51,11 @@ pub fn mse(a: &Image, b: &Image) -> f64 {
 /// # Panics
 /// If the images differ in size.
 pub fn psnr(a: &Image, b: &Image) -> f64 {
-    let m = mse(a, b);
+    psnr_of_mse(mse(a, b))
+}
+
+/// PSNR in dB of a mean squared error `m` for a peak of 1.0, capped at 100 dB (`m` ≤ 1e-10).
+pub fn psnr_of_mse(m: f64) -> f64 {
     if m <= 1e-10 {
         100.0
     } else {
