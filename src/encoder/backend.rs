@@ -46,9 +46,9 @@ impl Backend {
 /// runs on the CPU the jobs the GPU trainer cannot (a WD loss, the rate term).
 #[cfg(feature = "gpu")]
 fn gpu_backend(auto: bool) -> Option<Box<dyn TrainBackend>> {
-    if auto && !crate::train::gpu::hardware_adapter_available() {
-        return None;
-    }
+    // `auto` looks for a hardware adapter only when a job the GPU trainer can run arrives
+    // (probing prints driver warnings on some machines, e.g. Mesa's lavapipe without
+    // XDG_RUNTIME_DIR, and costs time).
     Some(Box::new(GpuBackend { fall_back_to_cpu: auto }))
 }
 
@@ -84,6 +84,9 @@ impl TrainBackend for GpuBackend {
         match refused {
             Some(_) if self.fall_back_to_cpu => CpuBackend.train(job, progress),
             Some(e) => Err(e),
+            None if self.fall_back_to_cpu && !crate::train::gpu::hardware_adapter_available() => {
+                CpuBackend.train(job, progress)
+            }
             None => crate::train::gpu::train(job.dataset, job.init, job.config, &loss, progress),
         }
     }
@@ -230,5 +233,11 @@ mod tests {
         let (_, r) = GpuBackend { fall_back_to_cpu: true }.train(job(), &mut |_| {}).unwrap();
         assert_eq!(r.backend, "cpu");
         assert!(r.rate.is_some());
+        // A job the GPU trainer can run goes to the GPU only when a hardware adapter exists
+        // (not Mesa's lavapipe).
+        let plain = TrainJob { rate: None, ..job() };
+        let (_, r) = GpuBackend { fall_back_to_cpu: true }.train(plain, &mut |_| {}).unwrap();
+        let want = if crate::train::gpu::hardware_adapter_available() { "gpu" } else { "cpu" };
+        assert_eq!(r.backend, want);
     }
 }
