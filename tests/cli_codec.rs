@@ -90,7 +90,10 @@ fn fine_tuning_encode_writes_a_decodable_file_and_report() {
     assert!((est - bytes.len() as f64).abs() / (bytes.len() as f64) < 0.05, "{est} vs {}", bytes.len());
     assert!(r["orbit_psnr"].as_f64().unwrap() > 25.0);
     assert!(r["series"].as_array().unwrap().iter().any(|p| p["trial"] == "train"));
-    assert_eq!((&r["backend"], &r["train"]["backend"], &r["loss"], &r["lambda"]), (&"cpu".into(), &"cpu".into(), &"wdr".into(), &20.0.into()));
+    assert_eq!(
+        (&r["backend"], &r["train"]["backend"], &r["loss"], &r["lambda"]),
+        (&"cpu".into(), &"cpu".into(), &"wdr".into(), &20.0.into())
+    );
     let stages = &r["stages"];
     assert!(stages["train_s"].as_f64().unwrap() > 0.0 && stages["total_s"].as_f64().unwrap() >= stages["rd_search_s"].as_f64().unwrap());
     assert!(r["steps"]["sh_dc"].as_f64().unwrap() > 0.0);

@@ -422,7 +422,11 @@ fn mutated_files_never_panic() {
     // The unbundled folder (no zip CRC in the way): edit one of its files per round.
     let dir = tempfile::tempdir().unwrap();
     let names: Vec<std::ffi::OsString> = std::fs::read_dir(data("tiny-sog")).unwrap().map(|e| e.unwrap().file_name()).collect();
-    let copy_all = || names.iter().for_each(|n| drop(std::fs::copy(data("tiny-sog").join(n), dir.path().join(n)).unwrap()));
+    let copy_all = || {
+        names.iter().for_each(|n| {
+            std::fs::copy(data("tiny-sog").join(n), dir.path().join(n)).unwrap();
+        })
+    };
     for _ in 0..100 {
         copy_all();
         let victim = dir.path().join(&names[(next() % names.len() as u64) as usize]);

@@ -164,7 +164,9 @@ fn vectors_decode_to_their_expected_output() {
                 let mut d = Decoder::new(&bytes[..]);
                 d.set_threads(threads);
                 d.read_info().and_then(|r| r.decode())
-            }.unwrap().to_ply();
+            }
+            .unwrap()
+            .to_ply();
             assert_eq!(expected_hash(&sums, name), hex(&Sha256::digest(&ply)), "{name}");
             if !HASH_ONLY.contains(&name) {
                 assert_eq!(ply, std::fs::read(dir().join(format!("{name}.ply"))).unwrap(), "{name}");

@@ -41,7 +41,11 @@ fn scenes() -> Vec<(String, Splats)> {
         return vec![(format!("{path} ({})", s.len()), s)];
     }
     let sizes = std::env::var("GSC_BENCH_SIZES").unwrap_or_else(|_| "125000,1000000,3000000".into());
-    sizes.split(',').map(|v| v.trim().parse::<usize>().expect("GSC_BENCH_SIZES: comma-separated counts")).map(|n| (n.to_string(), scene(n))).collect()
+    sizes
+        .split(',')
+        .map(|v| v.trim().parse::<usize>().expect("GSC_BENCH_SIZES: comma-separated counts"))
+        .map(|n| (n.to_string(), scene(n)))
+        .collect()
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

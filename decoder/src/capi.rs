@@ -136,7 +136,13 @@ pub unsafe extern "C" fn gsc_decode(data: *const u8, len: usize, max_sh_degree: 
 /// `data` must point to `len` readable bytes; `limits` is NULL or readable; `out` must be a
 /// valid pointer to write to.
 #[no_mangle]
-pub unsafe extern "C" fn gsc_decode_limited(data: *const u8, len: usize, limits: *const GscLimits, threads: c_int, out: *mut *mut GscScene) -> c_int {
+pub unsafe extern "C" fn gsc_decode_limited(
+    data: *const u8,
+    len: usize,
+    limits: *const GscLimits,
+    threads: c_int,
+    out: *mut *mut GscScene,
+) -> c_int {
     guarded(|| {
         if out.is_null() {
             set_error("gsc_decode: `out` is NULL");
@@ -422,7 +428,14 @@ pub unsafe extern "C" fn gsc_render(
             set_error("gsc_render: `out` must be 4-byte aligned for GSC_PIXEL_RGBA_F32");
             return GSC_ERR_ARGUMENT;
         }
-        let mut cam = crate::Camera::new(c.width, c.height, c.fx, c.fy, glam::Mat3::from_cols_array(&c.rotation).transpose(), glam::Vec3::from(c.translation));
+        let mut cam = crate::Camera::new(
+            c.width,
+            c.height,
+            c.fx,
+            c.fy,
+            glam::Mat3::from_cols_array(&c.rotation).transpose(),
+            glam::Vec3::from(c.translation),
+        );
         (cam.cx, cam.cy) = (c.cx, c.cy);
         if c.znear > 0.0 {
             cam.znear = c.znear;

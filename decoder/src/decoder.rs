@@ -223,8 +223,8 @@ impl<R: Read> Reader<R> {
     pub fn decode_into(mut self, out: &mut Splats) -> Result<(), DecodeError> {
         let start = self.bytes.len();
         let body = self.table.file_bytes() - start as u64; // ≤ max_bytes, checked
-        // The buffer grows with what arrives, not with what the table claims: a short input
-        // that declares a huge section costs what it holds.
+                                                           // The buffer grows with what arrives, not with what the table claims: a short input
+                                                           // that declares a huge section costs what it holds.
         self.bytes.reserve(body.min(16 << 20) as usize);
         (&mut self.reader).take(body).read_to_end(&mut self.bytes)?;
         if self.bytes.len() as u64 - start as u64 == body && read_up_to(&mut self.reader, &mut [0u8; 1])? != 0 {

@@ -224,11 +224,9 @@ impl UnsupportedError {
 impl fmt::Display for UnsupportedError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.what {
-            Unsupported::Version { major, minor } => write!(
-                f,
-                "unsupported format version {major}.{minor} (this decoder reads {}.x)",
-                crate::bitstream::VERSION_MAJOR
-            ),
+            Unsupported::Version { major, minor } => {
+                write!(f, "unsupported format version {major}.{minor} (this decoder reads {}.x)", crate::bitstream::VERSION_MAJOR)
+            }
             Unsupported::Section { id, offset } => {
                 write!(f, "unknown required section kind {:#x} (chunk {}, table entry at byte {offset})", id.kind, id.chunk)
             }

@@ -2,9 +2,7 @@
 //! any reader, caller-owned output), progressive decoding of a file that is still arriving, and
 //! `to_ply`.
 
-use gscodec_decoder::{
-    decode, decode_prefix, decode_with, DecodeError, Decoder, FormatErrorKind, Limit, Limits, SectionId, Splats,
-};
+use gscodec_decoder::{decode, decode_prefix, decode_with, DecodeError, Decoder, FormatErrorKind, Limit, Limits, SectionId, Splats};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
@@ -74,11 +72,14 @@ fn readers_and_slices_decode_alike_and_to_ply_is_the_vector() {
     for name in ["hand", "tiny", "empty", "chunks"] {
         let bytes = vector(&format!("{name}.gsc"));
         let from_slice = decode(&bytes).unwrap();
-        let from_file = Decoder::new(std::fs::File::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("../bitstream-spec/vectors").join(format!("{name}.gsc"))).unwrap())
-            .read_info()
-            .unwrap()
-            .decode()
-            .unwrap();
+        let from_file = Decoder::new(
+            std::fs::File::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("../bitstream-spec/vectors").join(format!("{name}.gsc")))
+                .unwrap(),
+        )
+        .read_info()
+        .unwrap()
+        .decode()
+        .unwrap();
         assert_eq!(from_file, from_slice, "{name}");
         if bytes.len() < 100_000 {
             let r = Decoder::new(OneByte(&bytes)).read_info().unwrap();
@@ -216,5 +217,8 @@ fn a_huge_declared_section_costs_only_what_arrives() {
     let reader = Decoder::new(&b[..]).read_info().unwrap();
     assert_eq!(reader.info().file_bytes, 36 + 3_000_000_000);
     let e = reader.decode().unwrap_err();
-    assert_eq!(e.format_error().map(|f| (f.kind(), f.section())), Some((FormatErrorKind::Truncated, Some(SectionId { kind: 0x101, chunk: 0 }))));
+    assert_eq!(
+        e.format_error().map(|f| (f.kind(), f.section())),
+        Some((FormatErrorKind::Truncated, Some(SectionId { kind: 0x101, chunk: 0 })))
+    );
 }

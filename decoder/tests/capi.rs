@@ -132,7 +132,9 @@ fn c_render_to_buffer_matches_rust_render() {
     let rgba: Vec<f32> = want.data.chunks(3).flat_map(|p| [p[0], p[1], p[2], 1.0]).collect();
     assert!(f32_out == rgba, "C ABI f32 render differs from the Rust render");
     let mut u8_out = vec![0u8; pixels * 4];
-    let rc = unsafe { gsc_render(scene, &c, bg.as_ptr(), 2, GSC_PIXEL_RGBA_U8, 0, u8_out.as_mut_ptr().cast(), pixels * 4, std::ptr::null_mut()) };
+    let rc = unsafe {
+        gsc_render(scene, &c, bg.as_ptr(), 2, GSC_PIXEL_RGBA_U8, 0, u8_out.as_mut_ptr().cast(), pixels * 4, std::ptr::null_mut())
+    };
     assert_eq!(rc, GSC_OK);
     let q: Vec<u8> = rgba.iter().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect();
     assert!(u8_out == q);
@@ -151,7 +153,9 @@ fn c_render_to_buffer_matches_rust_render() {
 
     // Bad arguments: too small a buffer, unknown format, NULL camera; the buffer is untouched.
     let mut small = vec![7u8; pixels * 4 - 1];
-    for (fmt, len, camp) in [(GSC_PIXEL_RGBA_U8, small.len(), &c as *const GscCamera), (5, small.len(), &c), (GSC_PIXEL_RGBA_U8, small.len(), std::ptr::null())] {
+    for (fmt, len, camp) in
+        [(GSC_PIXEL_RGBA_U8, small.len(), &c as *const GscCamera), (5, small.len(), &c), (GSC_PIXEL_RGBA_U8, small.len(), std::ptr::null())]
+    {
         let rc = unsafe { gsc_render(scene, camp, std::ptr::null(), 2, fmt, 0, small.as_mut_ptr().cast(), len, std::ptr::null_mut()) };
         assert_eq!(rc, GSC_ERR_ARGUMENT);
     }

@@ -4,8 +4,8 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
-use crate::sweep::results::{bd_report, read_results, write_outputs};
 use crate::encoder::Backend;
+use crate::sweep::results::{bd_report, read_results, write_outputs};
 use crate::sweep::{jobs, run_point, Input, Plan, DEFAULT_LAMBDAS, DEFAULT_LOSSES};
 use crate::{Error, Result};
 
@@ -57,7 +57,15 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let lambdas = if args.lambdas.is_empty() { DEFAULT_LAMBDAS.to_vec() } else { args.lambdas.clone() };
     let losses = if args.losses.is_empty() { DEFAULT_LOSSES.iter().map(|s| s.to_string()).collect() } else { args.losses.clone() };
-    let mut plan = Plan { input: args.input.clone(), out: args.out.clone(), lambdas, losses, iters: args.iters, backend: args.backend, dataset_args: args.dataset.to_args() };
+    let mut plan = Plan {
+        input: args.input.clone(),
+        out: args.out.clone(),
+        lambdas,
+        losses,
+        iters: args.iters,
+        backend: args.backend,
+        dataset_args: args.dataset.to_args(),
+    };
     plan.validate()?;
 
     if let Some(dir) = &args.collect {

@@ -1,7 +1,7 @@
 //! `gscodec train DATA -o OUT.ply`: train Gaussians on a posed-image dataset.
 
-use crate::io;
 use crate::encoder::{Backend, LossSpec, TrainJob};
+use crate::io;
 use crate::loss::LossArgs;
 use crate::train::TrainConfig;
 use crate::{Error, Result};
@@ -89,9 +89,8 @@ pub fn run(args: Args) -> Result<()> {
     let mut last_psnr = None;
     let run = args.checkpoint.run_options(args.report.clone());
     let job = TrainJob { dataset: &ds, init, config: &cfg, loss: &loss, rate: None, run: &run };
-    let (splats, report) = backend.train(
-        job,
-        &mut |p| {
+    let (splats, report) = backend
+        .train(job, &mut |p| {
             if p.test_psnr.is_some() {
                 last_psnr = p.test_psnr;
                 if log_lines {
@@ -110,12 +109,11 @@ pub fn run(args: Args) -> Result<()> {
                 let psnr = last_psnr.map(|v| format!(" test {v:.2} dB")).unwrap_or_default();
                 pb.set_message(format!("loss {:.4} n {}{psnr}", p.loss, p.gaussians));
             }
-        },
-    )
-    .map_err(|e| match e {
-        Error::Input(m) => Error::input(&args.data, m),
-        other => other,
-    })?;
+        })
+        .map_err(|e| match e {
+            Error::Input(m) => Error::input(&args.data, m),
+            other => other,
+        })?;
     pb.finish_and_clear();
     io::write_ply(&args.output, &splats)?;
     if let Some(r) = &args.report {

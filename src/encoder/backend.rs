@@ -35,8 +35,9 @@ impl Backend {
     pub fn resolve(self) -> Result<Box<dyn TrainBackend>> {
         match self {
             Backend::Cpu => Ok(Box::new(CpuBackend)),
-            Backend::Gpu => gpu_backend(false)
-                .ok_or_else(|| Error::Input("--backend gpu: GPU training not available in this build".into())),
+            Backend::Gpu => {
+                gpu_backend(false).ok_or_else(|| Error::Input("--backend gpu: GPU training not available in this build".into()))
+            }
             Backend::Auto => Ok(gpu_backend(true).unwrap_or_else(|| Box::new(CpuBackend))),
         }
     }
@@ -84,9 +85,7 @@ impl TrainBackend for GpuBackend {
         match refused {
             Some(_) if self.fall_back_to_cpu => CpuBackend.train(job, progress),
             Some(e) => Err(e),
-            None if self.fall_back_to_cpu && !crate::train::gpu::hardware_adapter_available() => {
-                CpuBackend.train(job, progress)
-            }
+            None if self.fall_back_to_cpu && !crate::train::gpu::hardware_adapter_available() => CpuBackend.train(job, progress),
             None => crate::train::gpu::train(job.dataset, job.init, job.config, &loss, progress),
         }
     }
@@ -225,7 +224,8 @@ mod tests {
         let dataset = crate::train::targets::render_targets(&scene, &cams, [0.0; 3]);
         let cfg = TrainConfig { iters: 2, densify: false, eval_interval: 0, ..Default::default() };
         let loss = LossSpec::default();
-        let rate = RateObjective { lambda: Lambda::DEFAULT, steps: Steps::default(), min_opacity: 1.0 / 255.0, learn_steps: true, start_iter: 0 };
+        let rate =
+            RateObjective { lambda: Lambda::DEFAULT, steps: Steps::default(), min_opacity: 1.0 / 255.0, learn_steps: true, start_iter: 0 };
         let run = RunOptions::default();
         let job = || TrainJob { dataset: &dataset, init: Some(scene.clone()), config: &cfg, loss: &loss, rate: Some(rate), run: &run };
         let e = gpu_backend(false).unwrap().train(job(), &mut |_| {}).err().expect("refused");

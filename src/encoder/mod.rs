@@ -155,8 +155,8 @@ impl Encoder {
         // RD choices on the trained scene (their PSNR is against the trained scene, not the
         // images, so they stay out of the held-out series).
         let t = Instant::now();
-        let (config, _) =
-            rate::rd::search_from(&trained, self.config.lambda, learned_steps(ladder.steps, &r), |_| {}).map_err(|e| Error::Input(e.to_string()))?;
+        let (config, _) = rate::rd::search_from(&trained, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
+            .map_err(|e| Error::Input(e.to_string()))?;
         stages.rd_search_s = t.elapsed().as_secs_f64();
         self.finish(&trained, &trained, &config, iters, start, stages, series, Some(r), Some(dataset))
     }

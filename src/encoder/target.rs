@@ -136,7 +136,10 @@ impl Encoder {
                 let finest = search.probes[0];
                 Err(crate::Error::Input(match target {
                     Target::Psnr(p) => format!("--target-psnr {p}: not reachable, the finest setting (λ = 0) gives {:.2} dB", finest.psnr),
-                    Target::Bytes(b) => format!("--target-bytes {b}: not reachable, the smallest file found has {} bytes", search.probes.iter().map(|p| p.bytes).min().unwrap_or(0)),
+                    Target::Bytes(b) => format!(
+                        "--target-bytes {b}: not reachable, the smallest file found has {} bytes",
+                        search.probes.iter().map(|p| p.bytes).min().unwrap_or(0)
+                    ),
                 }))
             }
         }

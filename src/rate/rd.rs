@@ -100,7 +100,8 @@ pub fn search_from(
     let j = |bytes: usize, d: f64| d + lambda.rate_cost(bytes);
     let mut path = Vec::new();
     let mut record = |change: String, bytes: usize, d: f64, path: &mut Vec<Trial>| {
-        let p = Trial { step: path.len(), change, bytes, d, psnr: gscodec_decoder::render::psnr_of_mse(d / (255.0 * 255.0)), j: j(bytes, d) };
+        let p =
+            Trial { step: path.len(), change, bytes, d, psnr: gscodec_decoder::render::psnr_of_mse(d / (255.0 * 255.0)), j: j(bytes, d) };
         on_step(&p);
         path.push(p);
     };

@@ -73,8 +73,15 @@ mod tests {
 
     #[test]
     fn script_has_one_task_per_point() {
-        let plan =
-            Plan { input: "/d/lego 200".into(), out: "/o".into(), lambdas: vec![0.1, 0.01], losses: vec!["wdr".into()], iters: None, backend: crate::encoder::Backend::Auto, dataset_args: Vec::new() };
+        let plan = Plan {
+            input: "/d/lego 200".into(),
+            out: "/o".into(),
+            lambdas: vec![0.1, 0.01],
+            losses: vec!["wdr".into()],
+            iters: None,
+            backend: crate::encoder::Backend::Auto,
+            dataset_args: Vec::new(),
+        };
         let lines = command_lines(Path::new("/bin/gscodec"), &plan, &plan.points());
         assert_eq!(lines[1], "/bin/gscodec sweep '/d/lego 200' -o /o --lambdas 0.01 --loss wdr --points-only --quiet");
         let s = slurm_script(&lines, Path::new("/o"), "gscodec sweep X -o /o --collect /o");

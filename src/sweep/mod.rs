@@ -194,8 +194,7 @@ impl Input {
     pub fn load(path: &Path, opts: &crate::io::LoadOptions) -> Result<Input> {
         if is_ply(path) {
             let scene = crate::io::read_ply(path)?;
-            let (views, background) =
-                crate::cli::eval::reference_views(&scene, PLY_EVAL_ORBIT, None, crate::views::UpAxis::NegY);
+            let (views, background) = crate::cli::eval::reference_views(&scene, PLY_EVAL_ORBIT, None, crate::views::UpAxis::NegY);
             Ok(Input { source: Source::Scene(scene), views, background })
         } else {
             let ds = crate::io::load_dataset(path, opts)?;
@@ -268,11 +267,7 @@ fn is_ply(path: &Path) -> bool {
 
 /// Held-out PSNR against encode wall time: the report's series points that have a PSNR.
 pub fn timeline(report: &EncodeReport) -> Vec<TimelinePoint> {
-    report
-        .series
-        .iter()
-        .filter_map(|s| s.heldout_psnr.map(|psnr| TimelinePoint { time_s: s.wall_s, psnr: Some(psnr), wd: None }))
-        .collect()
+    report.series.iter().filter_map(|s| s.heldout_psnr.map(|psnr| TimelinePoint { time_s: s.wall_s, psnr: Some(psnr), wd: None })).collect()
 }
 
 #[cfg(test)]

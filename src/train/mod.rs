@@ -5,10 +5,10 @@
 pub mod adam;
 pub mod checkpoint;
 pub mod densify;
-pub mod init;
 /// The GPU trainer (wgpu), feature `gpu`.
 #[cfg(feature = "gpu")]
 pub mod gpu;
+pub mod init;
 
 pub mod targets;
 
@@ -218,6 +218,41 @@ pub fn learning_rate(g: Group, it: usize, cfg: &TrainConfig, extent: f32) -> f32
         Group::Sh1 | Group::Sh2 | Group::Sh3 => LR_SH_REST,
     };
     base * cfg.lr_scale
+}
+
+/// One densify/prune step of the reference recipe at iteration `it`, shared by both trainers:
+/// clone/split/prune with the reference thresholds, never below [`MIN_KEEP_FRACTION`] of the
+/// run's `peak` Gaussians.
+///
+/// # Errors
+/// [`Error::Failure`] when every Gaussian was pruned.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn densify_step(
+    params: &mut Splats,
+    adam: &mut Adam,
+    stats: &DensifyStats,
+    cfg: &TrainConfig,
+    sched: &Schedule,
+    it: usize,
+    extent: f32,
+    peak: usize,
+    rng: &mut Rng,
+) -> Result<()> {
+    let dp = DensifyParams {
+        grad_threshold: cfg.densify_grad_threshold,
+        percent_dense: 0.01,
+        extent,
+        min_opacity: 0.005,
+        max_screen_radius: sched.prunes_screen_size(it).then_some(20.0),
+        max_world_fraction: 0.1,
+        max_gaussians: cfg.max_gaussians,
+    };
+    let floor = (peak as f64 * MIN_KEEP_FRACTION).ceil() as usize;
+    densify::densify_and_prune_keeping(params, adam, stats, &dp, rng, floor);
+    if params.is_empty() {
+        return Err(Error::Failure(format!("training collapsed at iteration {it}: every Gaussian was pruned")));
+    }
+    Ok(())
 }
 
 pub(crate) fn non_finite_error(what: &str, iter: usize, i: usize, g: Group) -> Error {
@@ -449,20 +484,7 @@ pub fn train_with(
         let eval_seconds = t_eval.elapsed().as_secs_f64();
         if cfg.densify {
             if sched.densifies(it) {
-                let dp = DensifyParams {
-                    grad_threshold: cfg.densify_grad_threshold,
-                    percent_dense: 0.01,
-                    extent,
-                    min_opacity: 0.005,
-                    max_screen_radius: sched.prunes_screen_size(it).then_some(20.0),
-                    max_world_fraction: 0.1,
-                    max_gaussians: cfg.max_gaussians,
-                };
-                let floor = (peak as f64 * MIN_KEEP_FRACTION).ceil() as usize;
-                densify::densify_and_prune_keeping(&mut params, &mut adam, &stats, &dp, &mut rng, floor);
-                if params.is_empty() {
-                    return Err(Error::Failure(format!("training collapsed at iteration {it}: every Gaussian was pruned")));
-                }
+                densify_step(&mut params, &mut adam, &stats, cfg, &sched, it, extent, peak, &mut rng)?;
                 stats = DensifyStats::new(params.len());
             }
             if sched.resets_opacity(it, dataset.background == [1.0; 3]) {

@@ -109,4 +109,3 @@ pub const PADDING_KIND: u16 = 0x101;
 pub fn chunk_count(n: usize) -> usize {
     n.div_ceil(CHUNK)
 }
-

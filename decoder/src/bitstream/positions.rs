@@ -4,7 +4,7 @@
 
 use super::assemble::dequantise_position;
 use super::layout::CHUNK;
-use super::params::{GroupParams, Grid};
+use super::params::{Grid, GroupParams};
 use super::stream::{next_stream, push_stream, stream_decoder};
 use super::tables::ChannelTable;
 use super::{ByteReader, ByteWriter};

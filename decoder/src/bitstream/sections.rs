@@ -332,7 +332,10 @@ mod tests {
         let mut b = bytes.clone();
         b.push(0);
         let e = parse(&b).unwrap_err();
-        assert_eq!((e.format_error().unwrap().kind(), e.format_error().unwrap().offset()), (FormatErrorKind::TrailingData, bytes.len() as u64));
+        assert_eq!(
+            (e.format_error().unwrap().kind(), e.format_error().unwrap().offset()),
+            (FormatErrorKind::TrailingData, bytes.len() as u64)
+        );
         let e = parse(&bytes[..bytes.len() - 1]).unwrap_err();
         let f = e.format_error().unwrap();
         assert_eq!((f.kind(), f.section()), (FormatErrorKind::Truncated, Some(SectionId { kind: 0x11, chunk: 0 })));

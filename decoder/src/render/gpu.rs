@@ -459,7 +459,13 @@ impl GpuRenderer {
 
     /// Marks a stage boundary: a GPU timestamp `index` when available, else (when timing) a host
     /// clock reading after submitting `enc` and waiting for the GPU.
-    fn mark(&self, enc: &mut wgpu::CommandEncoder, timing: &mut Option<&mut StageTimes>, host: &mut [Option<std::time::Instant>; 5], index: usize) -> Result<(), GpuError> {
+    fn mark(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        timing: &mut Option<&mut StageTimes>,
+        host: &mut [Option<std::time::Instant>; 5],
+        index: usize,
+    ) -> Result<(), GpuError> {
         if timing.is_none() {
             return Ok(());
         }
@@ -474,7 +480,13 @@ impl GpuRenderer {
         Ok(())
     }
 
-    fn frame(&self, scene: &GpuScene, cam: &Camera, opts: &RenderOptions, mut timing: Option<&mut StageTimes>) -> Result<GpuFrame, GpuError> {
+    fn frame(
+        &self,
+        scene: &GpuScene,
+        cam: &Camera,
+        opts: &RenderOptions,
+        mut timing: Option<&mut StageTimes>,
+    ) -> Result<GpuFrame, GpuError> {
         let (w, h) = (cam.width, cam.height);
         let n = scene.n;
         if n == 0 || w == 0 || h == 0 {

@@ -22,8 +22,7 @@ pub use context::{hardware_adapter_available, Gpu};
 pub use session::Session;
 
 use super::adam::Adam;
-use super::densify::{self, DensifyParams, DensifyStats};
-use super::MIN_KEEP_FRACTION;
+use super::densify::DensifyStats;
 use super::{init, learning_rate, non_finite_error, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::LossKind;
@@ -296,20 +295,7 @@ pub fn train_on(
                     max_radius: raw.chunks_exact(3).map(|s| s[2]).collect(),
                 };
                 let mut adam = Adam { m, v, rule: AdamRule { step: session.step, ..AdamRule::default() } };
-                let dp = DensifyParams {
-                    grad_threshold: cfg.densify_grad_threshold,
-                    percent_dense: 0.01,
-                    extent,
-                    min_opacity: 0.005,
-                    max_screen_radius: sched.prunes_screen_size(it).then_some(20.0),
-                    max_world_fraction: 0.1,
-                    max_gaussians: cfg.max_gaussians,
-                };
-                let floor = (peak as f64 * MIN_KEEP_FRACTION).ceil() as usize;
-                densify::densify_and_prune_keeping(&mut p, &mut adam, &stats, &dp, &mut rng, floor);
-                if p.is_empty() {
-                    return Err(Error::Failure(format!("training collapsed at iteration {it}: every Gaussian was pruned")));
-                }
+                super::densify_step(&mut p, &mut adam, &stats, cfg, &sched, it, extent, peak, &mut rng)?;
                 session.replace_scene(&p, &adam.m, &adam.v)?;
                 n = p.len();
             }
