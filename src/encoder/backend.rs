@@ -74,7 +74,7 @@ impl TrainBackend for GpuBackend {
     }
 
     fn train(&mut self, job: TrainJob<'_>, progress: &mut dyn FnMut(&Progress)) -> Result<(Splats, TrainReport)> {
-        let loss = crate::train::gpu::GpuLoss::from(job.loss.kind);
+        let loss = crate::train::gpu::GpuLoss::new(job.loss.kind, &job.loss.features, job.loss.wd_gamma);
         let refused = if job.rate.is_some() {
             Some(crate::train::gpu::rate_unsupported())
         } else if job.run.checkpoint.is_some() || job.run.resume.is_some() {

@@ -34,8 +34,8 @@ pub struct Pyramid;
 
 /// 1-D taps of g, g′ and g″ (Gaussian, σ = [`FILTER_SIGMA`]), normalised so that the
 /// derivative filters measure slope and curvature: Σ t·g′(t) = 1 (correlation) gives
-/// response 1 to a unit ramp, Σ ½t²·g″(t) = 1 response 1 to ½t².
-fn taps() -> ([f64; 2 * RADIUS + 1], [f64; 2 * RADIUS + 1], [f64; 2 * RADIUS + 1]) {
+/// response 1 to a unit ramp, Σ ½t²·g″(t) = 1 response 1 to ½t². (Also the GPU trainer's taps.)
+pub fn taps() -> ([f64; 2 * RADIUS + 1], [f64; 2 * RADIUS + 1], [f64; 2 * RADIUS + 1]) {
     let s2 = FILTER_SIGMA * FILTER_SIGMA;
     let t = |i: usize| i as f64 - RADIUS as f64;
     let mut g: [f64; 2 * RADIUS + 1] = std::array::from_fn(|i| (-t(i) * t(i) / (2.0 * s2)).exp());
@@ -88,8 +88,8 @@ fn basis<T: Real>() -> [(Vec<T>, Vec<T>); 5] {
 }
 
 /// Steering coefficients: odd θ = (cos θ, sin θ) over (Gx, Gy); even θ = (cos²θ, 2 cosθ sinθ,
-/// sin²θ) over (Gxx, Gxy, Gyy).
-fn steering() -> Vec<([f64; 2], [f64; 3])> {
+/// sin²θ) over (Gxx, Gxy, Gyy), one pair per [`ORIENTATIONS`] entry.
+pub fn steering() -> Vec<([f64; 2], [f64; 3])> {
     ORIENTATIONS
         .iter()
         .map(|deg| {

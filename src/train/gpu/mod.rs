@@ -11,12 +11,16 @@
 //! Densification reads the scene, moments and statistics back once per densify step and runs the
 //! CPU trainer's [`densify::densify_and_prune`] on them (the same rules, the same random numbers).
 //!
+//! With `--loss wd|wdr` (built-in features), the WD stage ([`wd`]) follows the L1+SSIM loss after
+//! the warm-up and replaces its gradient and value by the WD / WD-R ones.
+//!
 //! Not bit-exact with the CPU trainer: gradients are summed with float atomics in whatever order
-//! the GPU runs them. Not supported yet (refused with an input error): the WD / WD-R losses and
+//! the GPU runs them. Not supported yet (refused with an input error): WD with VGG-16 features and
 //! the rate term.
 
 mod context;
 pub mod session;
+pub mod wd;
 
 pub use context::{hardware_adapter_available, Gpu};
 pub use session::Session;
@@ -25,7 +29,7 @@ use super::adam::Adam;
 use super::densify::DensifyStats;
 use super::{init, learning_rate, non_finite_error, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
 use crate::io::{Dataset, Frame, Split};
-use crate::loss::LossKind;
+use crate::loss::{FeatureSpec, LossKind};
 use crate::metrics::view::mean_psnr_ssim;
 use crate::optim::AdamRule;
 use crate::rate::group::Group;
@@ -40,11 +44,15 @@ pub struct GpuLoss {
     pub kind: LossKind,
     /// Weight λ of `(1 − SSIM)` in `(1 − λ)·L1 + λ·(1 − SSIM)`.
     pub ssim_weight: f32,
+    /// γ of `wd` / `wdr` (None: `wd`'s default, `wdr`'s normalised γ; see docs/wd.md).
+    pub wd_gamma: Option<f64>,
+    /// WD in VGG-16 features (refused: the GPU has only the built-in `pyramid` bank).
+    pub vgg_features: bool,
 }
 
 impl Default for GpuLoss {
     fn default() -> Self {
-        GpuLoss { kind: LossKind::L1ssim, ssim_weight: 0.2 }
+        GpuLoss { kind: LossKind::L1ssim, ssim_weight: 0.2, wd_gamma: None, vgg_features: false }
     }
 }
 
@@ -55,14 +63,34 @@ impl From<LossKind> for GpuLoss {
 }
 
 impl GpuLoss {
-    /// The input error for a loss the GPU trainer does not have.
+    /// The loss `--loss`, `--features` and `--wd-gamma` describe.
+    pub fn new(kind: LossKind, features: &FeatureSpec, wd_gamma: Option<f64>) -> Self {
+        GpuLoss { kind, wd_gamma, vgg_features: matches!(features, FeatureSpec::Vgg16(_)), ..Default::default() }
+    }
+
+    /// The input error for a loss the GPU trainer does not have (WD in VGG-16 features) or a γ
+    /// that is not a positive number.
     pub fn check(&self) -> Result<()> {
+        if self.kind == LossKind::L1ssim {
+            return Ok(());
+        }
+        if self.vgg_features {
+            return Err(Error::Input(
+                "GPU training computes WD only in the built-in `pyramid` features; --features vgg16=… runs on the CPU backend (--backend cpu)".into(),
+            ));
+        }
+        match self.wd_gamma {
+            Some(g) if !(g.is_finite() && g > 0.0) => Err(Error::Input(format!("--wd-gamma must be a positive number, got {g}"))),
+            _ => Ok(()),
+        }
+    }
+
+    /// Short name for the report (`l1ssim`, `wd`, `wdr`).
+    pub fn name(&self) -> &'static str {
         match self.kind {
-            LossKind::L1ssim => Ok(()),
-            LossKind::Wd | LossKind::Wdr => Err(Error::Input(format!(
-                "GPU training supports only --loss l1ssim; the Wasserstein-distortion losses (wd, wdr) run on the CPU backend (--backend cpu), got {:?}",
-                self.kind
-            ))),
+            LossKind::L1ssim => "l1ssim",
+            LossKind::Wd => "wd",
+            LossKind::Wdr => "wdr",
         }
     }
 }
@@ -130,6 +158,45 @@ pub fn loss_and_grad(gpu: &Gpu, rendered: &Image, target: &Image, ssim_weight: f
     Ok((l as f64, dl))
 }
 
+/// The GPU training loss `loss` (L1+SSIM, then the WD stage when `iter` is past the warm-up of a
+/// run of `iters` iterations) of `rendered` against `target` and its gradient w.r.t. `rendered`,
+/// for one view (the test oracle is the CPU's [`crate::loss::ImageLoss`] of the same loss).
+#[doc(hidden)]
+pub fn training_loss_and_grad(
+    gpu: &Gpu,
+    rendered: &Image,
+    target: &Image,
+    loss: &GpuLoss,
+    iters: usize,
+    iter: usize,
+) -> Result<(f64, Vec<f32>)> {
+    loss.check()?;
+    let (w, h) = (rendered.width, rendered.height);
+    let mut one = Splats::new(0);
+    one.push([0.0; 3], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[]);
+    let mut s = Session::new(gpu, &one)?;
+    let cam = Camera::new(w, h, w as f32, w as f32, glam::Mat3::IDENTITY, glam::Vec3::new(0.0, 0.0, -1e6));
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    s.rasterize(&mut enc, &cam, 0)?;
+    gpu.queue.submit([enc.finish()]);
+    gpu.queue.write_buffer(&s.img.as_ref().unwrap().image, 0, bytemuck::cast_slice(&rendered.data));
+    let tgt = gpu.storage_init("target", bytemuck::cast_slice(&target.data));
+    let mut stage = match loss.kind {
+        LossKind::L1ssim => None,
+        kind => Some(wd::WdStage::new(gpu, wd::WdConfig::new(kind, loss.wd_gamma, iters), w, h)?),
+    };
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    s.loss(&mut enc, &tgt, loss.ssim_weight);
+    if let Some(st) = stage.as_mut() {
+        st.record(&s, &mut enc, 0, &tgt, iter >= st.config.warmup)?;
+    }
+    gpu.queue.submit([enc.finish()]);
+    let dl = s.read_dl()?;
+    let l = s.read_loss(0)?;
+    gpu.check()?;
+    Ok((l as f64, dl))
+}
+
 /// The parameter group of offset `k` in a parameter record.
 fn group_of_offset(k: usize) -> Group {
     match k {
@@ -147,7 +214,7 @@ fn group_of_offset(k: usize) -> Group {
 }
 
 /// Trains Gaussians on `dataset`'s training split on the GPU; the same contract, schedule and
-/// report as [`crate::train::train`] (the report's `loss` is `"l1ssim"`, its stage times are GPU
+/// report as [`crate::train::train`] (the report's `loss` is the loss's name, its stage times are GPU
 /// times from timestamp queries when the adapter has them, else wall times around submissions).
 ///
 /// # Errors
@@ -200,6 +267,13 @@ pub fn train_on(
     // Training images, uploaded once.
     let targets: Vec<wgpu::Buffer> =
         train_frames.iter().map(|f: &&Frame| gpu.storage_init("target", bytemuck::cast_slice(&f.image.data))).collect();
+    // The WD stage, one per image size (laid out on first use); every iteration writes its
+    // timestamps (an empty pass during the warm-up).
+    let wd_config = (loss.kind != LossKind::L1ssim).then(|| wd::WdConfig::new(loss.kind, loss.wd_gamma, cfg.iters));
+    let mut wd_stages: Vec<wd::WdStage> = Vec::new();
+    if wd_config.is_some() {
+        session.stage_pairs = 7;
+    }
     let mut order: Vec<usize> = Vec::new();
     let mut points = Vec::new();
     let mut stages = StageTimes::default();
@@ -222,7 +296,8 @@ pub fn train_on(
             stages.project += t[0];
             stages.sort += t[1];
             stages.rasterize += t[2];
-            stages.loss += t[3];
+            // The loss stage is L1+SSIM and, with a WD loss, the WD stage.
+            stages.loss += t[3] + t[6];
             stages.backward += t[4];
             stages.optimiser += t[5];
         }
@@ -261,6 +336,17 @@ pub fn train_on(
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         session.rasterize(&mut enc, &frame.camera, sc.pairs)?;
         session.loss(&mut enc, &targets[fi], loss.ssim_weight);
+        if let Some(wc) = wd_config {
+            let (w, h) = (frame.camera.width, frame.camera.height);
+            let k = match wd_stages.iter().position(|st| (st.width, st.height) == (w, h)) {
+                Some(k) => k,
+                None => {
+                    wd_stages.push(wd::WdStage::new(gpu, wc, w, h)?);
+                    wd_stages.len() - 1
+                }
+            };
+            wd_stages[k].record(&session, &mut enc, fi, &targets[fi], it >= wc.warmup)?;
+        }
         let stats_on = cfg.densify && it < sched.densify_until;
         session.backward(&mut enc, &frame.camera, stats_on);
         // One rate per record section; the three SH rest bands share theirs.
@@ -330,7 +416,7 @@ pub fn train_on(
     }
     let report = TrainReport {
         backend: "gpu",
-        loss: "l1ssim".to_string(),
+        loss: loss.name().to_string(),
         config: cfg.clone(),
         schedule: sched,
         extent,

@@ -70,7 +70,9 @@ pub struct ImageBufs {
 /// Bytes of the per-iteration read-back: pair count, first bad gradient / value index, previous
 /// iteration's loss, then 2 × 7 stage timestamps.
 const SCALARS: u64 = 16;
-pub const READBACK: u64 = SCALARS + 12 * 8;
+pub const READBACK: u64 = SCALARS + 14 * 8;
+/// Timestamp queries of the WD stage (`super::wd`), written when the session has one.
+pub const WD_TIMESTAMPS: (u32, u32) = (12, 13);
 
 /// What the per-iteration read-back says.
 #[derive(Debug, Clone, Copy)]
@@ -81,8 +83,8 @@ pub struct Scalars {
     /// Loss of the previous iteration.
     pub loss: f32,
     /// GPU seconds per stage of the previous iteration (project, sort, rasterize, loss, backward,
-    /// optimiser), from timestamp queries when the adapter has them.
-    pub stage_seconds: Option<[f64; 6]>,
+    /// optimiser, WD; WD is 0 without a WD stage), from timestamp queries when the adapter has them.
+    pub stage_seconds: Option<[f64; 7]>,
 }
 
 /// GPU training state.
@@ -107,6 +109,8 @@ pub struct Session<'g> {
     pub step: u64,
     /// Whether the previous iteration wrote timestamps.
     timed: bool,
+    /// Timestamp pairs every iteration writes: 6, or 7 when a WD stage writes [`WD_TIMESTAMPS`].
+    pub stage_pairs: u32,
 }
 
 impl<'g> Session<'g> {
@@ -147,6 +151,7 @@ impl<'g> Session<'g> {
             period_ns: gpu.queue.get_timestamp_period() as f64,
             step: 0,
             timed: false,
+            stage_pairs: 6,
             gpu,
         };
         gpu.check()?;
@@ -208,6 +213,17 @@ impl<'g> Session<'g> {
         Ok(())
     }
 
+    /// A compute pass writing timestamp queries `ts` (begin, end) when the adapter has them.
+    pub fn timed_pass<'e>(&self, enc: &'e mut wgpu::CommandEncoder, ts: (Option<u32>, Option<u32>)) -> wgpu::ComputePass<'e> {
+        let timestamp_writes = match (&self.query, ts) {
+            (Some(q), (b, e)) if b.is_some() || e.is_some() => {
+                Some(wgpu::ComputePassTimestampWrites { query_set: q, beginning_of_pass_write_index: b, end_of_pass_write_index: e })
+            }
+            _ => None,
+        };
+        enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes })
+    }
+
     fn pass(
         &self,
         enc: &mut wgpu::CommandEncoder,
@@ -216,13 +232,7 @@ impl<'g> Session<'g> {
         groups: (u32, u32),
         ts: (Option<u32>, Option<u32>),
     ) {
-        let timestamp_writes = match (&self.query, ts) {
-            (Some(q), (b, e)) if b.is_some() || e.is_some() => {
-                Some(wgpu::ComputePassTimestampWrites { query_set: q, beginning_of_pass_write_index: b, end_of_pass_write_index: e })
-            }
-            _ => None,
-        };
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes });
+        let mut pass = self.timed_pass(enc, ts);
         pass.set_pipeline(p);
         pass.set_bind_group(0, bg, &[]);
         pass.dispatch_workgroups(groups.0, groups.1, 1);
@@ -245,14 +255,20 @@ impl<'g> Session<'g> {
         enc.copy_buffer_to_buffer(&self.bad, 0, &self.staging, 4, 8);
         enc.copy_buffer_to_buffer(&self.loss_acc, ((self.step + 1) % 2) * 4, &self.staging, 12, 4);
         if let (Some(r), true) = (&self.resolve, self.timed) {
-            enc.copy_buffer_to_buffer(r, 0, &self.staging, SCALARS, 12 * 8);
+            enc.copy_buffer_to_buffer(r, 0, &self.staging, SCALARS, 2 * self.stage_pairs as u64 * 8);
         }
         g.queue.submit([enc.finish()]);
         let bytes = g.map_wait(&self.staging)?;
         let u = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
         let stage_seconds = (self.timed && self.resolve.is_some()).then(|| {
             let t = |k: usize| u64::from_le_bytes(bytes[SCALARS as usize + 8 * k..SCALARS as usize + 8 * k + 8].try_into().unwrap());
-            std::array::from_fn(|s| t(2 * s + 1).saturating_sub(t(2 * s)) as f64 * self.period_ns * 1e-9)
+            std::array::from_fn(|s| {
+                if s < self.stage_pairs as usize {
+                    t(2 * s + 1).saturating_sub(t(2 * s)) as f64 * self.period_ns * 1e-9
+                } else {
+                    0.0
+                }
+            })
         });
         Ok(Scalars { pairs: u(0), bad_grad: u(4), bad_value: u(8), loss: f32::from_bits(u(12)), stage_seconds })
     }
@@ -381,7 +397,7 @@ impl<'g> Session<'g> {
     /// Ends an iteration's recording: resolves the timestamps and submits.
     pub fn submit(&mut self, mut enc: wgpu::CommandEncoder) {
         if let (Some(q), Some(r)) = (&self.query, &self.resolve) {
-            enc.resolve_query_set(q, 0..12, r, 0);
+            enc.resolve_query_set(q, 0..2 * self.stage_pairs, r, 0);
             self.timed = true;
         }
         self.gpu.queue.submit([enc.finish()]);
