@@ -1,10 +1,13 @@
 //! GPU training iteration time by stage (feature `gpu`): one iteration at 200×200 with 10k and 50k
 //! Gaussians (SH degree 3), the scene of `benches/train.rs` (the CPU counterpart). Each stage is
 //! submitted and waited for on its own, so the sum is a little more than a pipelined iteration.
-//! Skips (prints why) when there is no adapter.
+//! Skips (prints why) when there is no adapter. `wd stage (wdr)` is the WD-R stage after the loss
+//! (built-in features, cached reference statistics); `iteration wdr` an iteration with it.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use gscodec::testkit::{random_splats, rig_cameras};
+use gscodec::loss::LossKind;
+use gscodec::train::gpu::wd::{WdConfig, WdStage};
 use gscodec::train::gpu::{Gpu, Session};
 use gscodec::train::targets::render_targets;
 
@@ -31,6 +34,7 @@ fn bench_stages(c: &mut Criterion) {
         let cam = frame.camera;
         let target = gpu.storage_init("target", bytemuck::cast_slice(&frame.image.data));
         let mut s = Session::new(&gpu, &params).unwrap();
+        let mut wd = WdStage::new(&gpu, WdConfig::new(LossKind::Wdr, None, 1), cam.width, cam.height).unwrap();
         let pairs = s.project(&cam, [1.0; 3], 3).unwrap().pairs;
         let lr = [1e-5, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4];
         group.bench_with_input(BenchmarkId::new("project+scan+readback", n), &n, |b, _| b.iter(|| s.project(&cam, [1.0; 3], 3).unwrap()));
@@ -48,9 +52,17 @@ fn bench_stages(c: &mut Criterion) {
         stage("loss", &mut |s, enc| s.loss(enc, &target, 0.2));
         stage("backward", &mut |s, enc| s.backward(enc, &cam, true));
         stage("adam", &mut |s, enc| s.adam(enc, lr));
+        stage("wd stage (wdr)", &mut |s, enc| wd.record(s, enc, 0, &target, true).unwrap());
         stage("iteration", &mut |s, enc| {
             s.rasterize(enc, &cam, pairs).unwrap();
             s.loss(enc, &target, 0.2);
+            s.backward(enc, &cam, true);
+            s.adam(enc, lr);
+        });
+        stage("iteration wdr", &mut |s, enc| {
+            s.rasterize(enc, &cam, pairs).unwrap();
+            s.loss(enc, &target, 0.2);
+            wd.record(s, enc, 0, &target, true).unwrap();
             s.backward(enc, &cam, true);
             s.adam(enc, lr);
         });

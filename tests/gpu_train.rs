@@ -330,3 +330,16 @@ fn wdr_training_matches_cpu_psnr() {
     assert!(gpu_r.points.iter().all(|p| p.loss.is_finite()), "{:?}", gpu_r.points);
     assert!((pc - pg).abs() <= 0.3, "GPU {pg:.3} dB vs CPU {pc:.3} dB");
 }
+
+/// The WD stage's memory: one view's cached reference statistics hold, with σ = 4, the means and
+/// standard deviations of level 2 of the 3 + 16 full-resolution channels (at ½ resolution) and of
+/// level 1 of the 16 ½-resolution channels, and the 16 + 16 channels at ¼ and ⅛ (level 0):
+/// 750,000 floats at 200² (3.0 MB), 18.75 M at 1000² (75 MB).
+#[test]
+fn wd_stage_memory_per_view() {
+    for ((w, h), want) in [((200u32, 200u32), 750_000u64 * 4), ((1000, 1000), 18_750_000 * 4)] {
+        let (arena, reference) = gpu::wd::WdStage::memory(w, h);
+        eprintln!("{w}x{h}: WD working memory {:.1} MB, reference statistics {:.1} MB per view", arena as f64 / 1e6, reference as f64 / 1e6);
+        assert_eq!(reference, want, "{w}x{h}");
+    }
+}

@@ -44,7 +44,7 @@ impl Backend {
 }
 
 /// The GPU trainer, if this build has one and (with `auto`) a hardware adapter exists. `auto`
-/// runs on the CPU the jobs the GPU trainer cannot (a WD loss, the rate term).
+/// runs on the CPU the jobs the GPU trainer cannot (WD in VGG-16 features, the rate term).
 #[cfg(feature = "gpu")]
 fn gpu_backend(auto: bool) -> Option<Box<dyn TrainBackend>> {
     // `auto` looks for a hardware adapter only when a job the GPU trainer can run arrives
@@ -239,5 +239,14 @@ mod tests {
         let (_, r) = GpuBackend { fall_back_to_cpu: true }.train(plain, &mut |_| {}).unwrap();
         let want = if crate::train::gpu::hardware_adapter_available() { "gpu" } else { "cpu" };
         assert_eq!(r.backend, want);
+        // WD-R (built-in features) is a job the GPU trainer runs; WD in VGG-16 features is refused.
+        let wdr = LossSpec { kind: LossKind::Wdr, ..LossSpec::default() };
+        let vgg = LossSpec { features: FeatureSpec::Vgg16("vgg16.safetensors".into()), ..wdr.clone() };
+        let e = gpu_backend(false).unwrap().train(TrainJob { loss: &vgg, rate: None, ..job() }, &mut |_| {}).err().expect("refused");
+        assert!(e.exit_code() == 2 && e.to_string().contains("pyramid"), "{e}");
+        if crate::train::gpu::Gpu::new().ok().flatten().is_some() {
+            let (_, r) = gpu_backend(false).unwrap().train(TrainJob { loss: &wdr, rate: None, ..job() }, &mut |_| {}).unwrap();
+            assert_eq!((r.backend, r.loss.as_str()), ("gpu", "wdr"));
+        }
     }
 }

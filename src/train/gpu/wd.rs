@@ -286,37 +286,28 @@ struct RefBuf {
     filled: bool,
 }
 
-/// The WD stage of a GPU training session for one image size.
-pub struct WdStage {
-    pub config: WdConfig,
-    pub width: u32,
-    pub height: u32,
-    kernels: Kernels,
-    arena: wgpu::Buffer,
-    acc: wgpu::Buffer,
-    /// Ops computing a view's reference statistics (features, moments, export).
-    reference: Vec<Op>,
-    /// Features and moments of the rendered image, WD value and backward down to dL/dimage.
-    forward_backward: Vec<Op>,
-    norms: Op,
-    /// The scalar op per loss slot.
-    scalars: [Op; 2],
-    combine: Op,
-    /// Floats of one view's reference statistics.
-    ref_floats: u64,
-    /// Arena floats.
+/// Where everything of one image size lives: arena and reference offsets (floats).
+struct Layout {
+    /// (channels, height, width) of the feature arrays.
+    shapes: Vec<(usize, usize, usize)>,
+    arrays: Vec<Array>,
+    /// Luminance and its gradient per stage.
+    luma: Vec<u32>,
+    gluma: Vec<u32>,
+    /// Scratch: 3 and 5 planes at full resolution.
+    t3: u32,
+    gb5: u32,
+    /// dd_WD/dimage, interleaved.
+    gw: u32,
+    /// Level weight maps to upload: (offset, values).
+    weights: Vec<(u32, Vec<f32>)>,
     arena_floats: u64,
-    cache: Vec<Option<RefBuf>>,
-    scratch: Option<wgpu::Buffer>,
-    cached_bytes: u64,
+    ref_floats: u64,
 }
 
-impl WdStage {
-    /// Lays out the stage for `width × height` images (σ = 4, the `pyramid` features).
-    ///
-    /// # Errors
-    /// An input error when the arena or one view's statistics exceed what the adapter binds.
-    pub fn new(gpu: &Gpu, config: WdConfig, width: u32, height: u32) -> Result<WdStage> {
+impl Layout {
+    /// σ = 4 (the CPU's default) and the `pyramid` arrays of a `width × height` image.
+    fn new(width: u32, height: u32) -> Layout {
         let (ww, hh) = (width as usize, height as usize);
         let sigma = Sigma::default();
         let mut a = Alloc::default();
@@ -366,14 +357,47 @@ impl WdStage {
             debug_assert!(levels.len() <= NUM_LEVELS);
             arrays.push(Array { c, h, w, feat, grad, top, level0, levels });
         }
-        // Per-stage luminance and its gradient; scratch planes sized for the full resolution.
         let n0 = hh * ww;
         let luma: Vec<u32> = shapes[1..].iter().map(|&(_, h, w)| a.take(h * w)).collect();
         let gluma: Vec<u32> = shapes[1..].iter().map(|&(_, h, w)| a.take(h * w)).collect();
-        let t3 = a.take(3 * n0);
-        let gb5 = a.take(5 * n0);
-        let gw = a.take(3 * n0);
-        let (arena_floats, ref_floats) = (a.0, r.0);
+        let (t3, gb5, gw) = (a.take(3 * n0), a.take(5 * n0), a.take(3 * n0));
+        Layout { shapes, arrays, luma, gluma, t3, gb5, gw, weights, arena_floats: a.0, ref_floats: r.0 }
+    }
+}
+
+/// The WD stage of a GPU training session for one image size.
+pub struct WdStage {
+    pub config: WdConfig,
+    pub width: u32,
+    pub height: u32,
+    kernels: Kernels,
+    arena: wgpu::Buffer,
+    acc: wgpu::Buffer,
+    /// Ops computing a view's reference statistics (features, moments, export).
+    reference: Vec<Op>,
+    /// Features and moments of the rendered image, WD value and backward down to dL/dimage.
+    forward_backward: Vec<Op>,
+    norms: Op,
+    /// The scalar op per loss slot.
+    scalars: [Op; 2],
+    combine: Op,
+    /// Floats of one view's reference statistics.
+    ref_floats: u64,
+    /// Arena floats.
+    arena_floats: u64,
+    cache: Vec<Option<RefBuf>>,
+    scratch: Option<wgpu::Buffer>,
+    cached_bytes: u64,
+}
+
+impl WdStage {
+    /// Lays out the stage for `width × height` images (σ = 4, the `pyramid` features).
+    ///
+    /// # Errors
+    /// An input error when the arena or one view's statistics exceed what the adapter binds.
+    pub fn new(gpu: &Gpu, config: WdConfig, width: u32, height: u32) -> Result<WdStage> {
+        let Layout { shapes, arrays, luma, gluma, t3, gb5, gw, weights, arena_floats, ref_floats } = Layout::new(width, height);
+        let n0 = width as usize * height as usize;
         gpu.fits("the WD arena", arena_floats * 4)?;
         gpu.fits("one view's WD reference statistics", ref_floats * 4)?;
         if arena_floats > u32::MAX as u64 {
@@ -570,6 +594,13 @@ impl WdStage {
             scratch: None,
             cached_bytes: 0,
         })
+    }
+
+    /// GPU memory of the stage for `width × height` images: (working memory of the stage,
+    /// reference statistics of one cached view), in bytes.
+    pub fn memory(width: u32, height: u32) -> (u64, u64) {
+        let l = Layout::new(width, height);
+        (l.arena_floats * 4, l.ref_floats * 4)
     }
 
     /// Bytes of one view's cached reference statistics.
