@@ -329,6 +329,10 @@ fn wdr_training_matches_cpu_psnr() {
     assert_eq!((cpu_r.loss.as_str(), gpu_r.loss.as_str()), ("wdr", "wdr"));
     assert!(gpu_r.points.iter().all(|p| p.loss.is_finite()), "{:?}", gpu_r.points);
     assert!((pc - pg).abs() <= 0.3, "GPU {pg:.3} dB vs CPU {pc:.3} dB");
+    // The logged WD-R loss γ·(d_WD + β·L_orig) after the warm-up (γ measured on both sides).
+    let (lc, lg) = (cpu_r.points.last().unwrap().loss, gpu_r.points.last().unwrap().loss);
+    eprintln!("last logged loss: CPU {lc:.5}, GPU {lg:.5}");
+    assert!((lc - lg).abs() <= 0.02 * lc.abs(), "GPU loss {lg} vs CPU {lc}");
 }
 
 /// The WD stage's memory: one view's cached reference statistics hold, with σ = 4, the means and
