@@ -343,7 +343,11 @@ fn wdr_training_matches_cpu_psnr() {
 fn wd_stage_memory_per_view() {
     for ((w, h), want) in [((200u32, 200u32), 750_000u64 * 4), ((1000, 1000), 18_750_000 * 4)] {
         let (arena, reference) = gpu::wd::WdStage::memory(w, h);
-        eprintln!("{w}x{h}: WD working memory {:.1} MB, reference statistics {:.1} MB per view", arena as f64 / 1e6, reference as f64 / 1e6);
+        eprintln!(
+            "{w}x{h}: WD working memory {:.1} MB, reference statistics {:.1} MB per view",
+            arena as f64 / 1e6,
+            reference as f64 / 1e6
+        );
         assert_eq!(reference, want, "{w}x{h}");
     }
 }

@@ -137,25 +137,7 @@ pub fn render_backward(
 /// (the test oracle is [`crate::loss::L1Ssim`]).
 #[doc(hidden)]
 pub fn loss_and_grad(gpu: &Gpu, rendered: &Image, target: &Image, ssim_weight: f32) -> Result<(f64, Vec<f32>)> {
-    let (w, h) = (rendered.width, rendered.height);
-    // A one-Gaussian session only to own the image buffers.
-    let mut one = Splats::new(0);
-    one.push([0.0; 3], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[]);
-    let mut s = Session::new(gpu, &one)?;
-    let cam = Camera::new(w, h, w as f32, w as f32, glam::Mat3::IDENTITY, glam::Vec3::new(0.0, 0.0, -1e6));
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    s.rasterize(&mut enc, &cam, 0)?;
-    gpu.queue.submit([enc.finish()]);
-    let img = s.img.as_ref().unwrap();
-    gpu.queue.write_buffer(&img.image, 0, bytemuck::cast_slice(&rendered.data));
-    let tgt = gpu.storage_init("target", bytemuck::cast_slice(&target.data));
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    s.loss(&mut enc, &tgt, ssim_weight);
-    gpu.queue.submit([enc.finish()]);
-    let dl = s.read_dl()?;
-    let l = s.read_loss(0)?;
-    gpu.check()?;
-    Ok((l as f64, dl))
+    training_loss_and_grad(gpu, rendered, target, &GpuLoss { ssim_weight, ..Default::default() }, 1, 1)
 }
 
 /// The GPU training loss `loss` (L1+SSIM, then the WD stage when `iter` is past the warm-up of a
@@ -172,6 +154,7 @@ pub fn training_loss_and_grad(
 ) -> Result<(f64, Vec<f32>)> {
     loss.check()?;
     let (w, h) = (rendered.width, rendered.height);
+    // A one-Gaussian session only to own the image buffers.
     let mut one = Splats::new(0);
     one.push([0.0; 3], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[]);
     let mut s = Session::new(gpu, &one)?;
