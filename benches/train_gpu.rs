@@ -2,7 +2,8 @@
 //! Gaussians (SH degree 3), the scene of `benches/train.rs` (the CPU counterpart). Each stage is
 //! submitted and waited for on its own, so the sum is a little more than a pipelined iteration.
 //! Skips (prints why) when there is no adapter. `wd stage (wdr)` is the WD-R stage after the loss
-//! (built-in features, cached reference statistics); `iteration wdr` an iteration with it.
+//! (built-in features, cached reference statistics; also with the reference statistics recomputed,
+//! as for views over the cache budget); `iteration wdr` an iteration with it.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use gscodec::loss::LossKind;
@@ -35,7 +36,14 @@ fn bench_stages(c: &mut Criterion) {
         let target = gpu.storage_init("target", bytemuck::cast_slice(&frame.image.data));
         let mut s = Session::new(&gpu, &params).unwrap();
         let mut wd = WdStage::new(&gpu, WdConfig::new(LossKind::Wdr, None, 1), cam.width, cam.height).unwrap();
+        // No cache budget: the reference statistics are recomputed at every call.
+        let uncached = WdConfig { cache_bytes: 0, ..WdConfig::new(LossKind::Wdr, None, 1) };
+        let mut wd_uncached = WdStage::new(&gpu, uncached, cam.width, cam.height).unwrap();
         let pairs = s.project(&cam, [1.0; 3], 3).unwrap().pairs;
+        // The image buffers exist before any stage runs (whichever stages a filter selects).
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        s.rasterize(&mut enc, &cam, pairs).unwrap();
+        gpu.queue.submit([enc.finish()]);
         let lr = [1e-5, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4];
         group.bench_with_input(BenchmarkId::new("project+scan+readback", n), &n, |b, _| b.iter(|| s.project(&cam, [1.0; 3], 3).unwrap()));
         let mut stage = |name: &str, f: &mut dyn FnMut(&mut Session, &mut wgpu::CommandEncoder)| {
@@ -53,6 +61,7 @@ fn bench_stages(c: &mut Criterion) {
         stage("backward", &mut |s, enc| s.backward(enc, &cam, true));
         stage("adam", &mut |s, enc| s.adam(enc, lr));
         stage("wd stage (wdr)", &mut |s, enc| wd.record(s, enc, 0, &target, true).unwrap());
+        stage("wd stage (wdr), reference recomputed", &mut |s, enc| wd_uncached.record(s, enc, 0, &target, true).unwrap());
         stage("iteration", &mut |s, enc| {
             s.rasterize(enc, &cam, pairs).unwrap();
             s.loss(enc, &target, 0.2);

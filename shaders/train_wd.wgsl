@@ -415,9 +415,12 @@ fn array_grad(
         }
         arena[op.dst + i] = g;
     }
-    let t = reduce(li, vec2<f32>(part, 0.0));
-    if (li == 0u && t.x != 0.0) {
-        acc_add(0u, t.x * op.fscale);
+    // Only level 0 has a value here (the flag is uniform, so the barriers stay in uniform control).
+    if (has(HAS0)) {
+        let t = reduce(li, vec2<f32>(part, 0.0));
+        if (li == 0u && t.x != 0.0) {
+            acc_add(0u, t.x * op.fscale);
+        }
     }
 }
 
