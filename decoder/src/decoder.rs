@@ -6,6 +6,7 @@ use std::io::Read;
 use crate::bitstream::header::{self, check_allocation_bound, Header, HEADER_BYTES};
 use crate::bitstream::info::{read_info, EncoderInfo};
 use crate::bitstream::layout::{Group, INFO_KIND, LEVELS_KIND};
+use crate::bitstream::levels::Layout;
 use crate::bitstream::params::read_all_params;
 use crate::bitstream::sections::{self, read_table, table_bytes, Table};
 use crate::bitstream::tables::ChannelTable;
@@ -395,6 +396,34 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
 /// assert_eq!(shown.last(), Some(&(1000, 3)));
 /// ```
 pub fn decode_prefix(bytes: &[u8], limits: &Limits) -> Result<Option<Splats>, DecodeError> {
+    let Some(p) = arrived_prefix(bytes, limits)? else { return Ok(None) };
+    let mut out = Splats::new(p.degree);
+    decode_chunks(&p.container, &p.layout, p.chunks, p.degree, &mut out)?;
+    Ok(Some(out))
+}
+
+/// What [`decode_prefix`] would return for these bytes, without decoding the streams: `None`,
+/// or the number of Gaussians (whole levels) and the SH degree. Costs the parse and the CRCs of
+/// the sections that have arrived.
+///
+/// # Errors
+/// As [`decode_prefix`].
+pub fn prefix_extent(bytes: &[u8], limits: &Limits) -> Result<Option<(usize, u8)>, DecodeError> {
+    Ok(arrived_prefix(bytes, limits)?.map(|p| (p.layout.chunk_ranges()[..p.chunks].last().map_or(0, |r| r.end), p.degree)))
+}
+
+/// The part of a file [`decode_prefix`] decodes: its first `chunks` chunks (whole levels) with SH
+/// up to `degree`.
+struct Prefix<'a> {
+    container: sections::Container<'a>,
+    layout: Layout,
+    chunks: usize,
+    degree: u8,
+}
+
+/// The rule of [`decode_prefix`]: the levels whose base sections have all arrived, and the SH
+/// bands whose sections for them have.
+fn arrived_prefix<'a>(bytes: &'a [u8], limits: &Limits) -> Result<Option<Prefix<'a>>, DecodeError> {
     if bitstream::MAGIC.starts_with(bytes) {
         return Ok(None); // not even the magic has arrived
     }
@@ -419,7 +448,5 @@ pub fn decode_prefix(bytes: &[u8], limits: &Limits) -> Result<Option<Splats>, De
     }
     let chunks = levels[..complete].last().map_or(0, |r| r.end);
     let degree = (1..=wanted).take_while(|&b| arrived(Group::for_band(b), 0..chunks)).last().unwrap_or(0);
-    let mut out = Splats::new(degree);
-    decode_chunks(&c, &layout, chunks, degree, &mut out)?;
-    Ok(Some(out))
+    Ok(Some(Prefix { container: c, layout, chunks, degree }))
 }
