@@ -38,7 +38,8 @@ fn progressive_encode_writes_levels_that_info_shows() {
         let o = gscodec(&args);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
-    let info = |gsc: &Path| serde_json::from_slice::<serde_json::Value>(&gscodec(&["info", gsc.to_str().unwrap(), "--json"]).stdout).unwrap();
+    let info =
+        |gsc: &Path| serde_json::from_slice::<serde_json::Value>(&gscodec(&["info", gsc.to_str().unwrap(), "--json"]).stdout).unwrap();
     let (a, b) = (info(&one), info(&levels));
     assert_eq!((a["version"].as_str(), b["version"].as_str()), (Some("3.0"), Some("4.0")));
     assert_eq!(a["gaussians"], b["gaussians"]);
