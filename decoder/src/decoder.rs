@@ -434,7 +434,8 @@ fn arrived_prefix<'a>(bytes: &'a [u8], limits: &Limits) -> Result<Option<Prefix<
     };
     let table = read_table(bytes)?;
     let wanted = check_limits(&table, limits)?;
-    let pending = |kind: u16, chunk: usize| c.pending.iter().any(|id| id.kind == kind && usize::from(id.chunk) == chunk);
+    let pending: std::collections::HashSet<SectionId> = c.pending.iter().copied().collect();
+    let pending = |kind: u16, chunk: usize| u16::try_from(chunk).is_ok_and(|chunk| pending.contains(&SectionId { kind, chunk }));
     if pending(LEVELS_KIND, 0) || !Group::present(0).all(|g| !pending(g.params_kind(), 0)) {
         return Ok(None);
     }
