@@ -17,6 +17,7 @@ const TRAIN_RASTER: &str = include_str!("../../../shaders/train_raster.wgsl");
 const TRAIN_PROJECT: &str = include_str!("../../../shaders/train_project.wgsl");
 const TRAIN_LOSS: &str = include_str!("../../../shaders/train_loss.wgsl");
 const TRAIN_ADAM: &str = include_str!("../../../shaders/train_adam.wgsl");
+const TRAIN_RATE: &str = include_str!("../../../shaders/train_rate.wgsl");
 
 /// Floats per projected Gaussian (`Projected` in common.wgsl).
 const PROJECTED_BYTES: u64 = 48;
@@ -121,6 +122,10 @@ pub struct Gpu {
     pub ssim_bv: wgpu::ComputePipeline,
     pub adam: wgpu::ComputePipeline,
     pub reset_opacity: wgpu::ComputePipeline,
+    pub rate_quantise: wgpu::ComputePipeline,
+    pub rate_reduce: wgpu::ComputePipeline,
+    pub rate_grads: wgpu::ComputePipeline,
+    pub rate_update: wgpu::ComputePipeline,
 }
 
 fn adapter() -> Option<wgpu::Adapter> {
@@ -233,6 +238,7 @@ impl Gpu {
         let train_project_m = module("train_project", TRAIN_PROJECT);
         let train_loss_m = module("train_loss", &format!("{}{TRAIN_LOSS}", taps_wgsl()));
         let train_adam_m = module("train_adam", TRAIN_ADAM);
+        let train_rate_m = module("train_rate", TRAIN_RATE);
         let gpu = Gpu {
             project: pipeline(&project_m, "project"),
             emit: pipeline(&emit_m, "emit"),
@@ -246,6 +252,10 @@ impl Gpu {
             ssim_bv: pipeline(&train_loss_m, "ssim_bv"),
             adam: pipeline(&train_adam_m, "adam"),
             reset_opacity: pipeline(&train_adam_m, "reset_opacity"),
+            rate_quantise: pipeline(&train_rate_m, "quantise"),
+            rate_reduce: pipeline(&train_rate_m, "rate_reduce"),
+            rate_grads: pipeline(&train_rate_m, "rate_grads"),
+            rate_update: pipeline(&train_rate_m, "rate_update"),
             device,
             queue,
             info,

@@ -16,9 +16,11 @@
 //! the rate term.
 
 mod context;
+pub mod rate;
 pub mod session;
 
 pub use context::{hardware_adapter_available, Gpu};
+pub use rate::RateState;
 pub use session::Session;
 
 use super::adam::Adam;
@@ -29,6 +31,7 @@ use crate::loss::LossKind;
 use crate::metrics::view::mean_psnr_ssim;
 use crate::optim::AdamRule;
 use crate::rate::group::Group;
+use crate::rate::term::{RateTerm, RdTerm};
 use crate::rng::Rng;
 use crate::{Error, Result};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
@@ -67,13 +70,8 @@ impl GpuLoss {
     }
 }
 
-/// The input error for a rate term (λ·R, learned quantisation steps), which the GPU trainer does
-/// not have yet: `encode` with a rate objective must use the CPU backend.
-pub fn rate_unsupported() -> Error {
-    Error::Input("GPU training does not support the rate term (λ·R, learned quantisation steps) yet; use --backend cpu".into())
-}
-
-fn gpu_or_error() -> Result<Gpu> {
+/// The default adapter's device, or the input error saying there is none.
+pub fn gpu_or_error() -> Result<Gpu> {
     Gpu::new()?.ok_or_else(|| Error::Input("GPU training: no GPU adapter available (install a Vulkan driver, or use --backend cpu)".into()))
 }
 
@@ -130,6 +128,42 @@ pub fn loss_and_grad(gpu: &Gpu, rendered: &Image, target: &Image, ssim_weight: f
     Ok((l as f64, dl))
 }
 
+/// The GPU rate term on `params` with the distortion gradient `dist_grad` (w.r.t. the rendered
+/// values), for `calls` iterations of the term (the term starting at the first): returns, after
+/// the last, `w·R`, the gradient (distortion + rate), the term's state and the quantised scene the
+/// iteration rendered, like `calls` calls of [`RateTerm::rate_and_grad`] and
+/// [`RateTerm::render_params`] (the test oracle).
+#[doc(hidden)]
+pub fn rate_and_grad(
+    gpu: &Gpu,
+    params: &Splats,
+    dist_grad: &Splats,
+    term: RateTerm,
+    calls: usize,
+) -> Result<(f64, Splats, RateState, Splats)> {
+    let mut s = Session::new(gpu, params)?;
+    let mut term = term;
+    term.start_iter = 0;
+    s.set_rate(term);
+    let mut out = None;
+    for it in 0..calls {
+        s.begin_rate(it)?;
+        gpu.queue.write_buffer(&s.scene.grads, 0, bytemuck::cast_slice(&session::to_records(dist_grad)));
+        gpu.queue.write_buffer(&s.loss_acc, 0, &[0; 16]);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        s.record_rate(&mut enc);
+        gpu.queue.submit([enc.finish()]);
+        let (grads, _) = s.read_grads()?;
+        let value = f64::from(s.read_loss(0)?);
+        let r = s.rate.as_mut().expect("rate term");
+        let rendered = session::from_records(&gpu.read_f32(&r.render, params.len() * s.scene.stride)?, params.sh_degree);
+        let state = r.read(gpu)?;
+        out = Some((value, grads, state, rendered));
+    }
+    gpu.check()?;
+    out.ok_or_else(|| Error::Input("rate_and_grad: no call".into()))
+}
+
 /// The parameter group of offset `k` in a parameter record.
 fn group_of_offset(k: usize) -> Group {
     match k {
@@ -174,6 +208,21 @@ pub fn train_on(
     loss: &GpuLoss,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<(Splats, TrainReport)> {
+    train_with(gpu, dataset, init, cfg, loss, None, progress)
+}
+
+/// [`train_on`] under `D + λ·R` when `rate` is given: the GPU twin of the CPU trainer with a
+/// [`RateTerm`] (straight-through quantised renders, `w·R` and its gradient, learned steps from
+/// the term's start iteration on); the report's `rate` says what it learned.
+pub fn train_with(
+    gpu: &Gpu,
+    dataset: &Dataset,
+    init: Option<Splats>,
+    cfg: &TrainConfig,
+    loss: &GpuLoss,
+    rate: Option<RateTerm>,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<(Splats, TrainReport)> {
     loss.check()?;
     let train_frames = dataset.split(Split::Train);
     let test_frames = dataset.split(Split::Test);
@@ -196,6 +245,9 @@ pub fn train_on(
     }
     let sched = Schedule::for_iters(cfg.iters);
     let mut session = Session::new(gpu, &params)?;
+    if let Some(term) = rate {
+        session.set_rate(term);
+    }
     drop(params);
     // Training images, uploaded once.
     let targets: Vec<wgpu::Buffer> =
@@ -245,6 +297,7 @@ pub fn train_on(
         let fi = order.pop().unwrap();
         let frame = train_frames[fi];
         let t0 = Instant::now();
+        session.begin_rate(it)?;
         let sc = session.project(&frame.camera, dataset.background, degree)?;
         let t_a = t0.elapsed().as_secs_f64();
         if it > 1 {
@@ -284,6 +337,11 @@ pub fn train_on(
         } else {
             None
         };
+        // The rate term's estimate is read with the evaluations (the encoder's series).
+        let rate_bits = match session.rate.as_mut() {
+            Some(r) if eval_now && r.on_at(it) => Some(r.read(gpu)?.bits),
+            _ => None,
+        };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
         if cfg.densify {
             if sched.densifies(it) {
@@ -311,7 +369,7 @@ pub fn train_on(
         if it % log_every == 0 || eval_now || it == cfg.iters {
             pending = Some(ReportPoint { iteration: it, seconds: train_seconds, loss: f64::NAN, gaussians: n, test_psnr });
         }
-        progress(&Progress { iteration: it, iters: cfg.iters, loss: last_loss, gaussians: n, test_psnr, rate_bits: None });
+        progress(&Progress { iteration: it, iters: cfg.iters, loss: last_loss, gaussians: n, test_psnr, rate_bits });
     }
     // The last iteration's scalars.
     let t_end = Instant::now();
@@ -322,6 +380,14 @@ pub fn train_on(
         points.push(p);
     }
     let params = session.download_params()?;
+    let rate = match session.rate.as_mut() {
+        Some(r) if r.started => {
+            r.read(gpu)?;
+            r.term.outcome()
+        }
+        Some(r) => r.term.outcome(),
+        None => None,
+    };
     train_seconds += t_end.elapsed().as_secs_f64();
     gpu.check()?;
     let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);
@@ -341,7 +407,7 @@ pub fn train_on(
         test_psnr: final_eval.map(|e| e.0),
         test_ssim: final_eval.map(|e| e.1),
         stages,
-        rate: None,
+        rate,
     };
     Ok((params, report))
 }

@@ -2,6 +2,9 @@
 //! per-view images) and the recording of one iteration.
 
 use super::context::{dims, projected_bytes, stride_for, AdamUniform, FrameUniform, Gpu, G2};
+use super::rate::{GpuRate, Pass};
+use crate::rate::group::{self, Group};
+use crate::rate::term::RateTerm;
 use crate::{Error, Result};
 use gscodec_decoder::math::TILE;
 use gscodec_decoder::{Camera, Image, Splats};
@@ -19,6 +22,19 @@ pub fn to_records(s: &Splats) -> Vec<f32> {
         r.extend_from_slice(s.rest_of(i));
     }
     r
+}
+
+/// Offset in a parameter record (SH degree `degree`) of value `c` of group `g`.
+pub fn record_offset(g: Group, degree: u8, c: usize) -> usize {
+    let field = match g {
+        Group::Position => 0,
+        Group::Scale => 3,
+        Group::Rotation => 6,
+        Group::Opacity => 10,
+        Group::ShDc => 11,
+        Group::Sh1 | Group::Sh2 | Group::Sh3 => 14,
+    };
+    field + group::layout(g, degree).1.start + c
 }
 
 /// Inverse of [`to_records`].
@@ -107,6 +123,11 @@ pub struct Session<'g> {
     pub step: u64,
     /// Whether the previous iteration wrote timestamps.
     timed: bool,
+    /// The rate term, when training under `D + λ·R`.
+    pub rate: Option<GpuRate>,
+    /// Whether the rate term is on in the iteration being recorded (render from the quantised
+    /// records, add `w·R`, update steps).
+    rate_on: bool,
 }
 
 impl<'g> Session<'g> {
@@ -147,10 +168,59 @@ impl<'g> Session<'g> {
             period_ns: gpu.queue.get_timestamp_period() as f64,
             step: 0,
             timed: false,
+            rate: None,
+            rate_on: false,
             gpu,
         };
         gpu.check()?;
         Ok(s)
+    }
+
+    /// Trains under `D + λ·R` with `term` from its start iteration on.
+    pub fn set_rate(&mut self, term: RateTerm) {
+        self.rate = Some(GpuRate::new(self.gpu, term, self.scene.degree, self.scene.stride));
+    }
+
+    /// Turns the rate term on for the iteration about to be recorded when `it` is at or after its
+    /// start (the first time, its densities are fitted to the parameters: one read-back).
+    pub fn begin_rate(&mut self, it: usize) -> Result<()> {
+        self.rate_on = self.rate.as_ref().is_some_and(|r| r.on_at(it));
+        if !self.rate_on {
+            return Ok(());
+        }
+        if !self.rate.as_ref().unwrap().started {
+            let p = self.download_params()?;
+            self.rate.as_mut().unwrap().start(self.gpu, &p);
+        }
+        let (n, stride, word) = (self.scene.n, self.scene.stride, (self.step % 2) as u32);
+        self.rate.as_mut().unwrap().prepare(self.gpu, n, stride, word);
+        Ok(())
+    }
+
+    /// The records the iteration renders from: the quantised ones while the rate term is on.
+    fn render_records(&self) -> &wgpu::Buffer {
+        match (&self.rate, self.rate_on) {
+            (Some(r), true) => &r.render,
+            _ => &self.scene.params,
+        }
+    }
+
+    /// Records the rate term's passes alone (quantised records; gradient into the gradient buffer
+    /// as it is; the updates): for tests of the term.
+    #[doc(hidden)]
+    pub fn record_rate(&self, enc: &mut wgpu::CommandEncoder) {
+        let (g, sc) = (self.gpu, &self.scene);
+        if let (Some(r), true) = (&self.rate, self.rate_on) {
+            self.run(enc, &r.quantise(g, &sc.params, sc.n * sc.stride), (None, None));
+            for p in r.grads(g, &sc.params, &sc.grads, sc.n) {
+                self.run(enc, &p, (None, None));
+            }
+            self.run(enc, &r.update(g, &self.loss_acc), (None, None));
+        }
+    }
+
+    fn run(&self, enc: &mut wgpu::CommandEncoder, p: &Pass, ts: (Option<u32>, Option<u32>)) {
+        self.pass(enc, p.0, &p.1, p.2, ts);
     }
 
     /// Replaces the scene (after densification): parameters and moments given.
@@ -238,8 +308,12 @@ impl<'g> Session<'g> {
         g.queue.write_buffer(&self.chunk, 0, bytemuck::cast_slice(&[0u32, sc.n as u32, 0, 0]));
         let mut enc = g.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&sc.counts, 0, None);
-        let bg = g.bind(&g.project, &[(0, &self.frame), (1, &self.chunk), (2, &sc.params), (3, &sc.projected), (4, &sc.counts)]);
-        self.pass(&mut enc, &g.project, &bg, dims((sc.n as u32).div_ceil(256)), (Some(0), Some(1)));
+        let mut first = Some(0);
+        if let (Some(r), true) = (&self.rate, self.rate_on) {
+            self.run(&mut enc, &r.quantise(g, &sc.params, sc.n * sc.stride), (first.take(), None));
+        }
+        let bg = g.bind(&g.project, &[(0, &self.frame), (1, &self.chunk), (2, self.render_records()), (3, &sc.projected), (4, &sc.counts)]);
+        self.pass(&mut enc, &g.project, &bg, dims((sc.n as u32).div_ceil(256)), (first, Some(1)));
         g.renderer.record_scan(&mut enc, &sc.counts, sc.n as u32 + 1);
         enc.copy_buffer_to_buffer(&sc.counts, sc.n as u64 * 4, &self.staging, 0, 4);
         enc.copy_buffer_to_buffer(&self.bad, 0, &self.staging, 4, 8);
@@ -347,9 +421,14 @@ impl<'g> Session<'g> {
         let bw = g.uniform(&[sc.n as u32, stats as u32, r_scale.to_bits(), 0]);
         let bg = g.bind(
             &g.project_backward,
-            &[(0, &self.frame), (1, &bw), (2, &sc.params), (3, &sc.projected), (4, &sc.grad2d), (5, &sc.grads), (6, &sc.stats)],
+            &[(0, &self.frame), (1, &bw), (2, self.render_records()), (3, &sc.projected), (4, &sc.grad2d), (5, &sc.grads), (6, &sc.stats)],
         );
-        self.pass(enc, &g.project_backward, &bg, dims((sc.n as u32).div_ceil(256)), (None, Some(9)));
+        let rate = self.rate.as_ref().filter(|_| self.rate_on).map(|r| r.grads(g, &sc.params, &sc.grads, sc.n));
+        self.pass(enc, &g.project_backward, &bg, dims((sc.n as u32).div_ceil(256)), (None, rate.is_none().then_some(9)));
+        if let Some([reduce, add]) = rate {
+            self.run(enc, &reduce, (None, None));
+            self.run(enc, &add, (None, Some(9)));
+        }
     }
 
     /// Step 5: one Adam step with per-group learning rates `lr` (position, scale, rotation,
@@ -357,6 +436,10 @@ impl<'g> Session<'g> {
     pub fn adam(&mut self, enc: &mut wgpu::CommandEncoder, lr: [f32; 6]) {
         let g = self.gpu;
         let sc = &self.scene;
+        let mut first = Some(10);
+        if let (Some(r), true) = (&self.rate, self.rate_on) {
+            self.run(enc, &r.update(g, &self.loss_acc), (first.take(), None));
+        }
         self.step += 1;
         let crate::optim::AdamRule { beta1, beta2, eps, .. } = crate::optim::AdamRule::default();
         let bc1 = 1.0 - (beta1 as f64).powf(self.step as f64);
@@ -375,7 +458,7 @@ impl<'g> Session<'g> {
         };
         g.queue.write_buffer(&self.adam_u, 0, bytemuck::bytes_of(&u));
         let bg = g.bind(&g.adam, &[(0, &self.adam_u), (1, &sc.params), (2, &sc.grads), (3, &sc.m), (4, &sc.v), (5, &self.bad)]);
-        self.pass(enc, &g.adam, &bg, dims(total.div_ceil(256)), (Some(10), Some(11)));
+        self.pass(enc, &g.adam, &bg, dims(total.div_ceil(256)), (first, Some(11)));
     }
 
     /// Ends an iteration's recording: resolves the timestamps and submits.
