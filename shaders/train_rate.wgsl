@@ -32,6 +32,10 @@ struct RateParams {
     total: u32,          // n · stride
     learned: u32,        // bit mask of the learned groups
     fixed_bits: f32,     // bits per Gaussian the channels do not model
+    bits_word: u32,      // index of this iteration's R in `loss`
+    _p0: u32,
+    _p1: u32,
+    _p2: u32,
     start: array<vec4<f32>, 2>,   // starting step per group
     adam: vec4<f32>,     // β1, β2, ε, ln(step range)
 }
@@ -43,7 +47,7 @@ struct RateParams {
 @group(0) @binding(4) var<storage, read> chan: array<vec2<u32>>;      // (record offset, group) per channel
 @group(0) @binding(5) var<storage, read_write> sums: array<f32>;      // SUMS per channel (+ the fixed bits)
 @group(0) @binding(6) var<storage, read_write> render: array<f32>;
-@group(0) @binding(7) var<storage, read_write> loss: array<f32>;
+@group(0) @binding(7) var<storage, read_write> loss: array<f32>;        // the trainer's per-iteration scalars
 @group(0) @binding(8) var<storage, read> qgroup: array<u32>;          // group of each record offset, or NONE
 
 const STATE_BITS: u32 = 32u;
@@ -210,6 +214,7 @@ fn rate_update() {
     }
     state[STATE_BITS] = total;
     loss[rp.loss_word] += rp.weight * total;
+    loss[rp.bits_word] = total;
     for (var g = 0u; g < 8u; g++) {
         state[24u + g] = d_log_step[g];
         if (rp.learn == 0u || (rp.learned & (1u << g)) == 0u) {

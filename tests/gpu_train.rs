@@ -297,6 +297,25 @@ fn training_matches_cpu_psnr() {
     assert!(st.rasterize > 0.0 && st.project + st.sort + st.rasterize + st.loss + st.backward + st.optimiser <= gpu_r.train_seconds * 1.5);
 }
 
+/// No read-back per iteration: over 50 iterations (densification and evaluations off) the GPU
+/// trainer waits for the GPU once for the first frame's pair count (to size the key buffers),
+/// once for the scalars at iteration 32 (`READ_EVERY`), once for the rest at the end and once for
+/// the trained scene; the report still has every point's mean loss.
+#[test]
+fn fifty_iterations_read_back_four_times() {
+    let Some(gpu) = device() else { return };
+    let ds = toy_dataset();
+    let cfg = TrainConfig { iters: 50, seed: 1, init_points: 300, eval_interval: 0, densify: false, ..Default::default() };
+    let before = gpu.readbacks();
+    let (_, r) = gpu::train_on(&gpu, &ds, None, &cfg, &GpuLoss::default(), &mut |_| {}).unwrap();
+    let reads = gpu.readbacks() - before;
+    assert_eq!(gpu::READ_EVERY, 32);
+    assert_eq!(reads, 4, "read-backs in 50 iterations");
+    assert_eq!(r.points.len(), 50, "a point per iteration (iters / 500 < 1)");
+    assert!(r.points.iter().all(|p| p.loss.is_finite() && p.loss > 0.0), "{:?}", r.points);
+    assert!(r.stages.rasterize > 0.0 || !gpu.timestamps);
+}
+
 #[test]
 fn unsupported_losses_are_input_errors() {
     let ds = tiny_dataset();

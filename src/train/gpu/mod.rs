@@ -1,19 +1,21 @@
 //! GPU trainer (wgpu): the whole training iteration on the GPU, with the CPU trainer
 //! ([`crate::train::train`]) as its oracle: same renderer conventions, schedule, learning rates,
-//! Adam, densification rules and report.
+//! Adam, densification rules, rate term and report.
 //!
-//! Per iteration: projection + SH colour, tile-count scan (the decoder's kernels), then one
-//! read-back of a few scalars (the number of tile/Gaussian pairs, which sizes the sort; the
-//! previous iteration's loss, non-finite flags and stage timestamps); keys, radix sort, tile
-//! ranges (decoder), the rasterizer saving final transmittance and list end per pixel, L1 + SSIM
-//! loss forward and backward, rasterizer backward, projection / covariance / SH backward with the
-//! densification statistics, and Adam (shaders/train_*.wgsl). Training images are uploaded once.
-//! Densification reads the scene, moments and statistics back once per densify step and runs the
-//! CPU trainer's [`densify::densify_and_prune`] on them (the same rules, the same random numbers).
+//! Per iteration, recorded into one submission that nothing waits for: (with the rate term: the
+//! quantised render records,) projection + SH colour, tile-count scan (the decoder's kernels), the
+//! pair count for the sort (kept on the GPU: `train_count.wgsl`), keys, radix sort and tile ranges
+//! (decoder; sized by indirect dispatch), the rasterizer saving final transmittance and list end
+//! per pixel, L1 + SSIM loss forward and backward, rasterizer backward, projection / covariance /
+//! SH backward with the densification statistics, (the rate term's sums, gradient and updates,
+//! [`rate`],) and Adam (shaders/train_*.wgsl). Each iteration's scalars (loss, pair count, bits,
+//! stage timestamps) stay in a ring on the GPU that the host reads every [`READ_EVERY`]
+//! iterations. Training images are uploaded once. Densification reads the scene, moments and
+//! statistics back once per densify step and runs the CPU trainer's [`densify::densify_and_prune`]
+//! on them (the same rules, the same random numbers).
 //!
 //! Not bit-exact with the CPU trainer: gradients are summed with float atomics in whatever order
-//! the GPU runs them. Not supported yet (refused with an input error): the WD / WD-R losses and
-//! the rate term.
+//! the GPU runs them. Not supported yet (refused with an input error): the WD / WD-R losses.
 
 mod context;
 pub mod rate;
@@ -87,9 +89,9 @@ pub fn render_backward(
     dl_dimg: &[f32],
 ) -> Result<(Image, Splats, Vec<f32>)> {
     let mut s = Session::new(gpu, splats)?;
-    let sc = s.project(cam, opts.background, opts.max_sh_degree)?;
     let mut enc = gpu.device.create_command_encoder(&Default::default());
-    s.rasterize(&mut enc, cam, sc.pairs)?;
+    s.project(&mut enc, cam, opts.background, opts.max_sh_degree)?;
+    s.rasterize(&mut enc, cam)?;
     gpu.queue.submit([enc.finish()]);
     let img = s.read_image()?;
     s.write_dl(dl_dimg);
@@ -112,10 +114,7 @@ pub fn loss_and_grad(gpu: &Gpu, rendered: &Image, target: &Image, ssim_weight: f
     let mut one = Splats::new(0);
     one.push([0.0; 3], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[]);
     let mut s = Session::new(gpu, &one)?;
-    let cam = Camera::new(w, h, w as f32, w as f32, glam::Mat3::IDENTITY, glam::Vec3::new(0.0, 0.0, -1e6));
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    s.rasterize(&mut enc, &cam, 0)?;
-    gpu.queue.submit([enc.finish()]);
+    s.ensure_image(w, h)?;
     let img = s.img.as_ref().unwrap();
     gpu.queue.write_buffer(&img.image, 0, bytemuck::cast_slice(&rendered.data));
     let tgt = gpu.storage_init("target", bytemuck::cast_slice(&target.data));
@@ -123,7 +122,7 @@ pub fn loss_and_grad(gpu: &Gpu, rendered: &Image, target: &Image, ssim_weight: f
     s.loss(&mut enc, &tgt, ssim_weight);
     gpu.queue.submit([enc.finish()]);
     let dl = s.read_dl()?;
-    let l = s.read_loss(0)?;
+    let l = s.read_loss()?;
     gpu.check()?;
     Ok((l as f64, dl))
 }
@@ -149,12 +148,12 @@ pub fn rate_and_grad(
     for it in 0..calls {
         s.begin_rate(it)?;
         gpu.queue.write_buffer(&s.scene.grads, 0, bytemuck::cast_slice(&session::to_records(dist_grad)));
-        gpu.queue.write_buffer(&s.loss_acc, 0, &[0; 16]);
+        gpu.queue.write_buffer(&s.ring, 0, &[0; 256]);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         s.record_rate(&mut enc);
         gpu.queue.submit([enc.finish()]);
         let (grads, _) = s.read_grads()?;
-        let value = f64::from(s.read_loss(0)?);
+        let value = f64::from(s.read_loss()?);
         let r = s.rate.as_mut().expect("rate term");
         let rendered = session::from_records(&gpu.read_f32(&r.render, params.len() * s.scene.stride)?, params.sh_degree);
         let state = r.read(gpu)?;
@@ -253,37 +252,11 @@ pub fn train_with(
     let targets: Vec<wgpu::Buffer> =
         train_frames.iter().map(|f: &&Frame| gpu.storage_init("target", bytemuck::cast_slice(&f.image.data))).collect();
     let mut order: Vec<usize> = Vec::new();
-    let mut points = Vec::new();
-    let mut stages = StageTimes::default();
-    let (mut loss_sum, mut loss_n) = (0.0f64, 0usize);
+    let mut tally = Tally::new(session.scene.stride, 1);
     let mut train_seconds = 0.0;
     let log_every = (cfg.iters / 500).max(1);
-    let mut last_loss = f64::NAN;
-    let mut pending: Option<ReportPoint> = None;
     let mut n = session.scene.n;
     let mut peak = n;
-    let stride = session.scene.stride;
-
-    // Scalars of iteration `it - 1` arrive with iteration `it`'s projection.
-    let account = |sc: &session::Scalars, it: usize, stages: &mut StageTimes| -> Result<f64> {
-        if sc.bad_grad != u32::MAX || sc.bad_value != u32::MAX {
-            let (what, idx) = if sc.bad_grad != u32::MAX { ("gradient", sc.bad_grad) } else { ("value", sc.bad_value) };
-            return Err(non_finite_error(what, it, idx as usize / stride, group_of_offset(idx as usize % stride)));
-        }
-        if let Some(t) = sc.stage_seconds {
-            stages.project += t[0];
-            stages.sort += t[1];
-            stages.rasterize += t[2];
-            stages.loss += t[3];
-            stages.backward += t[4];
-            stages.optimiser += t[5];
-        }
-        let l = sc.loss as f64;
-        if !l.is_finite() {
-            return Err(Error::Failure(format!("training diverged at iteration {it}: loss is {l}")));
-        }
-        Ok(l)
-    };
 
     for it in 1..=cfg.iters {
         let t_iter = Instant::now();
@@ -296,23 +269,11 @@ pub fn train_with(
         }
         let fi = order.pop().unwrap();
         let frame = train_frames[fi];
-        let t0 = Instant::now();
+        // The whole iteration is one submission; nothing waits for the GPU.
         session.begin_rate(it)?;
-        let sc = session.project(&frame.camera, dataset.background, degree)?;
-        let t_a = t0.elapsed().as_secs_f64();
-        if it > 1 {
-            last_loss = account(&sc, it - 1, &mut stages)?;
-            loss_sum += last_loss;
-            loss_n += 1;
-            if let Some(mut p) = pending.take() {
-                p.loss = loss_sum / loss_n as f64;
-                points.push(p);
-                (loss_sum, loss_n) = (0.0, 0);
-            }
-        }
-        let t1 = Instant::now();
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        session.rasterize(&mut enc, &frame.camera, sc.pairs)?;
+        session.project(&mut enc, &frame.camera, dataset.background, degree)?;
+        session.rasterize(&mut enc, &frame.camera)?;
         session.loss(&mut enc, &targets[fi], loss.ssim_weight);
         let stats_on = cfg.densify && it < sched.densify_until;
         session.backward(&mut enc, &frame.camera, stats_on);
@@ -321,12 +282,6 @@ pub fn train_with(
             .map(|g| learning_rate(g, it, cfg, extent));
         session.adam(&mut enc, lr);
         session.submit(enc);
-        if sc.stage_seconds.is_none() && !gpu.timestamps {
-            // No timestamps: wall time around the submissions (the second includes the wait).
-            gpu.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| Error::Failure(format!("GPU error: {e}")))?;
-            stages.project += t_a;
-            stages.rasterize += t1.elapsed().as_secs_f64();
-        }
         let t_dens = Instant::now();
 
         // Held-out evaluation before densification (as the CPU trainer); not training time.
@@ -343,8 +298,14 @@ pub fn train_with(
             _ => None,
         };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
+        let densify_now = cfg.densify && sched.densifies(it);
+        // The scalars (loss, pair counts, non-finite flags, stage times) every READ_EVERY
+        // iterations, and before a densification step (which reads the scene back anyway).
+        if densify_now || it % READ_EVERY == 0 {
+            tally.absorb(session.read_scalars()?)?;
+        }
         if cfg.densify {
-            if sched.densifies(it) {
+            if densify_now {
                 let (mut p, m, v) = session.download()?;
                 let raw = session.download_stats()?;
                 let stats = DensifyStats {
@@ -362,23 +323,21 @@ pub fn train_with(
             }
         }
         peak = peak.max(n);
-        stages.densify += t_dens.elapsed().as_secs_f64() - eval_seconds;
+        tally.stages.densify += t_dens.elapsed().as_secs_f64() - eval_seconds;
         train_seconds += t_iter.elapsed().as_secs_f64() - eval_seconds;
 
-        // The point's mean loss is completed when this iteration's loss arrives (next iteration).
+        // The point's mean loss is filled in when its iteration's scalars arrive.
         if it % log_every == 0 || eval_now || it == cfg.iters {
-            pending = Some(ReportPoint { iteration: it, seconds: train_seconds, loss: f64::NAN, gaussians: n, test_psnr });
+            tally.waiting.push_back(ReportPoint { iteration: it, seconds: train_seconds, loss: f64::NAN, gaussians: n, test_psnr });
+            tally.settle();
         }
-        progress(&Progress { iteration: it, iters: cfg.iters, loss: last_loss, gaussians: n, test_psnr, rate_bits });
+        let rate_bits = rate_bits.or(tally.last_bits);
+        progress(&Progress { iteration: it, iters: cfg.iters, loss: tally.last_loss, gaussians: n, test_psnr, rate_bits });
     }
-    // The last iteration's scalars.
+    // The last iterations' scalars.
     let t_end = Instant::now();
-    let sc = session.project(&train_frames[0].camera, dataset.background, degree)?;
-    let l = account(&sc, cfg.iters, &mut stages)?;
-    if let Some(mut p) = pending.take() {
-        p.loss = (loss_sum + l) / (loss_n + 1) as f64;
-        points.push(p);
-    }
+    tally.absorb(session.read_scalars()?)?;
+    tally.settle();
     let params = session.download_params()?;
     let rate = match session.rate.as_mut() {
         Some(r) if r.started => {
@@ -390,6 +349,7 @@ pub fn train_with(
     };
     train_seconds += t_end.elapsed().as_secs_f64();
     gpu.check()?;
+    let mut points = tally.points;
     let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
         last.test_psnr = Some(p);
@@ -406,8 +366,102 @@ pub fn train_with(
         test_views: test_frames.len(),
         test_psnr: final_eval.map(|e| e.0),
         test_ssim: final_eval.map(|e| e.1),
-        stages,
+        stages: tally.stages,
         rate,
     };
     Ok((params, report))
+}
+
+/// Iterations between two reads of the per-iteration scalars (at most [`session::RING`]).
+pub const READ_EVERY: usize = 32;
+
+/// The host's account of the scalars that arrive every few iterations: the losses not yet
+/// assigned to a report point, the points waiting for their losses, stage times.
+struct Tally {
+    stride: usize,
+    /// The iteration the next arriving scalars belong to.
+    next: usize,
+    /// Losses of iterations since the last completed point.
+    loss_sum: f64,
+    loss_n: usize,
+    /// Points whose iteration's scalars have not arrived yet (loss NaN).
+    waiting: std::collections::VecDeque<ReportPoint>,
+    /// Arrived (iteration, loss) not yet summed into a point.
+    arrived: std::collections::VecDeque<(usize, f64)>,
+    points: Vec<ReportPoint>,
+    last_loss: f64,
+    last_bits: Option<f64>,
+    stages: StageTimes,
+}
+
+impl Tally {
+    fn new(stride: usize, first: usize) -> Self {
+        Tally {
+            stride,
+            next: first,
+            loss_sum: 0.0,
+            loss_n: 0,
+            waiting: Default::default(),
+            arrived: Default::default(),
+            points: Vec::new(),
+            last_loss: f64::NAN,
+            last_bits: None,
+            stages: StageTimes::default(),
+        }
+    }
+
+    /// Takes the scalars of the next iterations: the first non-finite loss or flag is the
+    /// divergence error of the CPU trainer (named at the iteration whose loss shows it, else at
+    /// the last one read: the flags are read every [`READ_EVERY`] iterations).
+    fn absorb(&mut self, sc: session::Scalars) -> Result<()> {
+        let last = self.next + sc.iters.len().saturating_sub(1);
+        let first_bad_loss = sc.iters.iter().position(|s| !s.loss.is_finite()).map(|j| self.next + j);
+        if sc.bad_grad != u32::MAX || sc.bad_value != u32::MAX {
+            let (what, idx) = if sc.bad_grad != u32::MAX { ("gradient", sc.bad_grad) } else { ("value", sc.bad_value) };
+            let it = first_bad_loss.unwrap_or(last);
+            return Err(non_finite_error(what, it, idx as usize / self.stride, group_of_offset(idx as usize % self.stride)));
+        }
+        if let Some(it) = first_bad_loss {
+            let l = sc.iters[it - self.next].loss;
+            return Err(Error::Failure(format!("training diverged at iteration {it}: loss is {l}")));
+        }
+        for s in sc.iters {
+            if let Some(t) = s.stage_seconds {
+                let st = &mut self.stages;
+                st.project += t[0];
+                st.sort += t[1];
+                st.rasterize += t[2];
+                st.loss += t[3];
+                st.backward += t[4];
+                st.optimiser += t[5];
+            }
+            self.last_loss = s.loss as f64;
+            self.last_bits = s.bits.map(f64::from);
+            self.arrived.push_back((self.next, s.loss as f64));
+            self.next += 1;
+        }
+        self.settle();
+        Ok(())
+    }
+
+    /// Completes the waiting points whose losses have all arrived.
+    fn settle(&mut self) {
+        while let Some(p) = self.waiting.front() {
+            if self.next <= p.iteration {
+                break;
+            }
+            while let Some(&(i, l)) = self.arrived.front() {
+                if i > p.iteration {
+                    break;
+                }
+                self.loss_sum += l;
+                self.loss_n += 1;
+                self.arrived.pop_front();
+            }
+            let mut p = self.waiting.pop_front().expect("a waiting point");
+            p.loss = self.loss_sum / self.loss_n.max(1) as f64;
+            (self.loss_sum, self.loss_n) = (0.0, 0);
+            self.points.push(p);
+        }
+    }
 }

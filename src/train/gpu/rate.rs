@@ -39,6 +39,8 @@ struct RateUniform {
     total: u32,
     learned: u32,
     fixed_bits: f32,
+    bits_word: u32,
+    _pad: [u32; 3],
     start: [f32; 8],
     adam: [f32; 4],
 }
@@ -123,8 +125,9 @@ impl GpuRate {
     }
 
     /// Writes this iteration's uniform (`loss_word`: where the loss kernel sums this iteration's
-    /// loss); counts the Adam step of the log steps when they are learned.
-    pub fn prepare(&mut self, gpu: &Gpu, n: usize, stride: usize, loss_word: u32) {
+    /// loss, `bits_word`: where `R` goes); counts the Adam step of the log steps when they are
+    /// learned.
+    pub fn prepare(&mut self, gpu: &Gpu, n: usize, stride: usize, loss_word: u32, bits_word: u32) {
         self.ensure_render(gpu, n * stride);
         let rule = crate::optim::AdamRule { step: self.adam_step, ..Default::default() };
         let (mut step_size, mut sqrt_bc2) = (0.0, 1.0);
@@ -150,6 +153,8 @@ impl GpuRate {
             total: (n * stride) as u32,
             learned: LEARNED_GROUPS.iter().fold(0, |m, &g| m | 1 << g as u32),
             fixed_bits: FIXED_BITS_PER_GAUSSIAN as f32,
+            bits_word,
+            _pad: [0; 3],
             start: std::array::from_fn(|g| if g < 8 { start.of(Group::ALL[g]) } else { 1.0 }),
             adam: [rule.beta1, rule.beta2, rule.eps, STEP_RANGE.ln()],
         };
