@@ -44,7 +44,7 @@ impl Backend {
 }
 
 /// The GPU trainer, if this build has one and (with `auto`) a hardware adapter exists. `auto`
-/// runs on the CPU the jobs the GPU trainer cannot (a WD loss, checkpoints).
+/// runs on the CPU the jobs the GPU trainer cannot (a WD loss).
 #[cfg(feature = "gpu")]
 fn gpu_backend(auto: bool) -> Option<Box<dyn TrainBackend>> {
     // `auto` looks for a hardware adapter only when a job the GPU trainer can run arrives
@@ -75,11 +75,7 @@ impl TrainBackend for GpuBackend {
 
     fn train(&mut self, job: TrainJob<'_>, progress: &mut dyn FnMut(&Progress)) -> Result<(Splats, TrainReport)> {
         let loss = crate::train::gpu::GpuLoss::from(job.loss.kind);
-        let refused = if job.run.checkpoint.is_some() || job.run.resume.is_some() {
-            Some(Error::Input("GPU training does not write or resume checkpoints yet; use --backend cpu".into()))
-        } else {
-            loss.check().err()
-        };
+        let refused = loss.check().err();
         match refused {
             Some(_) if self.fall_back_to_cpu => CpuBackend.train(job, progress),
             Some(e) => Err(e),
@@ -87,7 +83,7 @@ impl TrainBackend for GpuBackend {
             None => {
                 let gpu = crate::train::gpu::gpu_or_error()?;
                 let rate = job.rate.map(RateObjective::term);
-                crate::train::gpu::train_with(&gpu, job.dataset, job.init, job.config, &loss, rate, progress)
+                crate::train::gpu::train_with(&gpu, job.dataset, job.init, job.config, &loss, rate, progress, job.run)
             }
         }
     }

@@ -27,7 +27,9 @@ pub use session::Session;
 
 use super::adam::Adam;
 use super::densify::DensifyStats;
-use super::{init, learning_rate, non_finite_error, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
+use super::{
+    checkpoint, init, learning_rate, non_finite_error, Progress, ReportPoint, RunOptions, Schedule, StageTimes, TrainConfig, TrainReport,
+};
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::LossKind;
 use crate::metrics::view::mean_psnr_ssim;
@@ -207,12 +209,19 @@ pub fn train_on(
     loss: &GpuLoss,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<(Splats, TrainReport)> {
-    train_with(gpu, dataset, init, cfg, loss, None, progress)
+    train_with(gpu, dataset, init, cfg, loss, None, progress, &RunOptions::default())
 }
 
-/// [`train_on`] under `D + λ·R` when `rate` is given: the GPU twin of the CPU trainer with a
+/// [`train_on`] under `D + λ·R` when `rate` is given — the GPU twin of the CPU trainer with a
 /// [`RateTerm`] (straight-through quantised renders, `w·R` and its gradient, learned steps from
-/// the term's start iteration on); the report's `rate` says what it learned.
+/// the term's start iteration on; the report's `rate` says what it learned) — and with `run`'s
+/// checkpoints, resume and live report ([`crate::train::train_with`]'s, in the same checkpoint
+/// format; a GPU resume continues the run but is not bit-exact, as GPU training is not).
+///
+/// # Errors
+/// As [`train`]; also a checkpoint that does not match the run, checkpoints with a rate term
+/// (input errors), and an interrupted run (failure naming the checkpoint to resume from).
+#[allow(clippy::too_many_arguments)]
 pub fn train_with(
     gpu: &Gpu,
     dataset: &Dataset,
@@ -221,8 +230,12 @@ pub fn train_with(
     loss: &GpuLoss,
     rate: Option<RateTerm>,
     progress: &mut dyn FnMut(&Progress),
+    run: &RunOptions,
 ) -> Result<(Splats, TrainReport)> {
     loss.check()?;
+    if rate.is_some() && (run.checkpoint.is_some() || run.resume.is_some()) {
+        return Err(Error::Input("checkpoints do not cover the rate term yet: train without --checkpoint/--resume".into()));
+    }
     let train_frames = dataset.split(Split::Train);
     let test_frames = dataset.split(Split::Test);
     if train_frames.is_empty() {
@@ -231,7 +244,7 @@ pub fn train_with(
     let mut rng = Rng::new(cfg.seed);
     let extent = init::camera_extent(dataset);
     let max_degree = cfg.sh_degree_max.min(3);
-    let (params, mut degree) = match init {
+    let (mut params, mut degree) = match init {
         Some(s) => {
             let d = s.sh_degree.min(max_degree);
             (if s.sh_degree < max_degree { s.with_sh_degree(max_degree) } else { s }, d)
@@ -243,22 +256,64 @@ pub fn train_with(
         return Err(Error::Input("initial scene has no Gaussians".into()));
     }
     let sched = Schedule::for_iters(cfg.iters);
+    let print = super::fingerprint(cfg, dataset, "l1ssim");
+    let mut order: Vec<usize> = Vec::new();
+    let mut first = 1;
+    let mut train_seconds = 0.0;
+    let mut resumed = None;
+    if let Some(dir) = &run.resume {
+        let st = super::resume_state(dir, &print, cfg.iters, train_frames.len())?;
+        first = st.iteration as usize + 1;
+        params = st.params.clone().into_splats();
+        rng = Rng::from_state(st.rng);
+        order = st.order.iter().map(|&o| o as usize).collect();
+        degree = st.degree.min(max_degree);
+        train_seconds = st.train_seconds;
+        resumed = Some(st);
+    }
     let mut session = Session::new(gpu, &params)?;
     if let Some(term) = rate {
         session.set_rate(term);
     }
+    let mut tally = Tally::new(session.scene.stride, first);
+    let mut peak = params.len();
+    if let Some(st) = resumed {
+        session.replace_scene(&params, &st.adam_m.into_splats(), &st.adam_v.into_splats())?;
+        session.step = st.adam_step;
+        let stats: Vec<f32> = (0..params.len()).flat_map(|i| [st.grad_accum[i], st.count[i] as f32, st.max_radius[i]]).collect();
+        session.upload_stats(&stats);
+        peak = st.peak as usize;
+        tally.points = st.points.into_iter().map(ReportPoint::from).collect();
+        tally.stages = st.stages;
+        (tally.loss_sum, tally.loss_n) = (st.loss_sum, st.loss_n as usize);
+    }
     drop(params);
+    if run.catch_interrupt && run.checkpoint.is_some() {
+        checkpoint::catch_interrupt();
+    }
+    let (mut last_checkpoint, mut last_report) = (Instant::now(), Instant::now());
     // Training images, uploaded once.
     let targets: Vec<wgpu::Buffer> =
         train_frames.iter().map(|f: &&Frame| gpu.storage_init("target", bytemuck::cast_slice(&f.image.data))).collect();
-    let mut order: Vec<usize> = Vec::new();
-    let mut tally = Tally::new(session.scene.stride, 1);
-    let mut train_seconds = 0.0;
     let log_every = (cfg.iters / 500).max(1);
     let mut n = session.scene.n;
-    let mut peak = n;
+    let report = |points: Vec<ReportPoint>, n: usize, train_seconds: f64, stages: StageTimes| TrainReport {
+        backend: "gpu",
+        loss: "l1ssim".to_string(),
+        config: cfg.clone(),
+        schedule: sched,
+        extent,
+        points,
+        gaussians: n,
+        train_seconds,
+        test_views: test_frames.len(),
+        test_psnr: None,
+        test_ssim: None,
+        stages,
+        rate: None,
+    };
 
-    for it in 1..=cfg.iters {
+    for it in first..=cfg.iters {
         let t_iter = Instant::now();
         if it % sched.sh_up_every == 0 && degree < max_degree {
             degree += 1;
@@ -333,6 +388,49 @@ pub fn train_with(
         }
         let rate_bits = rate_bits.or(tally.last_bits);
         progress(&Progress { iteration: it, iters: cfg.iters, loss: tally.last_loss, gaussians: n, test_psnr, rate_bits });
+
+        // Checkpoint (periodic, or stopping), then the live report: both after reading the
+        // scalars, so that the record is complete up to this iteration.
+        let (write, stop) = super::checkpoint_now(run, it, cfg.iters, last_checkpoint);
+        let write = write && run.checkpoint.is_some();
+        let report_due = run.report.is_some()
+            && (write || stop || test_psnr.is_some() || last_report.elapsed().as_secs_f64() >= super::LIVE_REPORT_SECONDS);
+        if write || report_due {
+            tally.absorb(session.read_scalars()?)?;
+        }
+        if let Some(dir) = run.checkpoint.as_ref().filter(|_| write) {
+            let (p, m, v) = session.download()?;
+            let raw = session.download_stats()?;
+            let st = checkpoint::State {
+                fingerprint: print.clone(),
+                iteration: it as u64,
+                params: (&p).into(),
+                adam_m: (&m).into(),
+                adam_v: (&v).into(),
+                adam_step: session.step,
+                rng: rng.state(),
+                order: order.iter().map(|&o| o as u64).collect(),
+                degree,
+                peak: peak as u64,
+                grad_accum: raw.chunks_exact(3).map(|s| s[0]).collect(),
+                count: raw.chunks_exact(3).map(|s| s[1] as u32).collect(),
+                max_radius: raw.chunks_exact(3).map(|s| s[2]).collect(),
+                points: tally.points.iter().map(checkpoint::PointData::from).collect(),
+                stages: tally.stages,
+                loss_sum: tally.loss_sum + tally.arrived.iter().map(|a| a.1).sum::<f64>(),
+                loss_n: (tally.loss_n + tally.arrived.len()) as u64,
+                train_seconds,
+            };
+            checkpoint::save(dir, &st)?;
+            last_checkpoint = Instant::now();
+        }
+        if let Some(r) = run.report.as_ref().filter(|_| report_due) {
+            super::write_report(r, &report(tally.points.clone(), n, train_seconds, tally.stages))?;
+            last_report = Instant::now();
+        }
+        if stop {
+            return Err(super::interrupted_error(run, it, cfg.iters));
+        }
     }
     // The last iterations' scalars.
     let t_end = Instant::now();
@@ -355,19 +453,10 @@ pub fn train_with(
         last.test_psnr = Some(p);
     }
     let report = TrainReport {
-        backend: "gpu",
-        loss: "l1ssim".to_string(),
-        config: cfg.clone(),
-        schedule: sched,
-        extent,
-        points,
-        gaussians: params.len(),
-        train_seconds,
-        test_views: test_frames.len(),
         test_psnr: final_eval.map(|e| e.0),
         test_ssim: final_eval.map(|e| e.1),
-        stages: tally.stages,
         rate,
+        ..report(points, params.len(), train_seconds, tally.stages)
     };
     Ok((params, report))
 }

@@ -319,6 +319,11 @@ impl<'g> Session<'g> {
         self.gpu.read_f32(&self.scene.stats, self.scene.n * 3)
     }
 
+    /// Sets the densification statistics (`(Σ|dL/dmean2d|, count, max radius)` per Gaussian).
+    pub fn upload_stats(&self, stats: &[f32]) {
+        self.gpu.queue.write_buffer(&self.scene.stats, 0, bytemuck::cast_slice(stats));
+    }
+
     pub fn clear_stats(&self) {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&self.scene.stats, 0, None);
