@@ -339,8 +339,18 @@ pub fn train_with(
         session.submit(enc);
         let t_dens = Instant::now();
 
-        // Held-out evaluation before densification (as the CPU trainer); not training time.
+        // The scalars (loss, pair counts, non-finite flags, stage times) every READ_EVERY
+        // iterations, and before an evaluation or a densification step (which read the scene
+        // back anyway). The wait is for the GPU's queued iterations: training time (in their
+        // stage timestamps), neither evaluation nor densification time.
         let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
+        let densify_now = cfg.densify && sched.densifies(it);
+        let t_read = Instant::now();
+        if eval_now || densify_now || it % READ_EVERY == 0 {
+            tally.absorb(session.read_scalars()?)?;
+        }
+        let read_seconds = t_read.elapsed().as_secs_f64();
+        // Held-out evaluation before densification (as the CPU trainer); not training time.
         let t_eval = Instant::now();
         let test_psnr = if eval_now && !test_frames.is_empty() {
             mean_psnr_ssim(&session.download_params()?, &test_frames, dataset.background).map(|e| e.0)
@@ -353,12 +363,6 @@ pub fn train_with(
             _ => None,
         };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
-        let densify_now = cfg.densify && sched.densifies(it);
-        // The scalars (loss, pair counts, non-finite flags, stage times) every READ_EVERY
-        // iterations, and before a densification step (which reads the scene back anyway).
-        if densify_now || it % READ_EVERY == 0 {
-            tally.absorb(session.read_scalars()?)?;
-        }
         if cfg.densify {
             if densify_now {
                 let (mut p, m, v) = session.download()?;
@@ -378,7 +382,7 @@ pub fn train_with(
             }
         }
         peak = peak.max(n);
-        tally.stages.densify += t_dens.elapsed().as_secs_f64() - eval_seconds;
+        tally.stages.densify += t_dens.elapsed().as_secs_f64() - eval_seconds - read_seconds;
         train_seconds += t_iter.elapsed().as_secs_f64() - eval_seconds;
 
         // The point's mean loss is filled in when its iteration's scalars arrive.
