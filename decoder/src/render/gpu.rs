@@ -282,6 +282,7 @@ impl GpuRenderer {
     /// GPU. With `indirect`, the sort's workgroup counts come from that buffer (bytes 0..12: the
     /// 1024-key blocks as `(x, y, 1)`, written on the GPU) instead of covering `cap`.
     #[doc(hidden)]
+    #[allow(clippy::too_many_arguments)]
     pub fn record_radix_sort(
         &self,
         enc: &mut wgpu::CommandEncoder,
