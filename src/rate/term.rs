@@ -135,6 +135,7 @@ impl RateTerm {
     }
 
     /// The steps the term started from (a learned step stays within [`STEP_RANGE`] of them).
+    #[cfg_attr(not(feature = "gpu"), allow(dead_code))] // the GPU trainer's uniform
     pub(crate) fn start_steps(&self) -> Steps {
         self.start_steps
     }
