@@ -575,7 +575,8 @@ fn norms(
     }
 }
 
-// One invocation: γ's measurement (NORMALISE, as WdrLoss) and the loss value into loss slot c.
+// One invocation: γ's measurement (NORMALISE, as WdrLoss) and the loss value into word c of loss_acc
+// (the session's scalar ring).
 @compute @workgroup_size(1)
 fn scalars() {
     var gamma = accf(3u);

@@ -12,7 +12,7 @@
 //! a scratch buffer every time. γ lives on the GPU: its measurement reads nothing back.
 
 use super::context::{dims, Gpu};
-use super::session::{Session, WD_TIMESTAMPS};
+use super::session::Session;
 use crate::loss::features::{pyramid, IMAGENET_MEAN, IMAGENET_STD};
 use crate::loss::tensor::{half, same_offset};
 use crate::loss::wd::{Plan, Sigma, NUM_LEVELS};
@@ -378,8 +378,10 @@ pub struct WdStage {
     /// Features and moments of the rendered image, WD value and backward down to dL/dimage.
     forward_backward: Vec<Op>,
     norms: Op,
-    /// The scalar op per loss slot.
-    scalars: [Op; 2],
+    /// The scalar op and its uniform (the loss word changes per iteration).
+    scalars: Op,
+    scalars_u: wgpu::Buffer,
+    scalars_op: OpU,
     combine: Op,
     /// Floats of one view's reference statistics.
     ref_floats: u64,
@@ -565,8 +567,17 @@ impl WdStage {
         let n3 = u32_(3 * n0);
         let norms = op(K::Norms, OpU { src: gw, fscale: beta, count: n3, ..Default::default() });
         let normalise = if config.normalise() { NORMALISE } else { 0 };
-        let scalar = |slot: u32| op(K::Scalars, OpU { c: slot, flags: wdr | normalise, fscale: beta, count: 1, ..Default::default() });
-        let scalars = [scalar(0), scalar(1)];
+        let scalars_op = OpU { flags: wdr | normalise, fscale: beta, count: 1, ..Default::default() };
+        let scalars_u = gpu.uniform(&scalars_op);
+        let scalars = Op {
+            k: K::Scalars,
+            bind: gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: None,
+                layout: &kernels.layout1,
+                entries: &[wgpu::BindGroupEntry { binding: 0, resource: scalars_u.as_entire_binding() }],
+            }),
+            groups: (1, 1),
+        };
         let combine = op(K::Combine, OpU { src: gw, flags: wdr, fscale: beta, count: n3, ..Default::default() });
 
         let arena = gpu.storage("wd arena", arena_floats * 4);
@@ -587,6 +598,8 @@ impl WdStage {
             forward_backward: fwd_bwd,
             norms,
             scalars,
+            scalars_u,
+            scalars_op,
             combine,
             ref_floats,
             arena_floats,
@@ -646,13 +659,11 @@ impl WdStage {
     }
 
     /// Records the WD stage of one iteration after the L1+SSIM loss (whose gradient and value are
-    /// in the session's `dl` and loss slot `step % 2`): replaces them by the `wd` / `wdr` loss
-    /// when `active` (after the warm-up), else only writes the stage's timestamps.
-    /// `view` is the training view's index, `target` its image.
+    /// in the session's `dl` and loss word): replaces them by the `wd` / `wdr` loss when `active`
+    /// (after the warm-up), else does nothing. `view` is the training view's index, `target` its
+    /// image. At most one call per queue submission (the loss word is a uniform written now).
     pub fn record(&mut self, s: &Session, enc: &mut wgpu::CommandEncoder, view: usize, target: &wgpu::Buffer, active: bool) -> Result<()> {
-        let ts = (Some(WD_TIMESTAMPS.0), Some(WD_TIMESTAMPS.1));
         if !active {
-            drop(s.timed_pass(enc, ts));
             return Ok(());
         }
         let gpu = s.gpu;
@@ -660,13 +671,14 @@ impl WdStage {
         if (img.width, img.height) != (self.width, self.height) {
             return Err(Error::Failure("WD stage of another image size".into()));
         }
-        let slot = (s.step % 2) as usize;
+        let su = OpU { c: s.loss_word(), ..self.scalars_op };
+        gpu.queue.write_buffer(&self.scalars_u, 0, bytemuck::bytes_of(&su));
         let (refs, fill) = self.reference_for(gpu, view);
         let bind0 = |image: &wgpu::Buffer| {
             gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: None,
                 layout: &self.kernels.layout0,
-                entries: &[&self.arena, &refs, image, &img.dl, &self.acc, &s.loss_acc]
+                entries: &[&self.arena, &refs, image, &img.dl, &self.acc, &s.ring]
                     .iter()
                     .enumerate()
                     .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
@@ -676,7 +688,7 @@ impl WdStage {
         let bg_ref = fill.then(|| bind0(target));
         let bg = bind0(&img.image);
         enc.clear_buffer(&self.acc, 0, Some(12));
-        let mut pass = s.timed_pass(enc, ts);
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("wd"), timestamp_writes: None });
         let run = |pass: &mut wgpu::ComputePass, o: &Op| {
             pass.set_pipeline(&self.kernels.pipes[o.k as usize]);
             pass.set_bind_group(1, &o.bind, &[]);
@@ -691,7 +703,7 @@ impl WdStage {
         if self.config.normalise() {
             run(&mut pass, &self.norms);
         }
-        run(&mut pass, &self.scalars[slot]);
+        run(&mut pass, &self.scalars);
         run(&mut pass, &self.combine);
         Ok(())
     }
