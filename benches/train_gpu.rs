@@ -7,9 +7,15 @@
 //! Environment: `GSC_TRAIN_SIZES=200x200:10000,1280x960:1000000` picks `WxH:Gaussians` cases
 //! (default: the three above); `GSC_TRAIN_STAGES=iteration` times only whole iterations (e.g. for
 //! a memory measurement). `scripts/device-measure` runs it on a device machine.
+//!
+//! `wd stage (wdr)`: the WD-R stage after the loss (built-in features, reference statistics
+//! cached; `… reference recomputed`: as for views over the cache budget); `iteration wdr`: an
+//! iteration with it.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use gscodec::testkit::{random_splats, rig_cameras};
+use gscodec::loss::LossKind;
+use gscodec::train::gpu::wd::{WdConfig, WdStage};
 use gscodec::train::gpu::{Gpu, Session};
 use gscodec::train::targets::render_targets;
 use gscodec_decoder::Image;
@@ -89,6 +95,19 @@ fn bench_stages(c: &mut Criterion) {
         stage("loss", &mut |s, enc| s.loss(enc, &target, 0.2));
         stage("backward", &mut |s, enc| s.backward(enc, &cam, true));
         stage("adam", &mut |s, enc| s.adam(enc, lr));
+        let wdr = WdConfig::new(LossKind::Wdr, None, 1);
+        let mut wd = WdStage::new(&gpu, wdr, w, h).unwrap();
+        let mut wd_uncached = WdStage::new(&gpu, WdConfig { cache_bytes: 0, ..wdr }, w, h).unwrap();
+        stage("wd stage (wdr)", &mut |s, enc| wd.record(s, enc, 0, &target, true).unwrap());
+        stage("wd stage (wdr), reference recomputed", &mut |s, enc| wd_uncached.record(s, enc, 0, &target, true).unwrap());
+        stage("iteration wdr", &mut |s, enc| {
+            s.project(enc, &cam, [1.0; 3], 3).unwrap();
+            s.rasterize(enc, &cam).unwrap();
+            s.loss(enc, &target, 0.2);
+            wd.record(s, enc, 0, &target, true).unwrap();
+            s.backward(enc, &cam, true);
+            s.adam(enc, lr);
+        });
     }
     group.finish();
 }

@@ -25,9 +25,9 @@ fn main() {
     let cam = ds.frames[0].camera;
     let target = gpu.storage_init("target", bytemuck::cast_slice(&ds.frames[0].image.data));
     let mut s = Session::new(&gpu, &params).unwrap();
-    let pairs = s.project(&cam, [1.0; 3], 3).unwrap().pairs;
     let mut enc = gpu.device.create_command_encoder(&Default::default());
-    s.rasterize(&mut enc, &cam, pairs).unwrap();
+    s.project(&mut enc, &cam, [1.0; 3], 3).unwrap();
+    s.rasterize(&mut enc, &cam).unwrap();
     gpu.queue.submit([enc.finish()]);
     let lr = [1e-5, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4];
     let config = WdConfig::new(LossKind::Wdr, None, 1);
@@ -41,7 +41,8 @@ fn main() {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             let t0 = Instant::now();
             if k >= 3 {
-                s.rasterize(&mut enc, &cam, pairs).unwrap();
+                s.project(&mut enc, &cam, [1.0; 3], 3).unwrap();
+                s.rasterize(&mut enc, &cam).unwrap();
             }
             s.loss(&mut enc, &target, 0.2);
             match k {
