@@ -13,8 +13,8 @@
 //! iteration with it.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use gscodec::testkit::{random_splats, rig_cameras};
 use gscodec::loss::LossKind;
+use gscodec::testkit::{random_splats, rig_cameras};
 use gscodec::train::gpu::wd::{WdConfig, WdStage};
 use gscodec::train::gpu::{Gpu, Session};
 use gscodec::train::targets::render_targets;

@@ -589,7 +589,8 @@ impl Tally {
                 st.project += t[0];
                 st.sort += t[1];
                 st.rasterize += t[2];
-                st.loss += t[3];
+                // The loss stage: L1+SSIM and, with a WD loss, the WD stage (0 without one).
+                st.loss += t[3] + t[6];
                 st.backward += t[4];
                 st.optimiser += t[5];
             }

@@ -86,17 +86,19 @@ pub struct ImageBufs {
 /// Iterations whose scalars the GPU keeps (a ring of slots); the host reads them at least this
 /// often ([`Session::read_scalars`]).
 pub const RING: u64 = 64;
-/// Bytes per slot: the 12 stage timestamps (u64) at 0, then the words below (the slot size is the
+/// Bytes per slot: the 14 stage timestamps (u64) at 0, then the words below (the slot size is the
 /// query-resolve alignment).
 const SLOT: u64 = 256;
 const SLOT_WORDS: u32 = (SLOT / 4) as u32;
 /// f32: the iteration's loss (image loss, plus `w·R` with the rate term).
-const LOSS_WORD: u32 = 24;
+const LOSS_WORD: u32 = 28;
 /// u32: the iteration's (tile, Gaussian) pairs, before clamping to the key capacity.
-const PAIRS_WORD: u32 = 25;
+const PAIRS_WORD: u32 = 29;
 /// f32: the rate term's `R` in bits (0 when it is off).
-const BITS_WORD: u32 = 26;
-const TIMESTAMPS: u32 = 12;
+const BITS_WORD: u32 = 30;
+const TIMESTAMPS: u32 = 14;
+/// Timestamp queries of the WD stage (`super::wd`); an empty pass writes them without one.
+pub const WD_TIMESTAMPS: (u32, u32) = (12, 13);
 
 /// What one iteration left in its slot.
 #[derive(Debug, Clone, Copy)]
@@ -105,9 +107,9 @@ pub struct IterScalars {
     pub pairs: u32,
     /// The rate term's bit estimate (None when it was off).
     pub bits: Option<f32>,
-    /// GPU seconds per stage (project, sort, rasterize, loss, backward, optimiser), from
+    /// GPU seconds per stage (project, sort, rasterize, loss, backward, optimiser, WD), from
     /// timestamp queries when the adapter has them.
-    pub stage_seconds: Option<[f64; 6]>,
+    pub stage_seconds: Option<[f64; 7]>,
 }
 
 /// The scalars of the iterations recorded since the last read.
@@ -160,6 +162,9 @@ pub struct Session<'g> {
     /// Whether the rate term is on in the iteration being recorded (render from the quantised
     /// records, add `w·R`, update steps).
     rate_on: bool,
+    /// Whether the iteration being recorded wrote [`WD_TIMESTAMPS`] (else `submit` writes them, so
+    /// that every resolved query was written).
+    pub wd_timed: std::cell::Cell<bool>,
 }
 
 impl<'g> Session<'g> {
@@ -217,6 +222,7 @@ impl<'g> Session<'g> {
             step: 0,
             rate: None,
             rate_on: false,
+            wd_timed: std::cell::Cell::new(false),
             gpu,
         };
         gpu.queue.write_buffer(&s.ranges_u, 0, bytemuck::cast_slice(&[s.key_cap, 0, 0, 0]));
@@ -225,6 +231,17 @@ impl<'g> Session<'g> {
     }
 
     /// The slot of the iteration being recorded, as a word index into [`Self::ring`].
+    /// A compute pass writing timestamp queries `ts` (begin, end) when the adapter has them.
+    pub fn timed_pass<'e>(&self, enc: &'e mut wgpu::CommandEncoder, ts: (Option<u32>, Option<u32>)) -> wgpu::ComputePass<'e> {
+        let timestamp_writes = match (&self.query, ts) {
+            (Some(q), (b, e)) if b.is_some() || e.is_some() => {
+                Some(wgpu::ComputePassTimestampWrites { query_set: q, beginning_of_pass_write_index: b, end_of_pass_write_index: e })
+            }
+            _ => None,
+        };
+        enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes })
+    }
+
     fn slot_word(&self) -> u32 {
         (self.recorded % RING) as u32 * SLOT_WORDS
     }
@@ -554,6 +571,9 @@ impl<'g> Session<'g> {
 
     /// Ends an iteration's recording: resolves its timestamps into its slot and submits.
     pub fn submit(&mut self, mut enc: wgpu::CommandEncoder) {
+        if !self.wd_timed.replace(false) {
+            drop(self.timed_pass(&mut enc, (Some(WD_TIMESTAMPS.0), Some(WD_TIMESTAMPS.1))));
+        }
         if let Some(q) = &self.query {
             enc.resolve_query_set(q, 0..TIMESTAMPS, &self.ring, (self.recorded % RING) * SLOT);
         }

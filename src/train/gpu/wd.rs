@@ -12,7 +12,7 @@
 //! a scratch buffer every time. γ lives on the GPU: its measurement reads nothing back.
 
 use super::context::{dims, Gpu};
-use super::session::Session;
+use super::session::{Session, WD_TIMESTAMPS};
 use crate::loss::features::{pyramid, IMAGENET_MEAN, IMAGENET_STD};
 use crate::loss::tensor::{half, same_offset};
 use crate::loss::wd::{Plan, Sigma, NUM_LEVELS};
@@ -688,7 +688,8 @@ impl WdStage {
         let bg_ref = fill.then(|| bind0(target));
         let bg = bind0(&img.image);
         enc.clear_buffer(&self.acc, 0, Some(12));
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("wd"), timestamp_writes: None });
+        s.wd_timed.set(true);
+        let mut pass = s.timed_pass(enc, (Some(WD_TIMESTAMPS.0), Some(WD_TIMESTAMPS.1)));
         let run = |pass: &mut wgpu::ComputePass, o: &Op| {
             pass.set_pipeline(&self.kernels.pipes[o.k as usize]);
             pass.set_bind_group(1, &o.bind, &[]);
