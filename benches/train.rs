@@ -18,7 +18,7 @@ fn setup(n: usize) -> (Splats, Image, gscodec_decoder::Camera) {
     let ds = render_targets(&truth, &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
     let mut params = random_splats(n, 1, 2).with_sh_degree(3);
     params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-    (params, ds.frames[0].image.clone(), ds.frames[0].camera)
+    (params, (*ds.frames[0].image.get().unwrap()).clone(), ds.frames[0].camera)
 }
 
 const OPTS: RenderOptions = RenderOptions { background: [1.0; 3], max_sh_degree: 3 };

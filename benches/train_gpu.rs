@@ -29,7 +29,7 @@ fn bench_stages(c: &mut Criterion) {
         params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
         let frame = &ds.frames[0];
         let cam = frame.camera;
-        let target = gpu.storage_init("target", bytemuck::cast_slice(&frame.image.data));
+        let target = gpu.storage_init("target", bytemuck::cast_slice(&frame.image.get().unwrap().data));
         let mut s = Session::new(&gpu, &params).unwrap();
         let pairs = s.project(&cam, [1.0; 3], 3).unwrap().pairs;
         let lr = [1e-5, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4];

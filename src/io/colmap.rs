@@ -9,7 +9,8 @@
 //! intrinsics are scaled to the image.
 
 use super::lens::{Lens, COLMAP_MODELS};
-use super::prepare::{prepare, Source, CACHE_DIR};
+use super::prepare::{plan_image, Source, CACHE_DIR};
+use super::stream::FrameImage;
 use super::{Dataset, Frame, LoadOptions};
 use crate::{Error, Result};
 use glam::{Mat3, Quat, Vec3};
@@ -117,15 +118,16 @@ pub fn load_colmap(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
             if !path.is_file() {
                 return Ok(None);
             }
-            let src = Source { path, lens: lenses[&im.camera_id], downscale: if path == &twin { 1 } else { k }, background };
-            let (image, pin) = prepare(&src, opts, Some(&cache))?;
+            let src = Source { path: path.clone(), lens: lenses[&im.camera_id], downscale: if path == &twin { 1 } else { k }, background };
+            let planned = plan_image(src, opts, Some(&cache))?;
+            let pin = *planned.lens();
             let [w, x, y, z] = im.qvec;
             let rotation = Mat3::from_quat(Quat::from_xyzw(x as f32, y as f32, z as f32, w as f32).normalize());
             let translation = Vec3::new(im.tvec[0] as f32, im.tvec[1] as f32, im.tvec[2] as f32);
-            let mut camera = Camera::new(image.width, image.height, pin.fx as f32, pin.fy as f32, rotation, translation);
+            let mut camera = Camera::new(pin.width, pin.height, pin.fx as f32, pin.fy as f32, rotation, translation);
             camera.cx = pin.cx as f32;
             camera.cy = pin.cy as f32;
-            Ok(Some(Frame { index, name: im.name.clone(), camera, image }))
+            Ok(Some(Frame { index, name: im.name.clone(), camera, image: FrameImage::planned(planned) }))
         })
         .collect::<Result<_>>()?;
     let missing = loaded.iter().filter(|f| f.is_none()).count();

@@ -197,9 +197,17 @@ pub fn train_on(
     let sched = Schedule::for_iters(cfg.iters);
     let mut session = Session::new(gpu, &params)?;
     drop(params);
-    // Training images, uploaded once.
-    let targets: Vec<wgpu::Buffer> =
-        train_frames.iter().map(|f: &&Frame| gpu.storage_init("target", bytemuck::cast_slice(&f.image.data))).collect();
+    // Training images: uploaded once when the dataset holds them in memory; when they exceed its
+    // image budget (read on demand), one buffer is rewritten with each iteration's view.
+    let streamed = train_frames.iter().any(|f| f.image.is_streamed());
+    let targets: Vec<wgpu::Buffer> = if streamed {
+        vec![gpu.storage("target", train_frames.iter().map(|f| f.image.bytes()).max().unwrap_or(0))]
+    } else {
+        train_frames
+            .iter()
+            .map(|f: &&Frame| Ok(gpu.storage_init("target", bytemuck::cast_slice(&f.image.get()?.data))))
+            .collect::<Result<_>>()?
+    };
     let mut order: Vec<usize> = Vec::new();
     let mut points = Vec::new();
     let mut stages = StageTimes::default();
@@ -260,7 +268,13 @@ pub fn train_on(
         let t1 = Instant::now();
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         session.rasterize(&mut enc, &frame.camera, sc.pairs)?;
-        session.loss(&mut enc, &targets[fi], loss.ssim_weight);
+        let target = if streamed {
+            gpu.queue.write_buffer(&targets[0], 0, bytemuck::cast_slice(&frame.image.get()?.data));
+            &targets[0]
+        } else {
+            &targets[fi]
+        };
+        session.loss(&mut enc, target, loss.ssim_weight);
         let stats_on = cfg.densify && it < sched.densify_until;
         session.backward(&mut enc, &frame.camera, stats_on);
         // One rate per record section; the three SH rest bands share theirs.
@@ -280,7 +294,7 @@ pub fn train_on(
         let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
         let t_eval = Instant::now();
         let test_psnr = if eval_now && !test_frames.is_empty() {
-            mean_psnr_ssim(&session.download_params()?, &test_frames, dataset.background).map(|e| e.0)
+            mean_psnr_ssim(&session.download_params()?, &test_frames, dataset.background)?.map(|e| e.0)
         } else {
             None
         };
@@ -324,7 +338,7 @@ pub fn train_on(
     let params = session.download_params()?;
     train_seconds += t_end.elapsed().as_secs_f64();
     gpu.check()?;
-    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);
+    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background)?;
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
         last.test_psnr = Some(p);
     }
