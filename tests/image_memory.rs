@@ -97,3 +97,30 @@ fn a_streamed_image_that_disappears_is_an_input_error() {
     let e = f.image.get().unwrap_err();
     assert!(matches!(e, gscodec::Error::Input(_)) && e.to_string().contains(&f.name), "{e}");
 }
+
+/// The GPU trainer streams each iteration's view into one buffer when the images exceed the
+/// budget. It is not bit-exact run to run (float atomics), so the streamed and in-memory runs are
+/// compared by held-out PSNR.
+#[cfg(feature = "gpu")]
+#[test]
+fn the_gpu_trainer_streams_views_beyond_the_budget() {
+    use gscodec::train::gpu::{train_on, Gpu, GpuLoss};
+    let Some(gpu) = Gpu::new().expect("an adapter exists but the GPU trainer could not start") else {
+        gscodec::testkit::skip("no GPU adapter available; install mesa-vulkan-drivers for lavapipe");
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    sample(&data);
+    let cfg = TrainConfig { iters: 40, init_points: 300, eval_interval: 0, ..Default::default() };
+    let run = |budget: Option<u64>| {
+        let ds = load(&data, budget, None, true);
+        assert_eq!(ds.frames[0].image.is_streamed(), budget.is_some());
+        train_on(&gpu, &ds, None, &cfg, &GpuLoss::default(), &mut |_| {}).unwrap().1
+    };
+    let (a, b) = (run(None), run(Some(MIB)));
+    let (pa, pb) = (a.test_psnr.unwrap(), b.test_psnr.unwrap());
+    eprintln!("held-out PSNR: in memory {pa:.3} dB, streamed {pb:.3} dB");
+    assert!((pa - pb).abs() < 0.3, "in memory {pa} dB, streamed {pb} dB");
+    assert_eq!(a.points.last().unwrap().iteration, b.points.last().unwrap().iteration);
+}
