@@ -25,7 +25,7 @@ pub fn zeros_like(s: &Splats) -> Splats {
 pub fn first_non_finite(s: &Splats) -> Option<(usize, Group)> {
     for g in group::present(s.sh_degree) {
         let (stride, r) = group::layout(g, s.sh_degree);
-        let bad = group::values(s, g).chunks_exact(stride).position(|v| v[r.clone()].iter().any(|x| !x.is_finite()));
+        let bad = group::values(s, g).par_chunks_exact(stride).position_first(|v| v[r.clone()].iter().any(|x| !x.is_finite()));
         if let Some(i) = bad {
             return Some((i, g));
         }
