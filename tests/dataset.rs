@@ -224,8 +224,8 @@ fn lego_200_loads() {
 
 #[test]
 fn colmap_every_camera_model_loads_from_bin_and_txt() {
-    const NAMES: [&str; 11] =
-        ["m00.png", "m01.png", "m02.png", "m03.png", "m04.png", "m05.png", "m06.png", "m07.png", "m08.png", "m09.png", "m10.png"];
+    let n = gscodec::io::lens::COLMAP_MODELS.len();
+    let names: &'static [String] = (0..n).map(|i| format!("m{i:02}.png")).collect::<Vec<_>>().leak();
     let (f, cx, cy) = (30.0, 16.0, 12.0);
     let cams: Vec<Cam> = gscodec::io::lens::COLMAP_MODELS
         .iter()
@@ -238,6 +238,8 @@ fn colmap_every_camera_model_loads_from_bin_and_txt() {
                     "cy" => cy,
                     "omega" => 0.5,
                     "k" | "k1" => -0.05,
+                    "alpha" => 0.5,
+                    "beta" => 1.0,
                     _ => 0.001,
                 })
                 .collect();
@@ -245,11 +247,11 @@ fn colmap_every_camera_model_loads_from_bin_and_txt() {
         })
         .collect();
     let imgs: Vec<Img> =
-        (0..11).map(|i| (i as u32 + 1, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 4.0 + i as f64], i as u32 + 1, NAMES[i])).collect();
+        (0..n).map(|i| (i as u32 + 1, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 4.0 + i as f64], i as u32 + 1, names[i].as_str())).collect();
     let m = Model { cams, imgs, pts: model().pts };
     let (b, t) = (colmap_dir(&m, true), colmap_dir(&m, false));
     let (db, dt) = (load_dataset(b.path(), &LoadOptions::default()).unwrap(), load_dataset(t.path(), &LoadOptions::default()).unwrap());
-    assert_eq!(db.frames.len(), 11);
+    assert_eq!(db.frames.len(), n);
     for (x, y) in db.frames.iter().zip(&dt.frames) {
         assert_eq!((&x.name, x.camera, &*x.image.get().unwrap()), (&y.name, y.camera, &*y.image.get().unwrap()));
         let c = &x.camera;
