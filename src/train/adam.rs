@@ -25,7 +25,11 @@ pub fn zeros_like(s: &Splats) -> Splats {
 pub fn first_non_finite(s: &Splats) -> Option<(usize, Group)> {
     for g in group::present(s.sh_degree) {
         let (stride, r) = group::layout(g, s.sh_degree);
-        let bad = group::values(s, g).par_chunks_exact(stride).position_first(|v| v[r.clone()].iter().any(|x| !x.is_finite()));
+        // Blocks of Gaussians in parallel; the first block with a bad value gives the first index.
+        const BLOCK: usize = 4096;
+        let bad = group::values(s, g).par_chunks(stride * BLOCK).enumerate().find_map_first(|(b, c)| {
+            c.chunks_exact(stride).position(|v| v[r.clone()].iter().any(|x| !x.is_finite())).map(|i| b * BLOCK + i)
+        });
         if let Some(i) = bad {
             return Some((i, g));
         }
