@@ -27,9 +27,10 @@ pub fn first_non_finite(s: &Splats) -> Option<(usize, Group)> {
         // Blocks of Gaussians in parallel; the first block with a bad value gives the first index.
         const BLOCK: usize = 4096;
         let per: Vec<&[f32]> = group::per_gaussian(s, g).collect();
-        let bad = per.par_chunks(BLOCK).enumerate().find_map_first(|(b, c)| {
-            c.iter().position(|v| v.iter().any(|x| !x.is_finite())).map(|i| b * BLOCK + i)
-        });
+        let bad = per
+            .par_chunks(BLOCK)
+            .enumerate()
+            .find_map_first(|(b, c)| c.iter().position(|v| v.iter().any(|x| !x.is_finite())).map(|i| b * BLOCK + i));
         if let Some(i) = bad {
             return Some((i, g));
         }
