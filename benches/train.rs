@@ -1,14 +1,19 @@
-//! One training iteration at 200x200 with 10k Gaussians (SH degree 3), split by stage (forward
-//! render, L1+SSIM loss, backward, Adam), each at 1 and 2 threads; plus the whole iteration with
-//! 10k and 50k Gaussians. Figures in docs/train.md.
+//! One training iteration at 200x200 (lego-200's size) with 10k Gaussians (SH degree 3), split by
+//! stage, each at 1 and 2 threads: projection, tile binning + depth sort, the whole forward render
+//! (rasterizing = forward − project − sort), L1+SSIM loss, backward, Adam, the non-finite checks,
+//! and one densify step (run every 100 iterations by the reference schedule); plus the whole
+//! iteration with 10k and 50k Gaussians. Figures in docs/train.md.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use gscodec::loss::L1Ssim;
 use gscodec::raster;
 use gscodec::rate::group::Group;
+use gscodec::rng::Rng;
 use gscodec::testkit::{random_splats, rig_cameras};
-use gscodec::train::adam::Adam;
+use gscodec::train::adam::{first_non_finite, Adam};
+use gscodec::train::densify::{densify_and_prune_keeping, DensifyParams, DensifyStats};
 use gscodec::train::targets::render_targets;
+use gscodec_decoder::render::{bin_tiles, preprocess};
 use gscodec_decoder::{Image, RenderOptions, Splats};
 
 fn setup(n: usize) -> (Splats, Image, gscodec_decoder::Camera) {
@@ -18,7 +23,7 @@ fn setup(n: usize) -> (Splats, Image, gscodec_decoder::Camera) {
     let ds = render_targets(&truth, &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
     let mut params = random_splats(n, 1, 2).with_sh_degree(3);
     params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-    (params, ds.frames[0].image.clone(), ds.frames[0].camera)
+    (params, (*ds.frames[0].image.get().unwrap()).clone(), ds.frames[0].camera)
 }
 
 const OPTS: RenderOptions = RenderOptions { background: [1.0; 3], max_sh_degree: 3 };
@@ -28,10 +33,33 @@ fn bench_stages(c: &mut Criterion) {
     let (img, st) = raster::forward(&params, &cam, &OPTS);
     let (_, dl) = L1Ssim::default().eval(&img, &target);
     let grads = raster::backward(&params, &st, &dl);
+    // Densification statistics as after 100 iterations: a quarter of the Gaussians above the
+    // gradient threshold, half of those large enough to split.
+    let mut rng = Rng::new(5);
+    let stats = DensifyStats {
+        grad_accum: (0..params.len()).map(|_| rng.range(0.0, 8e-4)).collect(),
+        count: vec![1; params.len()],
+        max_radius: (0..params.len()).map(|_| rng.range(0.0, 10.0)).collect(),
+    };
+    let dp = DensifyParams {
+        grad_threshold: 6e-4,
+        percent_dense: 0.01,
+        extent: 1.0,
+        min_opacity: 0.005,
+        max_screen_radius: None,
+        max_world_fraction: 0.1,
+        max_gaussians: 100_000,
+    };
     let mut group = c.benchmark_group("train_stage_200x200_10k");
     group.sample_size(10);
     for threads in [1usize, 2] {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        group.bench_with_input(BenchmarkId::new("project", threads), &threads, |b, _| {
+            b.iter(|| pool.install(|| preprocess(&params, &cam, OPTS.max_sh_degree)))
+        });
+        group.bench_with_input(BenchmarkId::new("sort", threads), &threads, |b, _| {
+            b.iter(|| pool.install(|| bin_tiles(&st.projected, cam.width, cam.height)))
+        });
         group.bench_with_input(BenchmarkId::new("forward", threads), &threads, |b, _| {
             b.iter(|| pool.install(|| raster::forward(&params, &cam, &OPTS)))
         });
@@ -44,6 +72,16 @@ fn bench_stages(c: &mut Criterion) {
         let (mut p, mut adam) = (params.clone(), Adam::new(&params));
         group.bench_with_input(BenchmarkId::new("adam", threads), &threads, |b, _| {
             b.iter(|| pool.install(|| adam.step(&mut p, &grads.params, |g| if g == Group::Position { 1e-5 } else { 1e-4 })))
+        });
+        group.bench_with_input(BenchmarkId::new("finite_check", threads), &threads, |b, _| {
+            b.iter(|| pool.install(|| (first_non_finite(&grads.params), first_non_finite(&params))))
+        });
+        group.bench_with_input(BenchmarkId::new("densify", threads), &threads, |b, _| {
+            b.iter_batched(
+                || (params.clone(), Adam::new(&params), Rng::new(9)),
+                |(mut p, mut a, mut r)| pool.install(|| densify_and_prune_keeping(&mut p, &mut a, &stats, &dp, &mut r, 0)),
+                criterion::BatchSize::LargeInput,
+            )
         });
     }
     group.finish();

@@ -61,7 +61,7 @@ fn bench_stages(c: &mut Criterion) {
         let image = if n <= 100_000 {
             let mut truth = random_splats(n, 1, 1).with_sh_degree(3);
             truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-            render_targets(&truth, &[cam], [1.0; 3]).frames.remove(0).image
+            (*render_targets(&truth, &[cam], [1.0; 3]).frames[0].image.get().unwrap()).clone()
         } else {
             Image::filled(w, h, [0.5; 3])
         };

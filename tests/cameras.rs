@@ -86,7 +86,7 @@ fn undistorted_photos_match_pinhole_renders_of_the_loaded_cameras() {
         let ds = load_dataset(dir.path(), &LoadOptions { cache: false, ..Default::default() }).unwrap();
         for (f, photo) in ds.frames.iter().zip(&photos) {
             let direct = render(&scene, &f.camera, &RenderOptions { background: bg, max_sh_degree: 3 });
-            let good = psnr(&f.image, &direct);
+            let good = psnr(&f.image.get().unwrap(), &direct);
             // Ignoring the distortion (the photo as a pinhole image with the lens's intrinsics).
             let mut naive = f.camera;
             naive.width = W;
@@ -126,7 +126,7 @@ fn training_on_distorted_photos_matches_training_on_pinhole_images() {
         let psnr = |seed| {
             let cfg = TrainConfig { iters: 300, seed, init_points: 600, eval_interval: 0, ..Default::default() };
             let (s, _) = train(ds, None, &cfg, Box::new(L1Ssim::default()), None, &mut |_| {}).unwrap();
-            mean_psnr_ssim(&s, &held.split(Split::All), bg).unwrap().0
+            mean_psnr_ssim(&s, &held.split(Split::All), bg).unwrap().unwrap().0
         };
         (psnr(3) + psnr(4)) / 2.0
     };
@@ -179,7 +179,7 @@ fn nerf_json_distortion_keys_and_per_frame_intrinsics() {
     assert_eq!(ds.frames.len(), 2);
     for f in &ds.frames {
         let direct = render(&scene, &f.camera, &RenderOptions { background: bg, max_sh_degree: 3 });
-        let p = psnr(&f.image, &direct);
+        let p = psnr(&f.image.get().unwrap(), &direct);
         eprintln!("{}: {}x{} {p:.2} dB", f.name, f.camera.width, f.camera.height);
         assert!(p > 30.0, "{}: {p:.2} dB", f.name);
     }
@@ -210,7 +210,7 @@ fn downscale_uses_images_n_and_max_size_resizes() {
     let half = load(2, None);
     let c = half.frames[0].camera;
     assert_eq!((c.width, c.height, c.fx, c.cx, c.cy), (W, H, F as f32, W as f32 / 2.0, H as f32 / 2.0));
-    assert!(half.frames[0].image.data.iter().all(|&v| (v - 128.0 / 255.0).abs() < 1e-6), "read from images_2/");
+    assert!(half.frames[0].image.get().unwrap().data.iter().all(|&v| (v - 128.0 / 255.0).abs() < 1e-6), "read from images_2/");
     // No images_4/: an exact 4×4 box filter of the full images.
     let quarter = load(4, None);
     let c = quarter.frames[0].camera;
@@ -223,8 +223,8 @@ fn downscale_uses_images_n_and_max_size_resizes() {
         assert!(
             (c.fx - 35.0).abs() < 1e-5 && (c.cx - W as f32 * 40.0 / 128.0).abs() < 1e-5 && (c.cy - H as f32 * 30.0 / 96.0).abs() < 1e-5
         );
-        let p = psnr(&f.image, &render(&scene, &c, &ropts));
-        let shifted = psnr(&f.image, &render(&scene, &Camera { cx: c.cx + 0.5, ..c }, &ropts));
+        let p = psnr(&f.image.get().unwrap(), &render(&scene, &c, &ropts));
+        let shifted = psnr(&f.image.get().unwrap(), &render(&scene, &Camera { cx: c.cx + 0.5, ..c }, &ropts));
         eprintln!("max-size 40: {p:.2} dB against a direct render, {shifted:.2} dB half a pixel off");
         assert!(p > 30.0 && p > shifted + 3.0, "{p:.2} vs {shifted:.2}");
         assert!(c.rotation.abs_diff_eq(cam.rotation, 1e-6));

@@ -77,7 +77,7 @@ fn bad_inputs_exit_2_with_one_error_line_and_no_output() {
     std::fs::copy(tiny().join("train/r_0.png"), colmap.join("images/a.png")).unwrap();
     std::fs::write(colmap.join("sparse/0/cameras.txt"), "1 EQUIRECTANGULAR 64 64 50 50 32 32\n").unwrap();
     std::fs::write(colmap.join("sparse/0/images.txt"), "1 1 0 0 0 0 0 4 1 a.png\n\n").unwrap();
-    assert_bad(&["render", s(&truth), "--cameras", s(&colmap), "-o", s(&out)], "unknown camera model", &out);
+    assert_bad(&["render", s(&truth), "--cameras", s(&colmap), "-o", s(&out)], "camera model EQUIRECTANGULAR (id 17) is a spherical", &out);
     assert_bad(&["render", s(&truth), "--cameras", s(&colmap), "-o", s(&out)], "cameras.txt", &out);
     // Bad flags.
     assert_bad(&["render", s(&truth), "--orbit", "2", "--size", "0x5", "-o", s(&out)], "0x5", &out);

@@ -132,7 +132,7 @@ fn colmap_bin_and_txt_load_identically() {
     let (db, dt) = (load_dataset(b.path(), &LoadOptions::default()).unwrap(), load_dataset(t.path(), &LoadOptions::default()).unwrap());
     assert_eq!(db.frames.len(), 3);
     for (x, y) in db.frames.iter().zip(&dt.frames) {
-        assert_eq!((x.index, &x.name, x.camera, &x.image), (y.index, &y.name, y.camera, &y.image));
+        assert_eq!((x.index, &x.name, x.camera, &*x.image.get().unwrap()), (y.index, &y.name, y.camera, &*y.image.get().unwrap()));
     }
     assert_eq!(db.points, dt.points);
     // Sorted by name; poses are world-to-camera.
@@ -169,7 +169,9 @@ fn nerf_intrinsics_extensions_missing_frames_and_downscale() {
     assert_eq!(ds.background, [1.0; 3]);
     let a = &ds.frames[0];
     let alpha = 128.0 / 255.0;
-    assert!((a.image.pixel(3, 3)[1] - (1.0 - alpha)).abs() < 1e-6 && (a.image.pixel(3, 3)[0] - 1.0).abs() < 1e-6);
+    assert!(
+        (a.image.get().unwrap().pixel(3, 3)[1] - (1.0 - alpha)).abs() < 1e-6 && (a.image.get().unwrap().pixel(3, 3)[0] - 1.0).abs() < 1e-6
+    );
     assert!((a.camera.fx - 4.0 / (0.45f32).tan()).abs() < 1e-4);
     assert_eq!((a.camera.cx, a.camera.cy), (4.0, 3.0));
     // OpenGL camera at z=4 looking down -z: OpenCV forward is -z, the centre is kept.
@@ -182,9 +184,9 @@ fn nerf_intrinsics_extensions_missing_frames_and_downscale() {
     assert!((b.znear - DEFAULT_ZNEAR).abs() < 1e-7);
     let half = load_dataset(dir.path(), &LoadOptions { downscale: 2, ..Default::default() }).unwrap();
     let hb = &half.frames[1];
-    assert_eq!((hb.image.width, hb.image.height, hb.camera.fx, hb.camera.cx), (4, 3, 2.5, 0.75));
-    let px = hb.image.pixel(1, 1);
-    let src = &ds.frames[1].image;
+    assert_eq!((hb.image.get().unwrap().width, hb.image.get().unwrap().height, hb.camera.fx, hb.camera.cx), (4, 3, 2.5, 0.75));
+    let px = hb.image.get().unwrap().pixel(1, 1);
+    let src = ds.frames[1].image.get().unwrap();
     let mean: f32 = [src.pixel(2, 2), src.pixel(3, 2), src.pixel(2, 3), src.pixel(3, 3)].iter().map(|p| p[0]).sum::<f32>() / 4.0;
     // Prepared images are rounded to 16 bits (cached and fresh loads agree).
     assert!((px[0] - mean).abs() < 1e-5);
@@ -212,18 +214,18 @@ fn lego_200_loads() {
     assert_eq!(ds.frames.len(), 100);
     assert_eq!(ds.split(Split::Test).len(), 13);
     let f = &ds.frames[0];
-    assert_eq!((f.image.width, f.image.height), (200, 200));
+    assert_eq!((f.image.get().unwrap().width, f.image.get().unwrap().height), (200, 200));
     assert!((f.camera.fx - 100.0 / (0.691_111_2f32 / 2.0).tan()).abs() < 1e-3);
     // Cameras look at the object near the origin.
     let c: Camera = f.camera;
     assert!(c.to_camera(Vec3::ZERO).z > 2.0);
-    assert!(ds.frames.iter().all(|f| f.image.data.iter().all(|v| (0.0..=1.0).contains(v))));
+    assert!(ds.frames.iter().all(|f| f.image.get().unwrap().data.iter().all(|v| (0.0..=1.0).contains(v))));
 }
 
 #[test]
 fn colmap_every_camera_model_loads_from_bin_and_txt() {
-    const NAMES: [&str; 11] =
-        ["m00.png", "m01.png", "m02.png", "m03.png", "m04.png", "m05.png", "m06.png", "m07.png", "m08.png", "m09.png", "m10.png"];
+    let n = gscodec::io::lens::COLMAP_MODELS.len();
+    let names: &'static [String] = (0..n).map(|i| format!("m{i:02}.png")).collect::<Vec<_>>().leak();
     let (f, cx, cy) = (30.0, 16.0, 12.0);
     let cams: Vec<Cam> = gscodec::io::lens::COLMAP_MODELS
         .iter()
@@ -236,6 +238,8 @@ fn colmap_every_camera_model_loads_from_bin_and_txt() {
                     "cy" => cy,
                     "omega" => 0.5,
                     "k" | "k1" => -0.05,
+                    "alpha" => 0.5,
+                    "beta" => 1.0,
                     _ => 0.001,
                 })
                 .collect();
@@ -243,15 +247,15 @@ fn colmap_every_camera_model_loads_from_bin_and_txt() {
         })
         .collect();
     let imgs: Vec<Img> =
-        (0..11).map(|i| (i as u32 + 1, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 4.0 + i as f64], i as u32 + 1, NAMES[i])).collect();
+        (0..n).map(|i| (i as u32 + 1, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 4.0 + i as f64], i as u32 + 1, names[i].as_str())).collect();
     let m = Model { cams, imgs, pts: model().pts };
     let (b, t) = (colmap_dir(&m, true), colmap_dir(&m, false));
     let (db, dt) = (load_dataset(b.path(), &LoadOptions::default()).unwrap(), load_dataset(t.path(), &LoadOptions::default()).unwrap());
-    assert_eq!(db.frames.len(), 11);
+    assert_eq!(db.frames.len(), n);
     for (x, y) in db.frames.iter().zip(&dt.frames) {
-        assert_eq!((&x.name, x.camera, &x.image), (&y.name, y.camera, &y.image));
+        assert_eq!((&x.name, x.camera, &*x.image.get().unwrap()), (&y.name, y.camera, &*y.image.get().unwrap()));
         let c = &x.camera;
-        assert_eq!((c.width, c.height), (x.image.width, x.image.height));
+        assert_eq!((c.width, c.height), (x.image.get().unwrap().width, x.image.get().unwrap().height));
         assert!(c.width >= 16 && c.height >= 12 && c.width <= 64 && c.height <= 48, "{}: {c:?}", x.name);
     }
     // Pinhole models keep their intrinsics; the others are resampled to a pinhole camera.
@@ -262,7 +266,7 @@ fn colmap_every_camera_model_loads_from_bin_and_txt() {
     // Undistorted images are cached: a second load reads the cache and gives the same frames.
     assert!(b.path().join(".gscodec-cache").read_dir().unwrap().count() >= 9);
     let again = load_dataset(b.path(), &LoadOptions::default()).unwrap();
-    assert!(again.frames.iter().zip(&db.frames).all(|(x, y)| x.image == y.image && x.camera == y.camera));
+    assert!(again.frames.iter().zip(&db.frames).all(|(x, y)| x.image.get().unwrap() == y.image.get().unwrap() && x.camera == y.camera));
 }
 
 #[test]

@@ -20,7 +20,7 @@ fn rendering_truth_from_the_dataset_cameras_reproduces_the_pngs() {
     let opts = RenderOptions { background: ds.background, max_sh_degree: 3 };
     for f in ds.split(Split::All) {
         let img = render(&scene, &f.camera, &opts);
-        let stored: Vec<u8> = f.image.data.iter().map(|v| (v * 255.0).round() as u8).collect();
+        let stored: Vec<u8> = f.image.get().unwrap().data.iter().map(|v| (v * 255.0).round() as u8).collect();
         assert!(to_rgb8(&img) == stored, "frame {} differs", f.name);
     }
 }

@@ -35,7 +35,7 @@ fn short_run_improves_held_out_psnr() {
     let c = cfg(400);
     let mut rng = gscodec::rng::Rng::new(c.seed);
     let init = gscodec::train::init::initial_splats(&ds, c.init_points, 3, &mut rng);
-    let (before, _) = mean_psnr_ssim(&init, &ds.split(Split::Test), ds.background).unwrap();
+    let (before, _) = mean_psnr_ssim(&init, &ds.split(Split::Test), ds.background).unwrap().unwrap();
     let (trained, report) = run(&ds, &c, None);
     let after = report.test_psnr.unwrap();
     eprintln!("held-out PSNR {before:.2} -> {after:.2} dB, {} Gaussians, {:.1} s {:?}", trained.len(), report.train_seconds, report.stages);

@@ -12,15 +12,18 @@ fn repo() -> PathBuf {
 }
 
 /// The crate's static library: cargo builds it (hashed name) in the `deps/` folder next to this
-/// test binary when it builds the library for the test; the newest one is this build's.
+/// test binary when it builds the library for the test. Builds with other feature sets leave
+/// their own `.a` there too, so take the newest one that holds the C ABI (`gsc_render`).
 fn static_lib() -> PathBuf {
     let deps = std::env::current_exe().unwrap().parent().unwrap().to_path_buf();
-    std::fs::read_dir(&deps)
+    let mut libs: Vec<PathBuf> = std::fs::read_dir(&deps)
         .unwrap()
         .map(|e| e.unwrap().path())
         .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with("libgscodec_decoder") && p.extension().is_some_and(|e| e == "a"))
-        .max_by_key(|p| p.metadata().and_then(|m| m.modified()).ok())
-        .unwrap_or_else(|| panic!("no libgscodec_decoder*.a in {}", deps.display()))
+        .collect();
+    libs.sort_by_key(|p| std::cmp::Reverse(p.metadata().and_then(|m| m.modified()).ok()));
+    let holds_capi = |p: &PathBuf| std::fs::read(p).is_ok_and(|b| b.windows(10).any(|w| w == b"gsc_render"));
+    libs.into_iter().find(holds_capi).unwrap_or_else(|| panic!("no libgscodec_decoder*.a with the C ABI in {}", deps.display()))
 }
 
 fn rust_dump(bytes: &[u8]) -> Vec<u8> {

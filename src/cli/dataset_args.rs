@@ -5,7 +5,7 @@ use super::render::parse_rgb;
 use crate::io::LoadOptions;
 
 /// How to read a dataset's images.
-#[derive(Debug, Clone, Default, PartialEq, clap::Args)]
+#[derive(Debug, Clone, PartialEq, clap::Args)]
 pub struct DatasetArgs {
     /// Downscale dataset images by this integer factor: from `images_N/` when the dataset has it
     /// (the 3DGS convention), else an exact N×N box filter; intrinsics scaled to match.
@@ -21,11 +21,31 @@ pub struct DatasetArgs {
     /// Do not read or write resized/undistorted images in `<dataset>/.gscodec-cache/`.
     #[arg(long)]
     pub no_cache: bool,
+    /// Memory for the decoded images in MiB (f32 RGB, 12 bytes a pixel, all frames): when they
+    /// need more, they are read on demand from disk or the cache through an image cache of this
+    /// size instead of all up front (results are the same).
+    #[arg(long, value_name = "MB", default_value_t = DEFAULT_IMAGE_MEMORY_MB)]
+    pub image_memory: u64,
+}
+
+/// `--image-memory`'s default, MiB.
+pub const DEFAULT_IMAGE_MEMORY_MB: u64 = crate::io::DEFAULT_IMAGE_MEMORY >> 20;
+
+impl Default for DatasetArgs {
+    fn default() -> Self {
+        DatasetArgs { downscale: 1, max_size: None, background: None, no_cache: false, image_memory: DEFAULT_IMAGE_MEMORY_MB }
+    }
 }
 
 impl DatasetArgs {
     pub fn load_options(&self) -> LoadOptions {
-        LoadOptions { downscale: self.downscale.max(1), max_size: self.max_size, cache: !self.no_cache, background: self.background }
+        LoadOptions {
+            downscale: self.downscale.max(1),
+            max_size: self.max_size,
+            cache: !self.no_cache,
+            background: self.background,
+            image_memory: Some(self.image_memory.saturating_mul(1 << 20)),
+        }
     }
 
     /// The same options as command-line words (for child processes, e.g. `sweep`'s encodes).
@@ -42,6 +62,9 @@ impl DatasetArgs {
         }
         if self.no_cache {
             v.push("--no-cache".into());
+        }
+        if self.image_memory != DEFAULT_IMAGE_MEMORY_MB {
+            v.extend(["--image-memory".into(), self.image_memory.to_string()]);
         }
         v
     }
@@ -90,12 +113,16 @@ mod tests {
 
     #[test]
     fn to_args_parses_back_to_the_same_options() {
-        for words in [&[][..], &["--downscale", "4", "--max-size", "1600", "--background", "0.5,0,1", "--no-cache"][..]] {
+        for words in
+            [&[][..], &["--downscale", "4", "--max-size", "1600", "--background", "0.5,0,1", "--no-cache", "--image-memory", "0"][..]]
+        {
             let a = Cli::try_parse_from(std::iter::once("x").chain(words.iter().copied())).unwrap().d;
             let b = Cli::try_parse_from(std::iter::once("x".to_string()).chain(a.to_args())).unwrap().d;
             assert_eq!(a, b);
         }
         assert!(Cli::try_parse_from(["x", "--downscale", "0"]).is_err());
         assert!(Cli::try_parse_from(["x", "--max-size", "0"]).is_err());
+        assert_eq!(Cli::try_parse_from(["x"]).unwrap().d, DatasetArgs::default());
+        assert_eq!(Cli::try_parse_from(["x", "--image-memory", "3"]).unwrap().d.load_options().image_memory, Some(3 << 20));
     }
 }

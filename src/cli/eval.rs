@@ -54,9 +54,12 @@ pub struct Args {
 /// returns the per-view metrics and the total render time in milliseconds. `tick` runs after
 /// each view.
 ///
+/// # Errors
+/// A target image that cannot be read (streamed datasets read them here).
+///
 /// # Panics
 /// If a view has no target or a target's size differs from its camera's.
-pub fn measure(scene: &Splats, views: &[View], background: [f32; 3], tick: &mut dyn FnMut()) -> (Vec<ViewMetrics>, f64) {
+pub fn measure(scene: &Splats, views: &[View], background: [f32; 3], tick: &mut dyn FnMut()) -> Result<(Vec<ViewMetrics>, f64)> {
     let opts = RenderOptions { background, max_sh_degree: 3 };
     let mut ms = 0.0;
     let mut per_view = Vec::with_capacity(views.len());
@@ -64,11 +67,11 @@ pub fn measure(scene: &Splats, views: &[View], background: [f32; 3], tick: &mut 
         let t = Instant::now();
         let img = render(scene, &v.camera, &opts);
         ms += t.elapsed().as_secs_f64() * 1e3;
-        let target = v.target.as_ref().expect("every eval view has a target");
-        per_view.push(metrics::view::evaluate(target, &img));
+        let target = v.target.as_ref().expect("every eval view has a target").get()?;
+        per_view.push(metrics::view::evaluate(&target, &img));
         tick();
     }
-    (per_view, ms)
+    Ok((per_view, ms))
 }
 
 /// The orbit views of `eval --reference`: `n` views of `reference` (at `size`, default 256²),
@@ -77,7 +80,7 @@ pub fn reference_views(reference: &Splats, n: usize, size: Option<(u32, u32)>, u
     let bg = [0.0; 3];
     let opts = RenderOptions { background: bg, max_sh_degree: 3 };
     let mut views = orbit_views(reference, n, size, up);
-    views.iter_mut().for_each(|v| v.target = Some(render(reference, &v.camera, &opts)));
+    views.iter_mut().for_each(|v| v.target = Some(render(reference, &v.camera, &opts).into()));
     (views, bg)
 }
 
@@ -95,7 +98,7 @@ pub fn run(args: Args) -> Result<()> {
         reference_views(&reference, args.orbit, args.size, args.up)
     };
     let pb = progress::bar(views.len() as u64, "eval", args.quiet);
-    let (per_view, ms) = measure(&scene, &views, background, &mut || pb.inc(1));
+    let (per_view, ms) = measure(&scene, &views, background, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     let n = views.len() as f64;
     let Some(mean) = metrics::view::mean(&per_view) else {

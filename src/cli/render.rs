@@ -77,7 +77,7 @@ pub fn parse_rgb(s: &str) -> std::result::Result<[f32; 3], String> {
 pub struct View {
     pub index: usize,
     pub camera: Camera,
-    pub target: Option<gscodec_decoder::Image>,
+    pub target: Option<crate::io::FrameImage>,
 }
 
 /// The views of a dataset split (at the frames' own size unless `size` is given) and its background.

@@ -231,7 +231,7 @@ impl Encoder {
         let decoded = rate::quantise::dequantise(&q);
         if let Some(ds) = heldout {
             // The final point of the series: the coded scene on the held-out images.
-            if let Some((psnr, _)) = crate::metrics::view::mean_psnr_ssim(&decoded, &ds.split(Split::Test), ds.background) {
+            if let Some((psnr, _)) = crate::metrics::view::mean_psnr_ssim(&decoded, &ds.split(Split::Test), ds.background)? {
                 series.push(SeriesPoint {
                     iteration: iters,
                     trial: "coded".into(),

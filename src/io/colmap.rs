@@ -1,15 +1,16 @@
 //! COLMAP sparse models: `sparse/0/{cameras,images,points3D}.{bin,txt}` plus `images/`.
 //!
-//! Every camera model COLMAP writes is read (see [`super::lens::COLMAP_MODELS`] for the parameter
-//! orders); distorted images are undistorted to pinhole once, when loading ([`super::prepare`]).
+//! Every perspective camera model COLMAP defines is read (see [`super::lens::COLMAP_MODELS`] for
+//! the parameter orders; the spherical `EQUIRECTANGULAR` is refused naming it); distorted images are undistorted to pinhole once, when loading ([`super::prepare`]).
 //! Poses are world-to-camera in OpenCV axes. With `--downscale N`, images come from `images_N/`
 //! when the dataset has it (the 3DGS convention). Frames are ordered by
 //! image name (as the reference 3DGS does), so the `% 8` test split matches it. Images whose file
 //! is missing are skipped with one warning; when an image's size differs from its camera's, the
 //! intrinsics are scaled to the image.
 
-use super::lens::{Lens, COLMAP_MODELS};
-use super::prepare::{prepare, Source, CACHE_DIR};
+use super::lens::{colmap_model_error, Lens, COLMAP_MODELS};
+use super::prepare::{plan_image, Source, CACHE_DIR};
+use super::stream::FrameImage;
 use super::{Dataset, Frame, LoadOptions};
 use crate::{Error, Result};
 use glam::{Mat3, Quat, Vec3};
@@ -117,15 +118,16 @@ pub fn load_colmap(dir: &Path, opts: &LoadOptions) -> Result<Dataset> {
             if !path.is_file() {
                 return Ok(None);
             }
-            let src = Source { path, lens: lenses[&im.camera_id], downscale: if path == &twin { 1 } else { k }, background };
-            let (image, pin) = prepare(&src, opts, Some(&cache))?;
+            let src = Source { path: path.clone(), lens: lenses[&im.camera_id], downscale: if path == &twin { 1 } else { k }, background };
+            let planned = plan_image(src, opts, Some(&cache))?;
+            let pin = *planned.lens();
             let [w, x, y, z] = im.qvec;
             let rotation = Mat3::from_quat(Quat::from_xyzw(x as f32, y as f32, z as f32, w as f32).normalize());
             let translation = Vec3::new(im.tvec[0] as f32, im.tvec[1] as f32, im.tvec[2] as f32);
-            let mut camera = Camera::new(image.width, image.height, pin.fx as f32, pin.fy as f32, rotation, translation);
+            let mut camera = Camera::new(pin.width, pin.height, pin.fx as f32, pin.fy as f32, rotation, translation);
             camera.cx = pin.cx as f32;
             camera.cy = pin.cy as f32;
-            Ok(Some(Frame { index, name: im.name.clone(), camera, image }))
+            Ok(Some(Frame { index, name: im.name.clone(), camera, image: FrameImage::planned(planned) }))
         })
         .collect::<Result<_>>()?;
     let missing = loaded.iter().filter(|f| f.is_none()).count();
@@ -208,8 +210,10 @@ fn read_cameras_bin(path: &Path) -> Result<HashMap<u32, ColmapCamera>> {
     for _ in 0..n {
         let id = b.i32()? as u32;
         let model_id = b.i32()?;
-        let &(_, name, names) =
-            COLMAP_MODELS.iter().find(|m| m.0 == model_id).ok_or_else(|| b.bad(format!("camera {id}: unknown model id {model_id}")))?;
+        let &(_, name, names) = COLMAP_MODELS
+            .iter()
+            .find(|m| m.0 == model_id)
+            .ok_or_else(|| b.bad(format!("camera {id}: {}", colmap_model_error(Some(model_id), None))))?;
         let (width, height) = (b.u64()?, b.u64()?);
         let params = (0..names.len()).map(|_| b.f64()).collect::<Result<Vec<_>>>()?;
         check_finite(path, &format!("camera {id}"), &params)?;
@@ -286,7 +290,7 @@ fn read_cameras_txt(path: &Path) -> Result<HashMap<u32, ColmapCamera>> {
         let np = COLMAP_MODELS
             .iter()
             .find(|m| m.1 == model)
-            .ok_or_else(|| Error::input(path, format!("line {ln}: unknown camera model `{model}`")))?
+            .ok_or_else(|| Error::input(path, format!("line {ln}: {}", colmap_model_error(None, Some(&model)))))?
             .2
             .len();
         let (width, height) = (parse(path, ln, t.next())?, parse(path, ln, t.next())?);

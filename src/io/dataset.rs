@@ -1,6 +1,7 @@
 //! A posed-image dataset, whatever file layout it came from.
 
-use gscodec_decoder::{Camera, Image};
+use super::stream::FrameImage;
+use gscodec_decoder::Camera;
 
 /// One posed view.
 #[derive(Debug, Clone)]
@@ -10,8 +11,9 @@ pub struct Frame {
     /// Image file name without directory, for messages and output naming.
     pub name: String,
     pub camera: Camera,
-    /// sRGB in [0,1], already composited on `Dataset::background`.
-    pub image: Image,
+    /// sRGB in [0,1], already composited on `Dataset::background`; in memory or read on demand
+    /// (see [`super::stream`]). Its size is the camera's.
+    pub image: FrameImage,
 }
 
 /// Posed images plus an optional initial point cloud.

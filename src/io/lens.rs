@@ -35,6 +35,15 @@ pub enum Distortion {
     Fisheye { k: [f64; 4], p: [f64; 2], s: [f64; 2] },
     /// Field-of-view model with angle `omega` (`FOV`).
     Fov { omega: f64 },
+    /// Equidistant fisheye, then radial `1 + k0 θ² + … + k5 θ¹²` scaling the point, then
+    /// tangential `p0, p1` and thin prism `s0 r² + s1 r⁴`, `s2 r² + s3 r⁴` on that scaled point
+    /// (`RAD_TAN_THIN_PRISM_FISHEYE`, Project Aria's calibration model).
+    RadTanThinPrism { k: [f64; 6], p: [f64; 2], s: [f64; 4] },
+    /// Division model: `x = 2u / (1 + √(1 − 4k|u|²))`, inverse `u = x / (1 + k|x|²)`
+    /// (`SIMPLE_DIVISION`, `DIVISION`).
+    Division { k: f64 },
+    /// Enhanced unified camera model: `x = u / (α√(β|u|² + 1) + 1 − α)` (`EUCM`).
+    Eucm { alpha: f64, beta: f64 },
 }
 
 /// Intrinsics plus distortion of one camera, for an image of `width × height` pixels.
@@ -49,8 +58,10 @@ pub struct Lens {
     pub distortion: Distortion,
 }
 
-/// COLMAP camera models: (id, name, parameter names in COLMAP's order).
-pub const COLMAP_MODELS: [(i32, &str, &[&str]); 11] = [
+/// COLMAP camera models: (id, name, parameter names in COLMAP's order). Every perspective
+/// model COLMAP defines (`src/colmap/sensor/models.h`); its one spherical model,
+/// `EQUIRECTANGULAR` (id 17), is [`COLMAP_UNSUPPORTED`].
+pub const COLMAP_MODELS: [(i32, &str, &[&str]); 17] = [
     (0, "SIMPLE_PINHOLE", &["f", "cx", "cy"]),
     (1, "PINHOLE", &["fx", "fy", "cx", "cy"]),
     (2, "SIMPLE_RADIAL", &["f", "cx", "cy", "k"]),
@@ -62,7 +73,29 @@ pub const COLMAP_MODELS: [(i32, &str, &[&str]); 11] = [
     (8, "SIMPLE_RADIAL_FISHEYE", &["f", "cx", "cy", "k"]),
     (9, "RADIAL_FISHEYE", &["f", "cx", "cy", "k1", "k2"]),
     (10, "THIN_PRISM_FISHEYE", &["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "sx1", "sy1"]),
+    (11, "RAD_TAN_THIN_PRISM_FISHEYE", &["fx", "fy", "cx", "cy", "k0", "k1", "k2", "k3", "k4", "k5", "p0", "p1", "s0", "s1", "s2", "s3"]),
+    (12, "SIMPLE_DIVISION", &["f", "cx", "cy", "k"]),
+    (13, "DIVISION", &["fx", "fy", "cx", "cy", "k"]),
+    (14, "SIMPLE_FISHEYE", &["f", "cx", "cy"]),
+    (15, "FISHEYE", &["fx", "fy", "cx", "cy"]),
+    (16, "EUCM", &["fx", "fy", "cx", "cy", "alpha", "beta"]),
 ];
+
+/// COLMAP camera models gscodec refuses, by id and name, with the reason.
+pub const COLMAP_UNSUPPORTED: [(i32, &str, &str); 1] =
+    [(17, "EQUIRECTANGULAR", "a spherical (360°) camera, which no pinhole view covers; not supported")];
+
+/// The error message for a COLMAP model id or name that is not in [`COLMAP_MODELS`].
+pub fn colmap_model_error(id: Option<i32>, name: Option<&str>) -> String {
+    match COLMAP_UNSUPPORTED.iter().find(|m| Some(m.0) == id || Some(m.1) == name) {
+        Some((id, name, why)) => format!("camera model {name} (id {id}) is {why}"),
+        None => match (id, name) {
+            (_, Some(n)) => format!("unknown camera model `{n}`"),
+            (Some(i), None) => format!("unknown camera model id {i}"),
+            (None, None) => "unknown camera model".into(),
+        },
+    }
+}
 
 /// Newton's method stops when the residual is below this (normalised units: 1e-12 focal lengths).
 const NEWTON_TOLERANCE: f64 = 1e-12;
@@ -71,7 +104,7 @@ const NEWTON_MAX_ITERS: usize = 100;
 impl Lens {
     /// A lens from a COLMAP model name and its parameters (in COLMAP's order).
     pub fn from_colmap(model: &str, width: u32, height: u32, p: &[f64]) -> Result<Lens, String> {
-        let n = COLMAP_MODELS.iter().find(|m| m.1 == model).ok_or_else(|| format!("unknown camera model `{model}`"))?.2.len();
+        let n = COLMAP_MODELS.iter().find(|m| m.1 == model).ok_or_else(|| colmap_model_error(None, Some(model)))?.2.len();
         if p.len() != n {
             return Err(format!("{model} has {n} parameters, got {}", p.len()));
         }
@@ -92,6 +125,15 @@ impl Lens {
             "THIN_PRISM_FISHEYE" => {
                 ([p[0], p[1], p[2], p[3]], Distortion::Fisheye { k: [p[4], p[5], p[8], p[9]], p: [p[6], p[7]], s: [p[10], p[11]] })
             }
+            "RAD_TAN_THIN_PRISM_FISHEYE" => (
+                [p[0], p[1], p[2], p[3]],
+                Distortion::RadTanThinPrism { k: [p[4], p[5], p[6], p[7], p[8], p[9]], p: [p[10], p[11]], s: [p[12], p[13], p[14], p[15]] },
+            ),
+            "SIMPLE_DIVISION" => ([p[0], p[0], p[1], p[2]], Distortion::Division { k: p[3] }),
+            "DIVISION" => ([p[0], p[1], p[2], p[3]], Distortion::Division { k: p[4] }),
+            "SIMPLE_FISHEYE" => ([p[0], p[0], p[1], p[2]], Distortion::Fisheye { k: [0.0; 4], p: z2, s: z2 }),
+            "FISHEYE" => ([p[0], p[1], p[2], p[3]], Distortion::Fisheye { k: [0.0; 4], p: z2, s: z2 }),
+            "EUCM" => ([p[0], p[1], p[2], p[3]], Distortion::Eucm { alpha: p[4], beta: p[5] }),
             _ => unreachable!("model checked above"),
         };
         Lens::new(width, height, f, d)
@@ -110,6 +152,11 @@ impl Lens {
         if !fov_ok {
             return Err("FOV model needs 0 < omega < π".into());
         }
+        if let Distortion::Eucm { alpha, beta } = distortion {
+            if !((0.0..=1.0).contains(&alpha) && beta > 0.0) {
+                return Err(format!("EUCM needs 0 ≤ alpha ≤ 1 and beta > 0, got alpha {alpha}, beta {beta}"));
+            }
+        }
         Ok(lens.simplified())
     }
 
@@ -118,6 +165,8 @@ impl Lens {
         let zero = match self.distortion {
             Distortion::RadialTangential { k, p } => k.iter().chain(&p).all(|&v| v == 0.0),
             Distortion::Rational { k, p } => k.iter().chain(&p).all(|&v| v == 0.0),
+            Distortion::Division { k } => k == 0.0,
+            Distortion::Eucm { alpha, .. } => alpha == 0.0,
             _ => false,
         };
         if zero {
@@ -147,9 +196,19 @@ impl Lens {
                 let f = fov_factor(omega, r2);
                 (u * f, v * f)
             }
-            Distortion::Fisheye { .. } => {
+            Distortion::Fisheye { .. } | Distortion::RadTanThinPrism { .. } => {
                 let (a, b) = fisheye_from_normal(u, v);
                 self.plane(a, b)
+            }
+            Distortion::Division { k } => {
+                let d2 = 1.0 - 4.0 * k * (u * u + v * v);
+                let r = if d2 >= 0.0 { 2.0 / (1.0 + d2.sqrt()) } else { f64::NAN };
+                (u * r, v * r)
+            }
+            Distortion::Eucm { alpha, beta } => {
+                let den = alpha * (beta * (u * u + v * v) + 1.0).sqrt() + 1.0 - alpha;
+                let f = if den > f64::EPSILON { 1.0 / den } else { f64::NAN };
+                (u * f, v * f)
             }
             _ => self.plane(u, v),
         }
@@ -175,7 +234,18 @@ impl Lens {
                 let radial = num / den;
                 (a * radial + 2.0 * p[0] * ab + p[1] * (r2 + 2.0 * a2), b * radial + 2.0 * p[1] * ab + p[0] * (r2 + 2.0 * b2))
             }
-            Distortion::None | Distortion::Fov { .. } => (a, b),
+            Distortion::RadTanThinPrism { k, p, s } => {
+                let t = r2 * (k[0] + r2 * (k[1] + r2 * (k[2] + r2 * (k[3] + r2 * (k[4] + r2 * k[5])))));
+                let (x, y) = (a * (1.0 + t), b * (1.0 + t));
+                let (x2, y2, xy) = (x * x, y * y, x * y);
+                let q2 = x2 + y2;
+                let q4 = q2 * q2;
+                (
+                    x + 2.0 * p[1] * xy + p[0] * (q2 + 2.0 * x2) + s[0] * q2 + s[1] * q4,
+                    y + 2.0 * p[0] * xy + p[1] * (q2 + 2.0 * y2) + s[2] * q2 + s[3] * q4,
+                )
+            }
+            Distortion::None | Distortion::Fov { .. } | Distortion::Division { .. } | Distortion::Eucm { .. } => (a, b),
         }
     }
 
@@ -196,9 +266,25 @@ impl Lens {
                 }
                 Some((x * f, y * f))
             }
-            Distortion::Fisheye { .. } => {
+            Distortion::Fisheye { .. } | Distortion::RadTanThinPrism { .. } => {
                 let (a, b) = self.invert_plane(x, y)?;
                 normal_from_fisheye(a, b)
+            }
+            Distortion::Division { k } => {
+                // The forward map's principal branch covers k·|x|² in (−1, 1).
+                let ks = k * (x * x + y * y);
+                (ks > -1.0 && ks < 1.0).then(|| (x / (1.0 + ks), y / (1.0 + ks)))
+            }
+            Distortion::Eucm { alpha, beta } => {
+                // COLMAP's closed-form lift; `None` behind the camera or outside the model's disc.
+                let r2 = x * x + y * y;
+                let radicand = 1.0 - (2.0 * alpha - 1.0) * beta * r2;
+                if radicand < 0.0 {
+                    return None;
+                }
+                let den = alpha * radicand.sqrt() + 1.0 - alpha;
+                let mz = (1.0 - alpha * alpha * beta * r2) / den;
+                (den > f64::EPSILON && mz > f64::EPSILON).then(|| (x / mz, y / mz))
             }
             _ => self.invert_plane(x, y),
         }
@@ -436,6 +522,15 @@ mod tests {
             ("SIMPLE_RADIAL_FISHEYE", vec![60.0, 64.0, 48.0, 0.04]),
             ("RADIAL_FISHEYE", vec![60.0, 64.0, 48.0, 0.04, -0.01]),
             ("THIN_PRISM_FISHEYE", vec![60.0, 61.0, 64.0, 48.0, 0.05, -0.01, 0.001, -0.001, 0.002, -0.0005, 0.001, -0.002]),
+            (
+                "RAD_TAN_THIN_PRISM_FISHEYE",
+                vec![60.0, 61.0, 64.0, 48.0, 0.05, -0.01, 0.002, -0.0005, 1e-4, -1e-5, 0.001, -0.002, 0.001, -0.0005, -0.001, 0.0002],
+            ),
+            ("SIMPLE_DIVISION", vec![100.0, 64.0, 48.0, -0.15]),
+            ("DIVISION", vec![100.0, 98.0, 63.0, 49.0, 0.2]),
+            ("SIMPLE_FISHEYE", vec![60.0, 64.0, 48.0]),
+            ("FISHEYE", vec![60.0, 61.0, 64.0, 48.0]),
+            ("EUCM", vec![60.0, 61.0, 64.0, 48.0, 0.55, 1.05]),
         ]
     }
 
@@ -484,6 +579,26 @@ mod tests {
         let f = (2.0 * r * 0.45f64.tan()).atan() / (r * 0.9);
         let (dx, _) = l.distort(u, v);
         assert!((dx - u * f).abs() < 1e-15);
+        // RAD_TAN_THIN_PRISM_FISHEYE: (a, b) = (u, v)·θ/r, scaled by 1 + k0θ² + … + k5θ¹², then
+        // tangential p0 p1 and thin prism s0..s3 on the scaled point.
+        let (k, p, s) = ([0.05, -0.01, 0.002, -0.0005, 1e-4, -1e-5], [0.001, -0.002], [0.001, -0.0005, -0.001, 0.0002]);
+        let params = [[1.0, 1.0, 0.0, 0.0], k[..4].try_into().unwrap(), [k[4], k[5], p[0], p[1]], s].concat();
+        let l = Lens::from_colmap("RAD_TAN_THIN_PRISM_FISHEYE", 10, 10, &params).unwrap();
+        let (a, b) = (u * t / r, v * t / r);
+        let scale = 1.0 + (0..6).map(|i| k[i] * t2.powi(i as i32 + 1)).sum::<f64>();
+        let (x, y) = (a * scale, b * scale);
+        let q2 = x * x + y * y;
+        let xd = x + 2.0 * p[1] * x * y + p[0] * (q2 + 2.0 * x * x) + s[0] * q2 + s[1] * q2 * q2;
+        let yd = y + 2.0 * p[0] * x * y + p[1] * (q2 + 2.0 * y * y) + s[2] * q2 + s[3] * q2 * q2;
+        let (dx, dy) = l.distort(u, v);
+        assert!((dx - xd).abs() < 1e-15 && (dy - yd).abs() < 1e-15, "{dx} {dy} vs {xd} {yd}");
+        // DIVISION: x = 2u / (1 + √(1 − 4k r²)); EUCM: x = u / (α√(βr² + 1) + 1 − α).
+        let l = Lens::from_colmap("DIVISION", 10, 10, &[1.0, 1.0, 0.0, 0.0, 0.2]).unwrap();
+        let (dx, _) = l.distort(u, v);
+        assert!((dx - 2.0 * u / (1.0 + (1.0 - 0.8 * r2).sqrt())).abs() < 1e-15);
+        let l = Lens::from_colmap("EUCM", 10, 10, &[1.0, 1.0, 0.0, 0.0, 0.55, 1.05]).unwrap();
+        let (dx, _) = l.distort(u, v);
+        assert!((dx - u / (0.55 * (1.05 * r2 + 1.0f64).sqrt() + 0.45)).abs() < 1e-15);
     }
 
     #[test]
@@ -496,6 +611,15 @@ mod tests {
         assert!(l.undistort(1.0, 0.0).is_some());
         assert!(Lens::from_colmap("OPENCV", 10, 10, &[5.0; 4]).is_err());
         assert!(Lens::from_colmap("NOPE", 10, 10, &[]).is_err());
+        // Division and EUCM without distortion are pinhole; EUCM's parameters are checked.
+        assert!(Lens::from_colmap("DIVISION", 10, 10, &[5.0, 5.0, 5.0, 5.0, 0.0]).unwrap().is_pinhole());
+        assert!(Lens::from_colmap("EUCM", 10, 10, &[5.0, 5.0, 5.0, 5.0, 0.0, 1.0]).unwrap().is_pinhole());
+        assert!(Lens::from_colmap("EUCM", 10, 10, &[5.0, 5.0, 5.0, 5.0, 1.5, 1.0]).is_err());
+        // The spherical model is refused by name, whether named or numbered.
+        let e = Lens::from_colmap("EQUIRECTANGULAR", 10, 10, &[10.0, 10.0]).unwrap_err();
+        assert!(e.contains("EQUIRECTANGULAR (id 17)") && e.contains("not supported"), "{e}");
+        assert_eq!(colmap_model_error(Some(17), None), e);
+        assert_eq!(colmap_model_error(Some(99), None), "unknown camera model id 99");
     }
 
     #[test]

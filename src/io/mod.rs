@@ -14,10 +14,12 @@ pub mod scene;
 pub mod sog;
 pub mod splat;
 pub mod spz;
+pub mod stream;
 
 pub use dataset::{Dataset, Frame, Split};
 pub use ply::{read_ply, read_ply_bytes, write_ply};
 pub use scene::{read_scene, read_scene_with, write_scene};
+pub use stream::{FrameImage, DEFAULT_IMAGE_MEMORY};
 
 use crate::{Error, Result};
 use gscodec_decoder::camera::DEFAULT_ZNEAR;
@@ -36,11 +38,14 @@ pub struct LoadOptions {
     /// Background colour (sRGB in [0,1]) for RGBA images and renders, instead of the layout's
     /// default (white for NeRF, black for COLMAP).
     pub background: Option<[f32; 3]>,
+    /// Budget in bytes for the decoded images (f32 RGB, all frames): when they need more they
+    /// are read on demand through a cache of this size ([`stream`]); `None` = no limit.
+    pub image_memory: Option<u64>,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        LoadOptions { downscale: 1, max_size: None, cache: true, background: None }
+        LoadOptions { downscale: 1, max_size: None, cache: true, background: None, image_memory: Some(DEFAULT_IMAGE_MEMORY) }
     }
 }
 
@@ -77,9 +82,13 @@ pub fn load_dataset(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
     } else {
         return Err(Error::input(path, "not a dataset: expected transforms_train.json, transforms.json or a COLMAP sparse/0 model"));
     };
-    if let Some(f) = ds.frames.iter().find(|f| f.image.width == 0 || f.image.height == 0) {
+    if let Some(f) = ds.frames.iter().find(|f| f.camera.width == 0 || f.camera.height == 0) {
         return Err(Error::input(path, format!("frame `{}` is empty after downscaling by {}", f.name, opts.downscale)));
     }
+    if opts.image_memory.is_some_and(|b| ds.frames.iter().map(|f| f.image.bytes()).sum::<u64>() > b) && !opts.cache {
+        eprintln!("warning: {}: the images exceed the image memory budget and are read on demand; with --no-cache resized or undistorted ones are prepared again at every read", path.display());
+    }
+    stream::hold(&mut ds.frames, opts.image_memory)?;
     let znear = DEFAULT_ZNEAR * scene_scale(&ds);
     ds.frames.iter_mut().for_each(|f| f.camera.znear = znear);
     Ok(ds)

@@ -11,7 +11,8 @@
 //! with one warning that counts them. Distorted images are undistorted once ([`super::prepare`]).
 
 use super::lens::{Distortion, Lens};
-use super::prepare::{downscaled_twin, prepare, Source, CACHE_DIR};
+use super::prepare::{downscaled_twin, plan_image, Source, CACHE_DIR};
+use super::stream::FrameImage;
 use super::{Dataset, Frame, LoadOptions};
 use crate::{Error, Result};
 use gscodec_decoder::Camera;
@@ -191,7 +192,7 @@ fn find_image(p: &Path) -> Option<PathBuf> {
 }
 
 impl FrameSpec {
-    /// Loads the image and builds the camera; `None` when the image file is missing.
+    /// Plans the image and builds the camera; `None` when the image file is missing.
     fn load(self, index: usize, opts: &LoadOptions) -> Result<Option<Frame>> {
         let Some(path) = &self.image else { return Ok(None) };
         let bad = |m: String| Error::input(&self.json, format!("frame {index}: {m}"));
@@ -199,16 +200,14 @@ impl FrameSpec {
         let (w, h) = image::image_dimensions(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
         let lens = self.lens(w, h).map_err(bad)?;
         let twin = downscaled_twin(path, opts.downscale);
-        let src = Source {
-            path: twin.as_deref().unwrap_or(path),
-            lens,
-            downscale: if twin.is_some() { 1 } else { opts.downscale },
-            background: opts.background.unwrap_or(NERF_BACKGROUND),
-        };
-        let (image, pin) = prepare(&src, opts, Some(&self.dir.join(CACHE_DIR)))?;
+        let downscale = if twin.is_some() { 1 } else { opts.downscale };
+        let src =
+            Source { path: twin.unwrap_or_else(|| path.clone()), lens, downscale, background: opts.background.unwrap_or(NERF_BACKGROUND) };
+        let planned = plan_image(src, opts, Some(&self.dir.join(CACHE_DIR)))?;
+        let pin = *planned.lens();
         let camera = Camera::from_nerf_c2w(self.c2w, pin.width, pin.height, pin.fx as f32, pin.fy as f32, pin.cx as f32, pin.cy as f32);
         let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
-        Ok(Some(Frame { index, name, camera, image }))
+        Ok(Some(Frame { index, name, camera, image: FrameImage::planned(planned) }))
     }
 
     /// The lens of this frame for an image of `w × h` pixels on disk (intrinsics declared for

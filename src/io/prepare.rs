@@ -33,8 +33,9 @@ pub const CACHE_DIR: &str = ".gscodec-cache";
 static CACHE_WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
 /// What [`prepare`] needs to know about one frame's image.
-pub struct Source<'a> {
-    pub path: &'a Path,
+#[derive(Debug, Clone)]
+pub struct Source {
+    pub path: PathBuf,
     /// The lens, with intrinsics for an image of `lens.width × lens.height` (scaled to the file's
     /// real size when it differs).
     pub lens: Lens,
@@ -44,46 +45,104 @@ pub struct Source<'a> {
     pub background: [f32; 3],
 }
 
-/// The prepared image and the pinhole lens it was taken with.
-pub fn prepare(src: &Source, opts: &LoadOptions, cache_dir: Option<&Path>) -> Result<(Image, Lens)> {
-    let path = src.path;
+/// One frame's image, planned from its file's header but not read yet: its final size and
+/// pinhole lens are known, [`Planned::load`] produces the pixels (the same ones every time).
+#[derive(Debug, Clone)]
+pub struct Planned {
+    src: Source,
+    /// The file's size when planned.
+    file_size: (u32, u32),
+    plan: Plan,
+    /// Whether producing the image takes more than decoding the file (a downscale, resize or
+    /// undistortion): such results are rounded to 16 bits and cached.
+    slow: bool,
+    /// The cache file, when caching is on and the image is slow to produce.
+    cache: Option<PathBuf>,
+}
+
+/// Plans the preparation of `src` (reads the file's header only).
+///
+/// # Errors
+/// An unreadable image header, an image empty after the downscale, or a lens with no
+/// undistorted region.
+pub fn plan_image(src: Source, opts: &LoadOptions, cache_dir: Option<&Path>) -> Result<Planned> {
+    let path = &src.path;
     let (w, h) = image::image_dimensions(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
     let plan = plan(&src.lens.resized(w, h), src.downscale, opts.max_size).map_err(|m| Error::input(path, m))?;
     let slow = plan.downscale > 1 || plan.resize.is_some() || !plan.source.is_pinhole();
-    let cache = cache_dir.filter(|_| slow && opts.cache).map(|d| d.join(format!("{:016x}.png", cache_key(src, opts, path))));
-    if let Some(c) = &cache {
-        if let Ok(img) = load_image(c, [0.0; 3]) {
-            if (img.width, img.height) == (plan.target.width, plan.target.height) {
-                return Ok((img, plan.target));
+    let cache = cache_dir.filter(|_| slow && opts.cache).map(|d| d.join(format!("{:016x}.png", cache_key(&src, opts, path))));
+    Ok(Planned { src, file_size: (w, h), plan, slow, cache })
+}
+
+impl Planned {
+    /// The pinhole lens of the prepared image (its size is the image's).
+    pub fn lens(&self) -> &Lens {
+        &self.plan.target
+    }
+
+    /// The image file.
+    pub fn path(&self) -> &Path {
+        &self.src.path
+    }
+
+    /// Bytes of the prepared image as f32 RGB.
+    pub fn bytes(&self) -> u64 {
+        self.plan.target.width as u64 * self.plan.target.height as u64 * 12
+    }
+
+    /// Whether [`Planned::load`] would do more than decode a file (a slow preparation not cached yet).
+    pub fn needs_preparing(&self) -> bool {
+        self.slow && !self.cache.as_ref().is_some_and(|c| c.is_file())
+    }
+
+    /// The prepared image: from the cache when it holds it, else decoded, resized, undistorted
+    /// (and cached). Cached and fresh loads give identical pixels.
+    ///
+    /// # Errors
+    /// An unreadable image, or one whose size changed since it was planned.
+    pub fn load(&self) -> Result<Image> {
+        let (path, plan) = (&self.src.path, &self.plan);
+        if let Some(c) = &self.cache {
+            if let Ok(img) = load_image(c, [0.0; 3]) {
+                if (img.width, img.height) == (plan.target.width, plan.target.height) {
+                    return Ok(img);
+                }
             }
         }
-    }
-    let mut img = load_image(path, src.background)?;
-    if (img.width, img.height) != (w, h) {
-        return Err(Error::input(path, "image size changed while reading"));
-    }
-    img = downscale(&img, plan.downscale);
-    if let Some((rw, rh)) = plan.resize {
-        img = resize(&img, rw, rh);
-    }
-    if !plan.source.is_pinhole() {
-        img = undistort_image(&img, &plan.source, &plan.target);
-    }
-    if slow {
-        let bytes = png16(&mut img);
-        if let Some(c) = &cache {
-            // A cache that cannot be written is only slower.
-            let ok = c.parent().is_some_and(|d| std::fs::create_dir_all(d).is_ok()) && write_bytes_atomic(c, &bytes).is_ok();
-            if !ok && !CACHE_WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
-                eprintln!("warning: {}: cannot write the image cache (images are prepared again next time)", c.display());
+        let mut img = load_image(path, self.src.background)?;
+        if (img.width, img.height) != self.file_size {
+            return Err(Error::input(path, "image size changed while reading"));
+        }
+        img = downscale(&img, plan.downscale);
+        if let Some((rw, rh)) = plan.resize {
+            img = resize(&img, rw, rh);
+        }
+        if !plan.source.is_pinhole() {
+            img = undistort_image(&img, &plan.source, &plan.target);
+        }
+        if self.slow {
+            let bytes = png16(&mut img);
+            if let Some(c) = &self.cache {
+                // A cache that cannot be written is only slower.
+                let ok = c.parent().is_some_and(|d| std::fs::create_dir_all(d).is_ok()) && write_bytes_atomic(c, &bytes).is_ok();
+                if !ok && !CACHE_WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                    eprintln!("warning: {}: cannot write the image cache (images are prepared again next time)", c.display());
+                }
             }
         }
+        debug_assert_eq!((img.width, img.height), (plan.target.width, plan.target.height));
+        Ok(img)
     }
-    debug_assert_eq!((img.width, img.height), (plan.target.width, plan.target.height));
-    Ok((img, plan.target))
+}
+
+/// The prepared image and the pinhole lens it was taken with ([`plan_image`] then [`Planned::load`]).
+pub fn prepare(src: Source, opts: &LoadOptions, cache_dir: Option<&Path>) -> Result<(Image, Lens)> {
+    let p = plan_image(src, opts, cache_dir)?;
+    Ok((p.load()?, p.plan.target))
 }
 
 /// The sizes and lenses of each step.
+#[derive(Debug, Clone)]
 struct Plan {
     downscale: u32,
     resize: Option<(u32, u32)>,

@@ -82,7 +82,7 @@ fn channel_ssim(x: &[f64], y: &[f64], w: usize, h: usize, grad: Option<&mut [f64
         blur_into(src, w, h, &taps, &mut tmp, &mut out);
         out
     };
-    let prod = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).collect::<Vec<_>>();
+    let prod = |a: &[f64], b: &[f64]| a.par_iter().zip(b).with_min_len(ROWS_PER_TASK * w).map(|(p, q)| p * q).collect::<Vec<_>>();
     let (mx, my) = (bl(x), bl(y));
     let (sxx, syy, sxy) = (bl(&prod(x, x)), bl(&prod(y, y)), bl(&prod(x, y)));
     // Per pixel (in parallel, each value computed alone): the map and d(map)/d(statistics).
@@ -100,11 +100,11 @@ fn channel_ssim(x: &[f64], y: &[f64], w: usize, h: usize, grad: Option<&mut [f64
             [s, ds_dm - 2.0 * mx[i] * ds_dv - my[i] * ds_dc, ds_dv, ds_dc]
         })
         .collect();
-    let map: Vec<f64> = stats.iter().map(|v| v[0]).collect();
+    let map: Vec<f64> = stats.par_iter().with_min_len(ROWS_PER_TASK * w).map(|v| v[0]).collect();
     // Summed in pixel order (a fixed order, whatever the thread count).
     let total = map.iter().sum();
     if let Some(grad) = grad {
-        let pick = |k: usize| stats.iter().map(|v| v[k]).collect::<Vec<f64>>();
+        let pick = |k: usize| stats.par_iter().with_min_len(ROWS_PER_TASK * w).map(|v| v[k]).collect::<Vec<f64>>();
         let (bm, bxx, bxy) = (bl(&pick(1)), bl(&pick(2)), bl(&pick(3)));
         grad.par_iter_mut().enumerate().with_min_len(ROWS_PER_TASK * w).for_each(|(i, g)| {
             *g = bm[i] + 2.0 * x[i] * bxx[i] + y[i] * bxy[i];
@@ -140,11 +140,11 @@ pub fn ssim_and_grad(a: &Image, b: &Image) -> (f64, Vec<f32>) {
         })
         .collect();
     let mut grad = vec![0.0f32; 3 * w * h];
-    for (c, (_, g)) in per.iter().enumerate() {
-        for (i, v) in g.iter().enumerate() {
-            grad[i * 3 + c] = (v / n) as f32;
+    grad.par_chunks_exact_mut(3).enumerate().with_min_len(ROWS_PER_TASK * w).for_each(|(i, px)| {
+        for (c, (_, g)) in per.iter().enumerate() {
+            px[c] = (g[i] / n) as f32;
         }
-    }
+    });
     (per.iter().map(|p| p.0).sum::<f64>() / n, grad)
 }
 

@@ -68,19 +68,23 @@ pub fn mean(views: &[ViewMetrics]) -> Option<ViewMetrics> {
 /// Mean PSNR and SSIM of `splats` rendered (full SH, on `background`) at each frame's camera
 /// against the frame's image: the held-out score of training and of an encode report, cheaper
 /// than [`evaluate`]'s every metric. `None` without frames.
-pub fn mean_psnr_ssim(splats: &Splats, frames: &[&Frame], background: [f32; 3]) -> Option<(f64, f64)> {
+///
+/// # Errors
+/// A frame's image that cannot be read (streamed datasets read them here).
+pub fn mean_psnr_ssim(splats: &Splats, frames: &[&Frame], background: [f32; 3]) -> crate::Result<Option<(f64, f64)>> {
     if frames.is_empty() {
-        return None;
+        return Ok(None);
     }
     let opts = RenderOptions { background, max_sh_degree: 3 };
     let (mut p, mut s) = (0.0, 0.0);
     for f in frames {
         let img = render(splats, &f.camera, &opts);
-        p += psnr(&img, &f.image);
-        s += ssim(&img, &f.image);
+        let target = f.image.get()?;
+        p += psnr(&img, &target);
+        s += ssim(&img, &target);
     }
     let n = frames.len() as f64;
-    Some((p / n, s / n))
+    Ok(Some((p / n, s / n)))
 }
 
 #[cfg(test)]

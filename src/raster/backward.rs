@@ -127,11 +127,18 @@ pub fn backward(splats: &Splats, state: &RasterState, dl_dimg: &[f32]) -> Gradie
         }
     });
 
-    // 2. Sum per Gaussian in tile-list order (fixed, independent of the thread count).
+    // 2. Sum per Gaussian in tile-list order (fixed, independent of the thread count): ranges of
+    // Gaussians in parallel, each scanning the whole list for its own.
     let mut per_g = vec![Grad2d::default(); splats.len()];
-    for (e, &g) in entries.iter().zip(&bins.ids) {
-        per_g[g as usize].add(e);
-    }
+    let span = splats.len().div_ceil(rayon::current_num_threads() * 4).max(1);
+    per_g.par_chunks_mut(span).enumerate().for_each(|(c, out)| {
+        let first = c * span;
+        for (e, &g) in entries.iter().zip(&bins.ids) {
+            if let Some(o) = (g as usize).checked_sub(first).and_then(|i| out.get_mut(i)) {
+                o.add(e);
+            }
+        }
+    });
     drop(entries);
 
     // 3. Screen-space gradients to parameters, one Gaussian at a time.
@@ -142,18 +149,18 @@ pub fn backward(splats: &Splats, state: &RasterState, dl_dimg: &[f32]) -> Gradie
         .map(|i| if proj[i].radius > 0.0 { gaussian_backward(splats, i, state, center, &per_g[i]) } else { ParamGrad::default() })
         .collect();
     let mut params = Splats::new(splats.sh_degree);
-    params.positions = per.iter().map(|g| g.position).collect();
-    params.log_scales = per.iter().map(|g| g.log_scale).collect();
-    params.rotations = per.iter().map(|g| g.rotation).collect();
-    params.opacity_logits = per.iter().map(|g| g.opacity_logit).collect();
-    params.sh_dc = per.iter().map(|g| g.sh_dc).collect();
+    params.positions = per.par_iter().map(|g| g.position).collect();
+    params.log_scales = per.par_iter().map(|g| g.log_scale).collect();
+    params.rotations = per.par_iter().map(|g| g.rotation).collect();
+    params.opacity_logits = per.par_iter().map(|g| g.opacity_logit).collect();
+    params.sh_dc = per.par_iter().map(|g| g.sh_dc).collect();
     params.sh_rest = vec![0.0; splats.len() * k_all * 3];
     let k_used = math::sh_rest_coeffs(state.degree);
-    for (i, g) in per.iter().enumerate() {
-        params.sh_rest[i * k_all * 3..(i * k_all + k_used) * 3].copy_from_slice(&g.sh_rest[..k_used * 3]);
+    if k_all > 0 {
+        params.sh_rest.par_chunks_mut(k_all * 3).zip(&per).for_each(|(out, g)| out[..k_used * 3].copy_from_slice(&g.sh_rest[..k_used * 3]));
     }
     let (hw, hh) = (w as f32 / 2.0, h as f32 / 2.0);
-    let mean2d_ndc_norm = per_g.iter().map(|g| ((g.mean[0] * hw).powi(2) + (g.mean[1] * hh).powi(2)).sqrt()).collect();
+    let mean2d_ndc_norm = per_g.par_iter().map(|g| ((g.mean[0] * hw).powi(2) + (g.mean[1] * hh).powi(2)).sqrt()).collect();
     Gradients { params, mean2d_ndc_norm }
 }
 

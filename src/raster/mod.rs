@@ -65,29 +65,41 @@ pub fn forward_timed(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Im
     let mut n_visited = vec![0u32; n_pix];
     let band_pix = (w * TILE) as usize;
     let cull = cull_thresholds(&projected);
+    // Every tile composited in parallel (row-major within the tile), then copied into the image
+    // by bands of tile rows: the same per-pixel arithmetic as the decoder's banded renderer.
+    let n_tiles = (bins.tiles_x * bins.tiles_y) as usize;
+    let tiles: Vec<Vec<([f32; 3], f32, u32)>> = (0..n_tiles)
+        .into_par_iter()
+        .map_init(Vec::new, |local, t| {
+            let (tx, ty) = (t as u32 % bins.tiles_x, t as u32 / bins.tiles_x);
+            gather_tile(&projected, &cull, bins.tile(t), local);
+            let (x0, x1, y0, y1) = (tx * TILE, ((tx + 1) * TILE).min(w), ty * TILE, ((ty + 1) * TILE).min(h));
+            let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+            for py in y0..y1 {
+                for x in x0..x1 {
+                    out.push(composite(local, x as f32, py as f32));
+                }
+            }
+            out
+        })
+        .collect();
     img.data
         .par_chunks_mut(band_pix * 3)
         .zip(final_t.par_chunks_mut(band_pix))
         .zip(n_visited.par_chunks_mut(band_pix))
         .enumerate()
         .for_each(|(ty, ((band, band_t), band_n))| {
-            let ty = ty as u32;
-            let rows = (band_t.len() / w as usize) as u32;
-            let mut local = Vec::new();
             for tx in 0..bins.tiles_x {
-                gather_tile(&projected, &cull, bins.tile((ty * bins.tiles_x + tx) as usize), &mut local);
-                let x1 = ((tx + 1) * TILE).min(w);
-                for ly in 0..rows {
-                    let py = (ty * TILE + ly) as f32;
-                    for x in tx * TILE..x1 {
-                        let (c, t, n) = composite(&local, x as f32, py);
-                        let p = (ly * w + x) as usize;
-                        for k in 0..3 {
-                            band[p * 3 + k] = c[k] + t * opts.background[k];
-                        }
-                        band_t[p] = t;
-                        band_n[p] = n;
+                let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
+                let tile = &tiles[ty * bins.tiles_x as usize + tx as usize];
+                for (i, &(c, t, n)) in tile.iter().enumerate() {
+                    let (ly, x) = (i as u32 / (x1 - x0), x0 + i as u32 % (x1 - x0));
+                    let p = (ly * w + x) as usize;
+                    for k in 0..3 {
+                        band[p * 3 + k] = c[k] + t * opts.background[k];
                     }
+                    band_t[p] = t;
+                    band_n[p] = n;
                 }
             }
         });

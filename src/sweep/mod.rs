@@ -239,7 +239,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
     let t = Instant::now();
     let decoded = gscodec_decoder::decode(&out.bytes).map_err(|e| Error::failure(&dir.join("scene.gsc"), e))?;
     let decode_s = t.elapsed().as_secs_f64();
-    let (per_view, _) = crate::cli::eval::measure(&decoded, &input.views, input.background, &mut || {});
+    let (per_view, _) = crate::cli::eval::measure(&decoded, &input.views, input.background, &mut || {})?;
     let m = crate::metrics::view::mean(&per_view).ok_or_else(|| Error::input(&plan.input, "no views to measure"))?;
     let result = PointResult {
         lambda: p.lambda,

@@ -24,7 +24,13 @@ pub fn zeros_like(s: &Splats) -> Splats {
 /// First non-finite value, as `(gaussian, group)`.
 pub fn first_non_finite(s: &Splats) -> Option<(usize, Group)> {
     for g in group::present(s.sh_degree) {
-        let bad = group::per_gaussian(s, g).position(|v| v.iter().any(|x| !x.is_finite()));
+        // Blocks of Gaussians in parallel; the first block with a bad value gives the first index.
+        const BLOCK: usize = 4096;
+        let per: Vec<&[f32]> = group::per_gaussian(s, g).collect();
+        let bad = per
+            .par_chunks(BLOCK)
+            .enumerate()
+            .find_map_first(|(b, c)| c.iter().position(|v| v.iter().any(|x| !x.is_finite())).map(|i| b * BLOCK + i));
         if let Some(i) = bad {
             return Some((i, g));
         }

@@ -466,7 +466,9 @@ pub fn train_with(
         stages.rasterize += ft.rasterize;
 
         let t0 = Instant::now();
-        let (mut l, dl) = loss.loss_and_grad(&img, &frame.image, view_of(frame), it);
+        let target = frame.image.get()?;
+        let (mut l, dl) = loss.loss_and_grad(&img, &target, view_of(frame), it);
+        drop(target);
         let t1 = Instant::now();
         let grads = raster::backward(render_from, &state, &dl);
         let raster::Gradients { params: mut grad, mean2d_ndc_norm } = grads;
@@ -508,7 +510,7 @@ pub fn train_with(
         // otherwise make the scene read as nearly empty. Its time is not training time.
         let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
         let t_eval = Instant::now();
-        let test_psnr = if eval_now { mean_psnr_ssim(&params, &test_frames, dataset.background).map(|e| e.0) } else { None };
+        let test_psnr = if eval_now { mean_psnr_ssim(&params, &test_frames, dataset.background)?.map(|e| e.0) } else { None };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
         if cfg.densify {
             if sched.densifies(it) {
@@ -575,7 +577,7 @@ pub fn train_with(
             return Err(interrupted_error(run, it, cfg.iters));
         }
     }
-    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);
+    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background)?;
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
         last.test_psnr = Some(p);
     }

@@ -12,7 +12,7 @@ pub fn render_targets(scene: &Splats, cameras: &[Camera], background: [f32; 3]) 
     let frames = cameras
         .iter()
         .enumerate()
-        .map(|(i, cam)| Frame { index: i, name: format!("{i:04}"), camera: *cam, image: render(scene, cam, &opts) })
+        .map(|(i, cam)| Frame { index: i, name: format!("{i:04}"), camera: *cam, image: render(scene, cam, &opts).into() })
         .collect();
     Dataset { frames, background, ..Default::default() }
 }

@@ -82,7 +82,6 @@ impl TileBins {
 pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
     let (tiles_x, tiles_y) = (width.div_ceil(TILE), height.div_ceil(TILE));
     let n_tiles = (tiles_x * tiles_y) as usize;
-    // Counting pass, then scatter: memory is exactly the number of tile overlaps.
     let rects: Vec<[u32; 4]> =
         proj.par_iter().map(|p| if p.radius > 0.0 { math::tile_rect(p.mean, p.radius, width, height) } else { [0; 4] }).collect();
     // A Gaussian is listed in a tile only if it can reach alpha >= 1/255 at one of its pixels.
@@ -91,33 +90,49 @@ pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
         let bx = [x0 as f32, y0 as f32, ((x0 + TILE).min(width) - 1) as f32, ((y0 + TILE).min(height) - 1) as f32];
         math::reaches_box(p.mean, p.conic, p.opacity, bx)
     };
-    let mut counts = vec![0u32; n_tiles + 1];
-    for (p, r) in proj.iter().zip(&rects) {
-        for ty in r[1]..r[3] {
-            for tx in r[0]..r[2] {
-                if reaches(p, tx, ty) {
-                    counts[(ty * tiles_x + tx) as usize + 1] += 1;
+    // Bands of tile rows are binned in parallel, each scanning every rectangle in index order
+    // (a list of (tile, id) pairs, then a counting sort by tile), so every tile's list holds its
+    // Gaussians in ascending index order whatever the banding and the thread count.
+    let n_bands = (rayon::current_num_threads() * 4).clamp(1, tiles_y.max(1) as usize) as u32;
+    let bands: Vec<(Vec<u32>, Vec<u32>)> = (0..n_bands)
+        .into_par_iter()
+        .map(|b| {
+            let (y0, y1) = (tiles_y * b / n_bands, tiles_y * (b + 1) / n_bands);
+            let first = y0 * tiles_x;
+            let mut pairs: Vec<(u32, u32)> = Vec::new();
+            for (g, (p, r)) in proj.iter().zip(&rects).enumerate() {
+                for ty in r[1].max(y0)..r[3].min(y1) {
+                    for tx in r[0]..r[2] {
+                        if reaches(p, tx, ty) {
+                            pairs.push((ty * tiles_x + tx - first, g as u32));
+                        }
+                    }
                 }
             }
-        }
-    }
-    for t in 0..n_tiles {
-        counts[t + 1] += counts[t];
-    }
-    let ranges = counts.clone();
-    let mut ids = vec![0u32; ranges[n_tiles] as usize];
-    let mut cursor = counts;
-    for (g, (p, r)) in proj.iter().zip(&rects).enumerate() {
-        for ty in r[1]..r[3] {
-            for tx in r[0]..r[2] {
-                if !reaches(p, tx, ty) {
-                    continue;
-                }
-                let t = (ty * tiles_x + tx) as usize;
-                ids[cursor[t] as usize] = g as u32;
-                cursor[t] += 1;
+            // Local ranges (counts, then their prefix sums) and ids of the band's tiles.
+            let mut ranges = vec![0u32; ((y1 - y0) * tiles_x) as usize + 1];
+            for &(t, _) in &pairs {
+                ranges[t as usize + 1] += 1;
             }
-        }
+            for t in 1..ranges.len() {
+                ranges[t] += ranges[t - 1];
+            }
+            let mut cursor = ranges.clone();
+            let mut ids = vec![0u32; pairs.len()];
+            for (t, g) in pairs {
+                ids[cursor[t as usize] as usize] = g;
+                cursor[t as usize] += 1;
+            }
+            (ranges, ids)
+        })
+        .collect();
+    let mut ranges = Vec::with_capacity(n_tiles + 1);
+    ranges.push(0u32);
+    let mut ids = Vec::with_capacity(bands.iter().map(|b| b.1.len()).sum());
+    for (r, i) in bands {
+        let base = ids.len() as u32;
+        ranges.extend(r[1..].iter().map(|v| v + base));
+        ids.extend_from_slice(&i);
     }
     // Ids are ascending within a tile, so a stable sort on depth breaks ties by index.
     let mut chunks: Vec<&mut [u32]> = Vec::with_capacity(n_tiles);

@@ -343,10 +343,19 @@ pub fn train_with(
         checkpoint::catch_interrupt();
     }
     let (mut last_checkpoint, mut last_report) = (Instant::now(), Instant::now());
-    // Training images, uploaded once.
-    let targets: Vec<wgpu::Buffer> =
-        train_frames.iter().map(|f: &&Frame| gpu.storage_init("target", bytemuck::cast_slice(&f.image.data))).collect();
-    // The WD stage, one per image size (laid out on first use).
+    // Training images: uploaded once when the dataset holds them in memory; when they exceed its
+    // image budget (read on demand), one buffer is rewritten with each iteration's view.
+    let streamed = train_frames.iter().any(|f| f.image.is_streamed());
+    let targets: Vec<wgpu::Buffer> = if streamed {
+        vec![gpu.storage("target", train_frames.iter().map(|f| f.image.bytes()).max().unwrap_or(0))]
+    } else {
+        train_frames
+            .iter()
+            .map(|f: &&Frame| Ok(gpu.storage_init("target", bytemuck::cast_slice(&f.image.get()?.data))))
+            .collect::<Result<_>>()?
+    };
+    // The WD stage, one per image size (laid out on first use); reference statistics are cached
+    // by training-view index, so a streamed target works as well.
     let wd_config = (loss.kind != LossKind::L1ssim).then(|| wd::WdConfig::new(loss.kind, loss.wd_gamma, cfg.iters));
     let mut wd_stages: Vec<wd::WdStage> = Vec::new();
     let log_every = (cfg.iters / 500).max(1);
@@ -383,7 +392,13 @@ pub fn train_with(
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         session.project(&mut enc, &frame.camera, dataset.background, degree)?;
         session.rasterize(&mut enc, &frame.camera)?;
-        session.loss(&mut enc, &targets[fi], loss.ssim_weight);
+        let target = if streamed {
+            gpu.queue.write_buffer(&targets[0], 0, bytemuck::cast_slice(&frame.image.get()?.data));
+            &targets[0]
+        } else {
+            &targets[fi]
+        };
+        session.loss(&mut enc, target, loss.ssim_weight);
         if let Some(wc) = wd_config {
             let (w, h) = (frame.camera.width, frame.camera.height);
             let k = match wd_stages.iter().position(|st| (st.width, st.height) == (w, h)) {
@@ -393,7 +408,7 @@ pub fn train_with(
                     wd_stages.len() - 1
                 }
             };
-            wd_stages[k].record(&session, &mut enc, fi, &targets[fi], it >= wc.warmup)?;
+            wd_stages[k].record(&session, &mut enc, fi, target, it >= wc.warmup)?;
         }
         let stats_on = cfg.densify && it < sched.densify_until;
         session.backward(&mut enc, &frame.camera, stats_on);
@@ -418,7 +433,7 @@ pub fn train_with(
         // Held-out evaluation before densification (as the CPU trainer); not training time.
         let t_eval = Instant::now();
         let test_psnr = if eval_now && !test_frames.is_empty() {
-            mean_psnr_ssim(&session.download_params()?, &test_frames, dataset.background).map(|e| e.0)
+            mean_psnr_ssim(&session.download_params()?, &test_frames, dataset.background)?.map(|e| e.0)
         } else {
             None
         };
@@ -517,7 +532,7 @@ pub fn train_with(
     train_seconds += t_end.elapsed().as_secs_f64();
     gpu.check()?;
     let mut points = tally.points;
-    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);
+    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background)?;
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
         last.test_psnr = Some(p);
     }
