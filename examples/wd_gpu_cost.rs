@@ -23,7 +23,7 @@ fn main() {
     let mut params = random_splats(n, 1, 2).with_sh_degree(3);
     params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
     let cam = ds.frames[0].camera;
-    let target = gpu.storage_init("target", bytemuck::cast_slice(&ds.frames[0].image.data));
+    let target = gpu.storage_init("target", bytemuck::cast_slice(&ds.frames[0].image.get().unwrap().data));
     let mut s = Session::new(&gpu, &params).unwrap();
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     s.project(&mut enc, &cam, [1.0; 3], 3).unwrap();
