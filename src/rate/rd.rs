@@ -7,6 +7,7 @@
 
 use gscodec_decoder::render::render;
 use gscodec_decoder::{Image, RenderOptions, SceneError, Splats};
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::group::Group;
@@ -79,10 +80,86 @@ fn with_knob(c: &EncodeConfig, g: Group, m: f32) -> EncodeConfig {
     c
 }
 
+/// The trials of a search: each configuration is evaluated once (a configuration tried again
+/// reuses its result), and a batch of configurations is evaluated in parallel (rayon). Results
+/// come back in the batch's order, and every evaluation is itself deterministic, so the search's
+/// choices and the chosen file do not depend on the thread count.
+struct Trials<'a> {
+    ev: Evaluator<'a>,
+    seen: Vec<(EncodeConfig, Outcome)>,
+}
+
+/// (bytes, D, encoder report) of one configuration.
+type Outcome = (usize, f64, super::EncodeReport);
+
+impl Trials<'_> {
+    /// The outcomes of `configs`, in order.
+    fn run(&mut self, configs: &[EncodeConfig]) -> Result<Vec<Outcome>, SceneError> {
+        let mut todo: Vec<EncodeConfig> = Vec::new();
+        for c in configs {
+            if !self.seen.iter().any(|(k, _)| k == c) && !todo.contains(c) {
+                todo.push(*c);
+            }
+        }
+        let done: Vec<Result<Outcome, SceneError>> = todo.par_iter().map(|c| self.ev.eval_report(c)).collect();
+        for (c, r) in todo.into_iter().zip(done) {
+            self.seen.push((c, r?));
+        }
+        Ok(configs.iter().map(|c| self.seen.iter().find(|(k, _)| k == c).expect("evaluated above").1.clone()).collect())
+    }
+
+    fn one(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
+        Ok(self.run(std::slice::from_ref(config))?.remove(0))
+    }
+}
+
+/// The trials a search has recorded, reported to `on_step` as they come.
+struct Log<'f, F> {
+    path: Vec<Trial>,
+    on_step: &'f mut F,
+    lambda: Lambda,
+}
+
+impl<F: FnMut(&Trial)> Log<'_, F> {
+    fn j(&self, bytes: usize, d: f64) -> f64 {
+        d + self.lambda.rate_cost(bytes)
+    }
+
+    fn record(&mut self, change: String, bytes: usize, d: f64) {
+        let psnr = gscodec_decoder::render::psnr_of_mse(d / (255.0 * 255.0));
+        let p = Trial { step: self.path.len(), change, bytes, d, psnr, j: self.j(bytes, d) };
+        (self.on_step)(&p);
+        self.path.push(p);
+    }
+
+    /// One stage of whole-file choices: evaluates the candidates (one parallel batch), records
+    /// each, and returns the (J, config) of lowest J, the first of equals, or `keep` when none
+    /// is below `keep`'s J.
+    fn stage(
+        &mut self,
+        trials: &mut Trials,
+        keep: (f64, EncodeConfig),
+        cands: Vec<(String, EncodeConfig)>,
+    ) -> Result<(f64, EncodeConfig), SceneError> {
+        let configs: Vec<EncodeConfig> = cands.iter().map(|c| c.1).collect();
+        let mut best = keep;
+        for ((name, c), (b, d, _)) in cands.into_iter().zip(trials.run(&configs)?) {
+            self.record(name, b, d);
+            if self.j(b, d) < best.0 {
+                best = (self.j(b, d), c);
+            }
+        }
+        Ok(best)
+    }
+}
+
 /// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the pruning threshold, then the SH degree, then per group
 /// the multiplier of the fine step minimising `ΔD_g + λ·R_g`. `on_step` sees each trial.
+///
+/// The trials of each stage are independent and run in parallel; the result (and the trial
+/// list) is the same for any number of threads.
 pub fn search(scene: &Splats, lambda: Lambda, on_step: impl FnMut(&Trial)) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
     search_from(scene, lambda, Steps::default().scaled(0.7), on_step)
 }
@@ -96,103 +173,78 @@ pub fn search_from(
     mut on_step: impl FnMut(&Trial),
 ) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
     scene.validate()?;
-    let ev = Evaluator::new(scene);
-    let j = |bytes: usize, d: f64| d + lambda.rate_cost(bytes);
-    let mut path = Vec::new();
-    let mut record = |change: String, bytes: usize, d: f64, path: &mut Vec<Trial>| {
-        let p =
-            Trial { step: path.len(), change, bytes, d, psnr: gscodec_decoder::render::psnr_of_mse(d / (255.0 * 255.0)), j: j(bytes, d) };
-        on_step(&p);
-        path.push(p);
-    };
+    let mut trials = Trials { ev: Evaluator::new(scene), seen: Vec::new() };
+    let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
     // 1. Pruning threshold (at fine steps), including "everything" (an empty file).
-    let mut best = (f64::INFINITY, fine);
-    for t in PRUNE_THRESHOLDS {
-        let c = EncodeConfig { min_opacity: t / 255.0, ..fine };
-        let (b, d) = ev.eval(&c)?;
-        record(format!("prune<{t}/255"), b, d, &mut path);
-        if j(b, d) < best.0 {
-            best = (j(b, d), c);
-        }
-    }
+    let cands = PRUNE_THRESHOLDS.iter().map(|&t| (format!("prune<{t}/255"), EncodeConfig { min_opacity: t / 255.0, ..fine })).collect();
+    let best = log.stage(&mut trials, (f64::INFINITY, fine), cands)?;
     // 1b. Footprint pruning (small faint Gaussians) at quantiles of the kept Gaussians' footprints.
     let kept = super::quantise::prune(scene, best.1.min_opacity);
     let mut fp: Vec<f32> = (0..kept.len()).map(|i| super::quantise::footprint(&kept, i)).collect();
     fp.sort_by(f32::total_cmp);
     let start = best.1;
-    for f in FOOTPRINT_QUANTILES {
-        let Some(&t) = fp.get((fp.len() as f64 * f64::from(f)) as usize) else { continue };
-        let c = EncodeConfig { min_footprint: t, ..start };
-        let (b, d) = ev.eval(&c)?;
-        record(format!("footprint<q{f}"), b, d, &mut path);
-        if j(b, d) < best.0 {
-            best = (j(b, d), c);
-        }
-    }
-    let base = best.1;
-    let (b0, _) = ev.eval(&base)?;
+    let cands = FOOTPRINT_QUANTILES
+        .iter()
+        .filter_map(|&f| {
+            fp.get((fp.len() as f64 * f64::from(f)) as usize)
+                .map(|&t| (format!("footprint<q{f}"), EncodeConfig { min_footprint: t, ..start }))
+        })
+        .collect();
+    let base = log.stage(&mut trials, best, cands)?.1;
+    let (b0, _, _) = trials.one(&base)?;
     if b0 < 200 {
-        return Ok((EncodeConfig { learned_tables: true, ..base }, path)); // nothing (or almost nothing) left to allocate
+        return Ok((EncodeConfig { learned_tables: true, ..base }, log.path)); // nothing (or almost nothing) left to allocate
     }
     // 2. SH degree (at fine steps): keep the degree with the lowest J.
-    let mut best = (f64::INFINITY, base);
-    for deg in (0..=scene.sh_degree.min(3)).rev() {
-        let c = EncodeConfig { max_sh_degree: deg, ..base };
-        let (b, d) = ev.eval(&c)?;
-        record(format!("sh_degree={deg}"), b, d, &mut path);
-        if j(b, d) < best.0 {
-            best = (j(b, d), c);
-        }
-    }
-    let base = best.1;
-    let (b0, d0, r0) = ev.eval_report(&base)?;
+    let cands =
+        (0..=scene.sh_degree.min(3)).rev().map(|deg| (format!("sh_degree={deg}"), EncodeConfig { max_sh_degree: deg, ..base })).collect();
+    let base = log.stage(&mut trials, (f64::INFINITY, base), cands)?.1;
     let group_bytes =
         |r: &super::EncodeReport, k: Group| r.groups.iter().find(|g| g.group == k.name()).map_or(0, |g| g.stream_bytes + g.table_bytes);
     // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
-    //    (half-octave moves around the first choice), then quarter-octave moves.
+    //    (half-octave moves around the first choice), then quarter-octave moves. Every trial of
+    //    a pass starts from the pass's start, so a pass is one parallel batch.
     let mut chosen = base;
     for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
         let start = chosen;
-        let (b0, d0, r0) = if pass == 0 { (b0, d0, r0.clone()) } else { ev.eval_report(&start)? };
-        for k in Group::ALL {
-            if group_bytes(&r0, k) == 0 {
-                continue;
-            }
-            let mut best_k = (f64::INFINITY, 1.0f32);
-            for &m in mults {
-                let c = with_knob(&start, k, m);
-                let (b, d, gb) = if m == 1.0 {
-                    (b0, d0, group_bytes(&r0, k))
-                } else {
-                    let (b, d, r) = ev.eval_report(&c)?;
-                    (b, d, group_bytes(&r, k))
-                };
-                record(format!("pass{pass} {}x{m}", k.name()), b, d, &mut path);
-                let cost = (d - d0) + lambda.rate_cost(gb);
-                if cost < best_k.0 {
-                    best_k = (cost, m);
+        let (_, d0, r0) = trials.one(&start)?;
+        let knobs: Vec<(Group, f32)> =
+            Group::ALL.into_iter().filter(|&k| group_bytes(&r0, k) > 0).flat_map(|k| mults.iter().map(move |&m| (k, m))).collect();
+        let configs: Vec<EncodeConfig> = knobs.iter().map(|&(k, m)| with_knob(&start, k, m)).collect();
+        let outcomes = trials.run(&configs)?;
+        let mut best: Vec<(Group, f64, f32)> = Vec::new();
+        for (&(k, m), (b, d, r)) in knobs.iter().zip(&outcomes) {
+            log.record(format!("pass{pass} {}x{m}", k.name()), *b, *d);
+            let cost = (d - d0) + lambda.rate_cost(group_bytes(r, k));
+            match best.last_mut() {
+                Some(x) if x.0 == k => {
+                    if cost < x.1 {
+                        *x = (k, cost, m);
+                    }
                 }
+                _ => best.push((k, cost, m)),
             }
-            chosen = with_knob(&chosen, k, best_k.1);
+        }
+        for (k, _, m) in best {
+            chosen = with_knob(&chosen, k, m);
         }
     }
     // 4. SH rest dead zone (whole-file J: it changes only the SH band groups).
     if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
-        let (b, d) = ev.eval(&chosen)?;
-        let mut best = (j(b, d), chosen);
-        for dz in DEADZONES {
-            let mut c = chosen;
-            c.steps.rest_deadzone = dz;
-            let (b, d) = ev.eval(&c)?;
-            record(format!("rest_deadzone={dz}"), b, d, &mut path);
-            if j(b, d) < best.0 {
-                best = (j(b, d), c);
-            }
-        }
-        chosen = best.1;
+        let (b, d, _) = trials.one(&chosen)?;
+        let cands = DEADZONES
+            .iter()
+            .map(|&dz| {
+                let mut c = chosen;
+                c.steps.rest_deadzone = dz;
+                (format!("rest_deadzone={dz}"), c)
+            })
+            .collect();
+        let keep = (log.j(b, d), chosen);
+        chosen = log.stage(&mut trials, keep, cands)?.1;
     }
-    Ok((EncodeConfig { learned_tables: true, ..chosen }, path))
+    Ok((EncodeConfig { learned_tables: true, ..chosen }, log.path))
 }
 
 #[cfg(test)]
@@ -216,5 +268,25 @@ mod tests {
             }
             last = Some((bytes, d));
         }
+    }
+
+    /// The parallel search chooses the same configuration, records the same trials and writes
+    /// the same bytes on 1 and 2 threads.
+    #[test]
+    fn the_search_is_the_same_on_one_and_two_threads() {
+        let scene = crate::sample::scene(300, 2);
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let (cfg, path) = search(&scene, Lambda::new(20.0).unwrap(), |_| {}).unwrap();
+                let trials: Vec<(String, usize, u64)> = path.into_iter().map(|t| (t.change, t.bytes, t.d.to_bits())).collect();
+                (cfg, trials, super::super::encode(&scene, &cfg).unwrap().0)
+            })
+        };
+        let (one, two) = (run(1), run(2));
+        assert!(one.1.len() > 40, "{} trials", one.1.len());
+        assert_eq!(one.0, two.0);
+        assert_eq!(one.1, two.1);
+        assert_eq!(one.2, two.2, "the chosen file differs between 1 and 2 threads");
     }
 }
