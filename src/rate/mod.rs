@@ -31,6 +31,10 @@ pub struct EncodeConfig {
     /// Gaussians whose footprint (opacity × area, [`quantise::footprint`]) is below this are
     /// pruned too (0 = off; the RD search sets it).
     pub min_footprint: f32,
+    /// Per SH band 1..=3: Gaussians whose band contribution ([`quantise::band_contribution`],
+    /// weighted by [`quantise::footprint`]) is below this have that band's coefficients zeroed
+    /// (0 = keep all; the RD search sets it).
+    pub sh_drop: [f32; 3],
     /// SH bands above this degree are left out.
     pub max_sh_degree: u8,
     /// Also fit the learned density per channel and store it where it is cheaper than the
@@ -40,7 +44,14 @@ pub struct EncodeConfig {
 
 impl Default for EncodeConfig {
     fn default() -> Self {
-        EncodeConfig { steps: Steps::default(), min_opacity: 1.0 / 255.0, min_footprint: 0.0, max_sh_degree: 3, learned_tables: true }
+        EncodeConfig {
+            steps: Steps::default(),
+            min_opacity: 1.0 / 255.0,
+            min_footprint: 0.0,
+            sh_drop: [0.0; 3],
+            max_sh_degree: 3,
+            learned_tables: true,
+        }
     }
 }
 
@@ -57,11 +68,20 @@ impl EncodeConfig {
     }
 }
 
+/// The Gaussians of `splats` that `config`'s pruning keeps (opacity, then footprint).
+pub fn pruned(splats: &Splats, config: &EncodeConfig) -> Splats {
+    quantise::prune_footprint(&quantise::prune(splats, config.min_opacity), config.min_footprint)
+}
+
 /// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
 pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let mut s = quantise::prune_footprint(&quantise::prune(splats, config.min_opacity), config.min_footprint);
+    let mut s = pruned(splats, config);
+    if config.sh_drop.iter().any(|&t| t > 0.0) {
+        let weights: Vec<f32> = (0..s.len()).map(|i| quantise::footprint(&s, i)).collect();
+        quantise::drop_sh_bands(&mut s, &weights, config.sh_drop);
+    }
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);
     }

@@ -218,6 +218,38 @@ pub fn prune_footprint(splats: &Splats, min_footprint: f32) -> Splats {
     out
 }
 
+/// How much colour band `b` (1..=3) of Gaussian `i` adds to the views: `weight · ‖c_{i,b}‖₂`,
+/// where `c_{i,b}` are the band's rest coefficients (all three colour channels). For the real
+/// orthonormal SH basis, `‖c_{i,b}‖₂² / 4π` is the mean over view directions of the squared
+/// colour the band adds, so the norm is its RMS colour up to one constant for every band;
+/// `weight` says how much of the views the Gaussian covers (e.g. its [`footprint`]).
+pub fn band_contribution(splats: &Splats, i: usize, b: u8, weight: f32) -> f32 {
+    let k = splats.rest_coeffs();
+    let (b, first) = (usize::from(b), usize::from(b) * usize::from(b) - 1);
+    let c = &splats.sh_rest[(i * k + first) * 3..(i * k + first + 2 * b + 1) * 3];
+    weight * c.iter().map(|x| x * x).sum::<f32>().sqrt()
+}
+
+/// Per-Gaussian SH band dropping: zeroes the rest coefficients of band `b` of every Gaussian
+/// whose [`band_contribution`] (with `weights[i]`) is below `thresholds[b − 1]` (0 keeps all).
+/// Zeros are cheap under the context tables, and a band that ends up all zero is left out.
+pub fn drop_sh_bands(splats: &mut Splats, weights: &[f32], thresholds: [f32; 3]) {
+    let k = splats.rest_coeffs();
+    for b in 1..=splats.sh_degree.min(3) {
+        let t = thresholds[usize::from(b) - 1];
+        if t <= 0.0 {
+            continue;
+        }
+        let first = usize::from(b) * usize::from(b) - 1;
+        let w = (2 * usize::from(b) + 1) * 3;
+        for (i, &wt) in weights.iter().enumerate().take(splats.len()) {
+            if band_contribution(splats, i, b, wt) < t {
+                splats.sh_rest[(i * k + first) * 3..][..w].fill(0.0);
+            }
+        }
+    }
+}
+
 /// The scene a decoder will restore from `q`: the decoder's dequantisation and assembler.
 pub fn dequantise(q: &Quantised) -> Splats {
     let positions: Vec<f32> = q.morton.iter().flat_map(|&m| position_of(m, &q.grid)).collect();
@@ -265,5 +297,37 @@ mod tests {
         let kept = prune_footprint(&s, f[0] * 1.01);
         assert_eq!(kept.positions, vec![[1.0; 3], [2.0; 3]]);
         assert_eq!(prune_footprint(&s, 0.0).len(), 3);
+    }
+
+    #[test]
+    fn sh_band_dropping_zeroes_only_weak_bands_and_threshold_zero_is_the_identity() {
+        let s = crate::sample::scene(200, 5);
+        assert_eq!(s.sh_degree, 3);
+        let w: Vec<f32> = (0..s.len()).map(|i| footprint(&s, i)).collect();
+        let mut same = s.clone();
+        drop_sh_bands(&mut same, &w, [0.0; 3]);
+        assert_eq!(same, s, "threshold 0 changes nothing");
+        // Band 2 only, at its median contribution: about half its rows zeroed, nothing else touched.
+        let mut c: Vec<f32> = (0..s.len()).map(|i| band_contribution(&s, i, 2, w[i])).collect();
+        c.sort_by(f32::total_cmp);
+        let t = c[c.len() / 2];
+        let mut d = s.clone();
+        drop_sh_bands(&mut d, &w, [0.0, t, 0.0]);
+        let k = s.rest_coeffs();
+        let mut zeroed = 0;
+        for i in 0..s.len() {
+            for j in 0..k {
+                let (a, b) = (&s.sh_rest[(i * k + j) * 3..][..3], &d.sh_rest[(i * k + j) * 3..][..3]);
+                let band2 = (3..8).contains(&j);
+                if band2 && band_contribution(&s, i, 2, w[i]) < t {
+                    assert_eq!(b, [0.0; 3]);
+                } else {
+                    assert_eq!(a, b, "Gaussian {i} coefficient {j} changed");
+                }
+            }
+            zeroed += usize::from(band_contribution(&s, i, 2, w[i]) < t);
+        }
+        assert_eq!(zeroed, s.len() / 2);
+        assert_eq!((d.positions.clone(), d.sh_dc.clone()), (s.positions.clone(), s.sh_dc.clone()));
     }
 }

@@ -67,6 +67,8 @@ const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 const PRUNE_THRESHOLDS: [f32; 12] = [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 64.0, 512.0];
 /// Fractions of the Gaussians (smallest footprints first) the footprint pruning tries.
 const FOOTPRINT_QUANTILES: [f32; 7] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5];
+/// Fractions of the kept Gaussians (weakest first) whose band is zeroed by SH band dropping.
+const SH_DROP_QUANTILES: [f32; 6] = [0.1, 0.25, 0.4, 0.55, 0.7, 0.85];
 /// SH rest dead zones tried after the steps are chosen (see `Steps::rest_deadzone`).
 const DEADZONES: [f32; 4] = [0.1, 0.2, 0.3, 0.4];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
@@ -230,7 +232,29 @@ pub fn search_from(
             chosen = with_knob(&chosen, k, m);
         }
     }
-    // 4. SH rest dead zone (whole-file J: it changes only the SH band groups).
+    // 4. Per-Gaussian SH band dropping (whole-file J), band by band: thresholds at quantiles of
+    //    the kept Gaussians' band contributions.
+    if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
+        let kept = super::pruned(scene, &chosen);
+        let weights: Vec<f32> = (0..kept.len()).map(|i| super::quantise::footprint(&kept, i)).collect();
+        for b in 1..=chosen.max_sh_degree.min(kept.sh_degree) {
+            let mut c: Vec<f32> = (0..kept.len()).map(|i| super::quantise::band_contribution(&kept, i, b, weights[i])).collect();
+            c.sort_by(f32::total_cmp);
+            let cands = SH_DROP_QUANTILES
+                .iter()
+                .filter_map(|&f| {
+                    let t = *c.get((c.len() as f64 * f64::from(f)) as usize)?;
+                    let mut cfg = chosen;
+                    cfg.sh_drop[usize::from(b) - 1] = t;
+                    (t > 0.0).then(|| (format!("sh_drop band{b}<q{f}"), cfg))
+                })
+                .collect();
+            let (bytes, d, _) = trials.one(&chosen)?;
+            let keep = (log.j(bytes, d), chosen);
+            chosen = log.stage(&mut trials, keep, cands)?.1;
+        }
+    }
+    // 5. SH rest dead zone (whole-file J: it changes only the SH band groups).
     if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
         let (b, d, _) = trials.one(&chosen)?;
         let cands = DEADZONES
