@@ -3,7 +3,7 @@
 
 use glam::{Mat3, Vec3};
 use gscodec_decoder::math::SH_C0;
-use gscodec_decoder::render::{reference::render_f64, render};
+use gscodec_decoder::render::{contributions, reference::render_f64, render};
 use gscodec_decoder::testkit::{random_splats_in, SceneRanges};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
 
@@ -147,5 +147,70 @@ fn render_is_deterministic_across_thread_counts() {
     let four = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
     let a = one.install(|| render(&s, &cam, &RenderOptions::default()));
     let b = four.install(|| render(&s, &cam, &RenderOptions::default()));
+    assert_eq!(a, b);
+}
+
+/// Camera at z = −4 looking along +z (depth = z + 4).
+fn axis_camera(w: u32, h: u32) -> Camera {
+    Camera::new(w, h, 32.0, 32.0, Mat3::IDENTITY, Vec3::new(0.0, 0.0, 4.0))
+}
+
+#[test]
+fn contributions_favour_the_front_of_two_opaque_gaussians() {
+    let mut s = Splats::new(0);
+    // Index 0 behind, index 1 in front (same size, opacity 0.99 at the centre): the back one shows
+    // only through the front one's translucent skirt and its 1 % at the centre.
+    s.push([0.0, 0.0, 1.0], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 8.0, [0.0; 3], &[]);
+    s.push([0.0, 0.0, 0.0], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 8.0, [0.0; 3], &[]);
+    let c = contributions(&s, &axis_camera(64, 64), &RenderOptions::default());
+    assert_eq!(c.len(), 2);
+    assert!(c[1] > 2.0 * c[0] && c[0] > 0.0, "front {} back {}", c[1], c[0]);
+    // Alone, the back one covers more than behind the front one.
+    let mut back = s.clone();
+    back.retain_indices(|i| i == 0);
+    let alone = contributions(&back, &axis_camera(64, 64), &RenderOptions::default());
+    assert!(alone[0] > c[0], "alone {} behind {}", alone[0], c[0]);
+}
+
+#[test]
+fn contributions_sum_to_the_covered_area() {
+    // With black Gaussians (colour clamped to 0) on a white background, each pixel is T_final.
+    let mut s = random_splats_in(1500, 0, 11, &SCENE);
+    s.sh_dc.iter_mut().for_each(|c| *c = [-10.0; 3]);
+    let cam = front_camera(80, 64);
+    let opts = RenderOptions { background: [1.0; 3], max_sh_degree: 0 };
+    let img = render(&s, &cam, &opts);
+    let covered: f64 = img.data.iter().step_by(3).map(|&t| 1.0 - t as f64).sum();
+    let c = contributions(&s, &cam, &opts);
+    assert_eq!(c.len(), s.len());
+    assert!(c.iter().all(|v| v.is_finite() && *v >= 0.0));
+    let total: f64 = c.iter().map(|&v| v as f64).sum();
+    assert!(covered > 500.0, "the scene covers too little of the frame to test: {covered}");
+    assert!((total - covered).abs() < 1e-4 * covered, "Σ contributions {total} vs Σ (1 − T) {covered}");
+    // Some Gaussians are hidden or under 1/255 everywhere, and score exactly 0.
+    assert!(c.iter().any(|&v| v == 0.0));
+}
+
+#[test]
+fn contributions_are_zero_outside_the_view() {
+    let mut s = Splats::new(0);
+    s.push([0.0; 3], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 2.0, [0.0; 3], &[]); // seen
+    s.push([50.0, 0.0, 0.0], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 2.0, [0.0; 3], &[]); // off-screen
+    s.push([0.0, 0.0, -6.0], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 2.0, [0.0; 3], &[]); // behind the camera
+    s.push([0.3, 0.0, 0.0], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], -9.0, [0.0; 3], &[]); // alpha < 1/255
+    let c = contributions(&s, &axis_camera(64, 64), &RenderOptions::default());
+    assert!(c[0] > 1.0, "{c:?}");
+    assert_eq!(&c[1..], &[0.0; 3]);
+    assert!(contributions(&Splats::new(3), &axis_camera(8, 8), &RenderOptions::default()).is_empty());
+}
+
+#[test]
+fn contributions_are_deterministic_across_thread_counts() {
+    let s = random_splats_in(2000, 1, 5, &SCENE);
+    let cam = front_camera(96, 80);
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let four = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
+    let a = one.install(|| contributions(&s, &cam, &RenderOptions::default()));
+    let b = four.install(|| contributions(&s, &cam, &RenderOptions::default()));
     assert_eq!(a, b);
 }

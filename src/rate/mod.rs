@@ -3,12 +3,14 @@
 //! * [`quantise`] — scene ⇄ integer channels (Morton-ordered position grid, smallest-three
 //!   rotations, per-channel steps) and pruning.
 //! * [`group`] — the one attribute-group type ([`group::Group`]) and per-group maps.
+//! * [`importance`] — per-Gaussian significance (blending weight summed over the standard views).
 //! * [`lambda`] — [`Lambda`], the one unit of the rate–distortion trade-off, and its conversions.
 //! * [`tables`] — the integer tables written to the file and their exact cost.
 //! * [`encode`] — streams per (group, chunk) and the container.
 
 pub mod encode;
 pub mod group;
+pub mod importance;
 pub mod lambda;
 pub mod model;
 pub mod quantise;

@@ -177,6 +177,14 @@ pub fn gather_tile(proj: &[Projected], cull: &[f32], ids: &[u32], out: &mut Vec<
 /// entries visited (what a backward pass needs to walk the list back).
 #[inline]
 pub fn composite(list: &[TileGaussian], px: f32, py: f32) -> ([f32; 3], f32, u32) {
+    composite_with(list, px, py, |_, _| ())
+}
+
+/// [`composite`], also calling `blend(j, α·T)` for every list entry `j` that is blended in, with
+/// its blending weight (the share of the pixel it covers). The weights of a pixel sum to
+/// `1 − T_final` up to rounding.
+#[inline]
+pub fn composite_with(list: &[TileGaussian], px: f32, py: f32, mut blend: impl FnMut(usize, f32)) -> ([f32; 3], f32, u32) {
     let mut c = [0.0f32; 3];
     let mut t = 1.0f32;
     for (j, p) in list.iter().enumerate() {
@@ -196,6 +204,7 @@ pub fn composite(list: &[TileGaussian], px: f32, py: f32) -> ([f32; 3], f32, u32
         for k in 0..3 {
             c[k] += p.color[k] * alpha * t;
         }
+        blend(j, alpha * t);
         t = next_t;
     }
     (c, t, list.len() as u32)
@@ -203,22 +212,64 @@ pub fn composite(list: &[TileGaussian], px: f32, py: f32) -> ([f32; 3], f32, u32
 
 /// Renders `splats` from `cam` with the reference 3DGS semantics (see DESIGN §3).
 pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Image {
-    let (w, h) = (cam.width, cam.height);
     let proj = preprocess(splats, cam, opts.max_sh_degree);
-    let bins = bin_tiles(&proj, w, h);
-    let cull = cull_thresholds(&proj);
-    let mut img = Image::filled(w, h, [0.0; 3]);
+    let bins = bin_tiles(&proj, cam.width, cam.height);
+    shade::<false>(&proj, &bins, cam, opts, &mut [])
+}
+
+/// For every Gaussian of `splats`, the sum over the pixels of the frame [`render`] draws from
+/// `cam` of its blending weight `α·T` there: the area (in pixels) it covers in the image, after
+/// occlusion. The same culling, the same `α < 1/255` skip and the same early stop as the render;
+/// summed over the Gaussians it equals `Σ_pixels (1 − T_final)` up to rounding. Deterministic:
+/// weights are summed per tile-list entry, then per Gaussian in tile-list order (in f64).
+pub fn contributions(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Vec<f32> {
+    let proj = preprocess(splats, cam, opts.max_sh_degree);
+    let bins = bin_tiles(&proj, cam.width, cam.height);
+    let mut weights = vec![0.0f32; bins.ids.len()];
+    shade::<true>(&proj, &bins, cam, opts, &mut weights);
+    let mut sum = vec![0.0f64; splats.len()];
+    for (&g, &w) in bins.ids.iter().zip(&weights) {
+        sum[g as usize] += w as f64;
+    }
+    sum.into_iter().map(|v| v as f32).collect()
+}
+
+/// Composites every pixel, one task per row of tiles. With `RECORD`, also adds each blended
+/// entry's weight `α·T` into `weights[k]`, `k` indexing `bins.ids` (one slot per tile-list entry;
+/// `weights` is then `bins.ids.len()` long, otherwise empty).
+fn shade<const RECORD: bool>(proj: &[Projected], bins: &TileBins, cam: &Camera, opts: &RenderOptions, weights: &mut [f32]) -> Image {
+    let w = cam.width;
+    let cull = cull_thresholds(proj);
+    let mut img = Image::filled(w, cam.height, [0.0; 3]);
     let row_len = (w * 3) as usize;
-    // One task per tile row; rows of pixels are disjoint slices of the output.
-    img.data.par_chunks_mut(row_len * TILE as usize).enumerate().for_each(|(ty, band)| {
+    // The tile-list entries of each row of tiles: disjoint slices of `weights`.
+    let mut bands: Vec<&mut [f32]> = Vec::with_capacity(bins.tiles_y as usize);
+    let mut rest = weights;
+    for ty in 0..bins.tiles_y {
+        let row = |ty: u32| bins.ranges[(ty * bins.tiles_x) as usize] as usize;
+        let len = if RECORD { row(ty + 1) - row(ty) } else { 0 };
+        let (head, tail) = std::mem::take(&mut rest).split_at_mut(len);
+        bands.push(head);
+        rest = tail;
+    }
+    // Rows of pixels are disjoint slices of the output.
+    img.data.par_chunks_mut(row_len * TILE as usize).zip(bands).enumerate().for_each(|(ty, (band, band_w))| {
+        let ty = ty as u32;
+        let band_start = bins.ranges[(ty * bins.tiles_x) as usize];
         let mut local = Vec::new();
         for tx in 0..bins.tiles_x {
-            gather_tile(&proj, &cull, bins.tile((ty as u32 * bins.tiles_x + tx) as usize), &mut local);
+            let t = (ty * bins.tiles_x + tx) as usize;
+            gather_tile(proj, &cull, bins.tile(t), &mut local);
+            let offset = (bins.ranges[t] - band_start) as usize;
             let x1 = ((tx + 1) * TILE).min(w);
             for (ly, row) in band.chunks_mut(row_len).enumerate() {
-                let py = (ty as u32 * TILE + ly as u32) as f32;
+                let py = (ty * TILE + ly as u32) as f32;
                 for x in tx * TILE..x1 {
-                    let (c, t, _) = composite(&local, x as f32, py);
+                    let (c, t, _) = composite_with(&local, x as f32, py, |j, a| {
+                        if RECORD {
+                            band_w[offset + j] += a;
+                        }
+                    });
                     for k in 0..3 {
                         row[x as usize * 3 + k] = c[k] + t * opts.background[k];
                     }

@@ -1,0 +1,57 @@
+//! Importance of each Gaussian: how much of the scene's standard views it covers.
+//!
+//! [`significance`] renders the scene's standard orbit views — the cameras of the RD search
+//! ([`super::rd::Evaluator`]): [`crate::views::orbit_cameras`] with up −y, [`VIEWS`] views of
+//! [`SIZE`]×[`SIZE`] pixels — and sums, per Gaussian, its blending weight `α·T` over every pixel
+//! ([`gscodec_decoder::render::contributions`]). The unit is pixels of those views: a Gaussian
+//! that alone covers one pixel fully in one view scores 1; one that no view sees (culled,
+//! off-screen, always under 1/255 alpha or behind opaque Gaussians) scores 0.
+
+use gscodec_decoder::render::contributions;
+use gscodec_decoder::{RenderOptions, Splats};
+
+use super::rd::{SIZE, VIEWS};
+use crate::views::{orbit_cameras, UpAxis};
+
+/// Per Gaussian, the sum over the standard views of its blending weight `α·T` over all pixels
+/// (see the module docs). Deterministic; the views are summed in order, in f64.
+pub fn significance(scene: &Splats) -> Vec<f32> {
+    let cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector());
+    // The weights do not depend on colour: skip the SH bands.
+    let opts = RenderOptions { max_sh_degree: 0, ..RenderOptions::default() };
+    let mut sum = vec![0.0f64; scene.len()];
+    for cam in &cams {
+        for (s, c) in sum.iter_mut().zip(contributions(scene, cam, &opts)) {
+            *s += c as f64;
+        }
+    }
+    sum.into_iter().map(|v| v as f32).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gscodec_decoder::testkit::random_splats;
+
+    #[test]
+    fn significance_sums_the_views_and_ignores_what_no_view_sees() {
+        let mut s = random_splats(300, 1, 4);
+        // Far along the up axis (−y): every orbit camera looks 25° down, so none sees it.
+        s.push([0.0, -1000.0, 0.0], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 4.0, [0.0; 3], &[0.0; 9]);
+        let sig = significance(&s);
+        assert_eq!(sig.len(), s.len());
+        assert_eq!(sig[300], 0.0);
+        // The total is the area the scene covers in the views: Σ_views Σ_pixels (1 − T_final),
+        // read off renders of black Gaussians on white.
+        let mut black = s.clone();
+        black.sh_dc.iter_mut().for_each(|c| *c = [-10.0; 3]);
+        let opts = RenderOptions { background: [1.0; 3], max_sh_degree: 0 };
+        let covered: f64 = orbit_cameras(&s, VIEWS, SIZE, SIZE, UpAxis::NegY.vector())
+            .iter()
+            .map(|c| gscodec_decoder::render::render(&black, c, &opts).data.iter().step_by(3).map(|&t| 1.0 - t as f64).sum::<f64>())
+            .sum();
+        let total: f64 = sig.iter().map(|&v| v as f64).sum();
+        assert!(covered > 1000.0, "{covered}");
+        assert!((total - covered).abs() < 1e-4 * covered, "Σ significance {total} vs covered {covered}");
+    }
+}
