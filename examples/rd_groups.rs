@@ -43,7 +43,14 @@ fn main() {
     let (fine_bytes, fine_psnr) = psnr_of(&fine);
     println!("{}: λ {lambda}, {} → {} Gaussians, SH degree {}", args[1], scene.len(), r.gaussians, r.sh_degree);
     println!("chosen: {all_bytes} B, {all_psnr:.2} dB; fine start: {fine_bytes} B, {fine_psnr:.2} dB");
-    println!("chosen steps: {:?}, min_opacity {}/255, min_footprint {:e}", chosen.steps, chosen.min_opacity * 255.0, chosen.min_footprint);
+    println!(
+        "chosen steps: {:?}, min_opacity {}/255, min_footprint {:e}, min_significance {:e}, sh_drop {:?}",
+        chosen.steps,
+        chosen.min_opacity * 255.0,
+        chosen.min_footprint,
+        chosen.min_significance,
+        chosen.sh_drop
+    );
     let spz = args.get(3).map(|p| spz_streams(p)).unwrap_or_default();
     let spz_bits = |names: &[&str]| -> String {
         if spz.is_empty() {
@@ -59,6 +66,7 @@ fn main() {
         *c.steps.of_mut(g) = chosen.steps.of(g);
         if g.sh_band() > 0 {
             c.steps.rest_deadzone = chosen.steps.rest_deadzone;
+            c.sh_drop[usize::from(g.sh_band()) - 1] = chosen.sh_drop[usize::from(g.sh_band()) - 1];
         }
         let spz_col = match g {
             Group::Sh1 => spz_bits(&["sh_rest"]) + " (all bands)",
@@ -67,7 +75,12 @@ fn main() {
         };
         println!("| {} | {:.1} | {spz_col} | {:.2} |", g.name(), ours(g.name()), psnr_of(&c).1);
     }
-    let prune = EncodeConfig { min_opacity: chosen.min_opacity, min_footprint: chosen.min_footprint, ..fine };
+    let prune = EncodeConfig {
+        min_opacity: chosen.min_opacity,
+        min_footprint: chosen.min_footprint,
+        min_significance: chosen.min_significance,
+        ..fine
+    };
     println!("| pruning ({} kept) | | | {:.2} |", r.gaussians, psnr_of(&prune).1);
     let deg = EncodeConfig { max_sh_degree: chosen.max_sh_degree, ..fine };
     println!("| SH degree {} | | | {:.2} |", chosen.max_sh_degree, psnr_of(&deg).1);

@@ -33,8 +33,12 @@ pub struct EncodeConfig {
     /// Gaussians whose footprint (opacity × area, [`quantise::footprint`]) is below this are
     /// pruned too (0 = off; the RD search sets it).
     pub min_footprint: f32,
+    /// Gaussians whose significance (how much of the standard views they cover after
+    /// occlusion, [`importance::significance`] of the input scene) is below this are pruned too
+    /// (0 = off; the RD search sets it).
+    pub min_significance: f32,
     /// Per SH band 1..=3: Gaussians whose band contribution ([`quantise::band_contribution`],
-    /// weighted by [`quantise::footprint`]) is below this have that band's coefficients zeroed
+    /// weighted by their significance) is below this have that band's coefficients zeroed
     /// (0 = keep all; the RD search sets it).
     pub sh_drop: [f32; 3],
     /// SH bands above this degree are left out.
@@ -50,6 +54,7 @@ impl Default for EncodeConfig {
             steps: Steps::default(),
             min_opacity: 1.0 / 255.0,
             min_footprint: 0.0,
+            min_significance: 0.0,
             sh_drop: [0.0; 3],
             max_sh_degree: 3,
             learned_tables: true,
@@ -68,21 +73,58 @@ impl EncodeConfig {
             ..EncodeConfig::default()
         }
     }
+
+    /// Whether coding with this config needs the input's significance (significance pruning or
+    /// SH band dropping).
+    pub fn needs_significance(&self) -> bool {
+        self.min_significance > 0.0 || self.sh_drop.iter().any(|&t| t > 0.0)
+    }
 }
 
-/// The Gaussians of `splats` that `config`'s pruning keeps (opacity, then footprint).
-pub fn pruned(splats: &Splats, config: &EncodeConfig) -> Splats {
-    quantise::prune_footprint(&quantise::prune(splats, config.min_opacity), config.min_footprint)
+/// The Gaussians of `splats` that `config`'s pruning keeps (opacity, footprint, significance:
+/// each a per-Gaussian test on the input), and their significance when it is given.
+///
+/// # Panics
+/// If `significance` is not one value per Gaussian of `splats`.
+pub fn pruned(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> (Splats, Option<Vec<f32>>) {
+    assert!(significance.is_none_or(|s| s.len() == splats.len()), "one significance per Gaussian");
+    let keep: Vec<bool> = (0..splats.len())
+        .map(|i| {
+            gscodec_decoder::math::sigmoid(splats.opacity_logits[i]) >= config.min_opacity
+                && (config.min_footprint <= 0.0 || quantise::footprint(splats, i) >= config.min_footprint)
+                && (config.min_significance <= 0.0 || significance.is_none_or(|s| s[i] >= config.min_significance))
+        })
+        .collect();
+    let mut out = splats.clone();
+    out.retain_indices(|i| keep[i]);
+    (out, significance.map(|s| s.iter().zip(&keep).filter(|x| *x.1).map(|x| *x.0).collect()))
 }
 
 /// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
 pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
+    encode_with(splats, config, None)
+}
+
+/// [`encode`] with the input's significance already computed ([`importance::significance`] of
+/// `splats`; computed here when `config` needs it and it is `None`).
+pub fn encode_with(
+    splats: &Splats,
+    config: &EncodeConfig,
+    significance: Option<&[f32]>,
+) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let mut s = pruned(splats, config);
-    if config.sh_drop.iter().any(|&t| t > 0.0) {
-        let weights: Vec<f32> = (0..s.len()).map(|i| quantise::footprint(&s, i)).collect();
-        quantise::drop_sh_bands(&mut s, &weights, config.sh_drop);
+    let own;
+    let significance = match significance {
+        None if config.needs_significance() => {
+            own = importance::significance(splats);
+            Some(&own[..])
+        }
+        s => s,
+    };
+    let (mut s, sig) = pruned(splats, config, significance);
+    if let Some(w) = sig.filter(|_| config.sh_drop.iter().any(|&t| t > 0.0)) {
+        quantise::drop_sh_bands(&mut s, &w, config.sh_drop);
     }
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);

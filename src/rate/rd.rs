@@ -13,7 +13,7 @@ use serde::Serialize;
 use super::group::Group;
 use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
-use super::{encode, EncodeConfig};
+use super::{encode_with, pruned, EncodeConfig};
 use crate::views::{orbit_cameras, UpAxis};
 
 /// Views and resolution the search renders.
@@ -37,6 +37,8 @@ pub struct Evaluator<'a> {
     cams: Vec<gscodec_decoder::Camera>,
     refs: Vec<Image>,
     opts: RenderOptions,
+    /// The scene's significance ([`super::importance::significance`]), computed once.
+    significance: Vec<f32>,
 }
 
 impl<'a> Evaluator<'a> {
@@ -44,7 +46,7 @@ impl<'a> Evaluator<'a> {
         let cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector());
         let opts = RenderOptions::default();
         let refs = cams.iter().map(|c| render(scene, c, &opts)).collect();
-        Evaluator { scene, cams, refs, opts }
+        Evaluator { scene, cams, refs, opts, significance: super::importance::significance(scene) }
     }
 
     /// (bytes, D) of `config`.
@@ -54,7 +56,7 @@ impl<'a> Evaluator<'a> {
 
     /// (bytes, D, encoder report) of `config`.
     pub fn eval_report(&self, config: &EncodeConfig) -> Result<(usize, f64, super::EncodeReport), SceneError> {
-        let (bytes, report, q) = encode(self.scene, config)?;
+        let (bytes, report, q) = encode_with(self.scene, config, Some(&self.significance))?;
         let dec = dequantise(&q);
         let mse = self.cams.iter().zip(&self.refs).map(|(c, r)| crate::metrics::mse(r, &render(&dec, c, &self.opts))).sum::<f64>()
             / self.cams.len() as f64;
@@ -65,8 +67,8 @@ impl<'a> Evaluator<'a> {
 const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 /// Pruning thresholds tried, in units of 1/255 opacity.
 const PRUNE_THRESHOLDS: [f32; 12] = [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 64.0, 512.0];
-/// Fractions of the Gaussians (smallest footprints first) the footprint pruning tries.
-const FOOTPRINT_QUANTILES: [f32; 7] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5];
+/// Fractions of the Gaussians (smallest values first) the footprint and significance pruning try.
+const PRUNE_QUANTILES: [f32; 9] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7];
 /// Fractions of the kept Gaussians (weakest first) whose band is zeroed by SH band dropping.
 const SH_DROP_QUANTILES: [f32; 6] = [0.1, 0.25, 0.4, 0.55, 0.7, 0.85];
 /// SH rest dead zones tried after the steps are chosen (see `Steps::rest_deadzone`).
@@ -74,6 +76,11 @@ const DEADZONES: [f32; 4] = [0.1, 0.2, 0.3, 0.4];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
 /// Quarter-octave moves of the last pass.
 const REFINE_FINE: [f32; 3] = [0.840_896_4, 1.0, 1.189_207_1];
+
+fn sorted(mut v: Vec<f32>) -> Vec<f32> {
+    v.sort_by(f32::total_cmp);
+    v
+}
 
 /// `c` with group `g`'s step multiplied by `m` (the knobs of the search: one per group).
 fn with_knob(c: &EncodeConfig, g: Group, m: f32) -> EncodeConfig {
@@ -181,18 +188,33 @@ pub fn search_from(
     // 1. Pruning threshold (at fine steps), including "everything" (an empty file).
     let cands = PRUNE_THRESHOLDS.iter().map(|&t| (format!("prune<{t}/255"), EncodeConfig { min_opacity: t / 255.0, ..fine })).collect();
     let best = log.stage(&mut trials, (f64::INFINITY, fine), cands)?;
-    // 1b. Footprint pruning (small faint Gaussians) at quantiles of the kept Gaussians' footprints.
-    let kept = super::quantise::prune(scene, best.1.min_opacity);
-    let mut fp: Vec<f32> = (0..kept.len()).map(|i| super::quantise::footprint(&kept, i)).collect();
-    fp.sort_by(f32::total_cmp);
+    // 1b. Pruning by footprint (small faint Gaussians) or by significance (what the views see
+    //     of a Gaussian after occlusion), at quantiles of the kept Gaussians' values; significance
+    //     also from the lossless threshold 1/255 (it subsumes opacity).
+    let sig = &trials.ev.significance;
+    let mut cands: Vec<(String, EncodeConfig)> = Vec::new();
     let start = best.1;
-    let cands = FOOTPRINT_QUANTILES
-        .iter()
-        .filter_map(|&f| {
-            fp.get((fp.len() as f64 * f64::from(f)) as usize)
-                .map(|&t| (format!("footprint<q{f}"), EncodeConfig { min_footprint: t, ..start }))
-        })
-        .collect();
+    let kept = pruned(scene, &start, None).0;
+    let fp = sorted((0..kept.len()).map(|i| super::quantise::footprint(&kept, i)).collect());
+    for &f in &PRUNE_QUANTILES {
+        if let Some(&t) = fp.get((fp.len() as f64 * f64::from(f)) as usize) {
+            cands.push((format!("footprint<q{f}"), EncodeConfig { min_footprint: t, ..start }));
+        }
+    }
+    for from in [start, fine] {
+        let s = sorted(pruned(scene, &from, Some(sig)).1.expect("given"));
+        // Those no view sees at all, then quantiles.
+        let ts = std::iter::once((0.0, f32::MIN_POSITIVE))
+            .chain(PRUNE_QUANTILES.iter().filter_map(|&f| s.get((s.len() as f64 * f64::from(f)) as usize).map(|&t| (f, t))));
+        let mut last = 0.0;
+        for (f, t) in ts {
+            if t > last {
+                last = t;
+                let name = format!("significance<q{f} from opacity {}/255", from.min_opacity * 255.0);
+                cands.push((name, EncodeConfig { min_significance: t, ..from }));
+            }
+        }
+    }
     let base = log.stage(&mut trials, best, cands)?.1;
     let (b0, _, _) = trials.one(&base)?;
     if b0 < 200 {
@@ -235,11 +257,10 @@ pub fn search_from(
     // 4. Per-Gaussian SH band dropping (whole-file J), band by band: thresholds at quantiles of
     //    the kept Gaussians' band contributions.
     if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
-        let kept = super::pruned(scene, &chosen);
-        let weights: Vec<f32> = (0..kept.len()).map(|i| super::quantise::footprint(&kept, i)).collect();
+        let (kept, weights) = pruned(scene, &chosen, Some(&trials.ev.significance));
+        let weights = weights.expect("given");
         for b in 1..=chosen.max_sh_degree.min(kept.sh_degree) {
-            let mut c: Vec<f32> = (0..kept.len()).map(|i| super::quantise::band_contribution(&kept, i, b, weights[i])).collect();
-            c.sort_by(f32::total_cmp);
+            let c = sorted((0..kept.len()).map(|i| super::quantise::band_contribution(&kept, i, b, weights[i])).collect());
             let cands = SH_DROP_QUANTILES
                 .iter()
                 .filter_map(|&f| {
