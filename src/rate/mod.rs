@@ -133,3 +133,44 @@ pub fn encode_with(
     let (bytes, report) = encode::write(&q, input, config.learned_tables);
     Ok((bytes, report, q))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Significance pruning keeps exactly the Gaussians at or above the threshold: it never
+    /// drops a Gaussian more significant than one it keeps.
+    #[test]
+    fn significance_pruning_keeps_the_most_significant() {
+        let s = crate::sample::scene(400, 7);
+        let sig = importance::significance(&s);
+        let mut sorted = sig.clone();
+        sorted.sort_by(f32::total_cmp);
+        let t = sorted[sorted.len() / 3];
+        let config = EncodeConfig { min_opacity: 0.0, min_significance: t, ..EncodeConfig::default() };
+        let (kept, kept_sig) = pruned(&s, &config, Some(&sig));
+        let kept_sig = kept_sig.unwrap();
+        assert_eq!(kept.len(), sig.iter().filter(|&&v| v >= t).count());
+        assert!(kept.len() < s.len() && !kept.is_empty());
+        let dropped_max = sig.iter().filter(|&&v| v < t).fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+        let kept_min = kept_sig.iter().fold(f32::INFINITY, |a, &b| a.min(b));
+        assert!(dropped_max < kept_min, "dropped {dropped_max} ≥ kept {kept_min}");
+        // The kept significances are those of the kept Gaussians, in order.
+        let order: Vec<usize> = (0..s.len()).filter(|&i| sig[i] >= t).collect();
+        assert_eq!(kept.positions, order.iter().map(|&i| s.positions[i]).collect::<Vec<_>>());
+        assert_eq!(kept_sig, order.iter().map(|&i| sig[i]).collect::<Vec<_>>());
+    }
+
+    /// `encode` computes the significance a config needs; given precomputed, the same bytes.
+    #[test]
+    fn encode_computes_the_significance_it_needs() {
+        let s = crate::sample::scene(300, 8);
+        let sig = importance::significance(&s);
+        let config = EncodeConfig { min_significance: 0.5, sh_drop: [0.1, 0.1, 0.1], ..EncodeConfig::default() };
+        assert!(config.needs_significance() && !EncodeConfig::default().needs_significance());
+        let (a, ra, _) = encode(&s, &config).unwrap();
+        let (b, _, _) = encode_with(&s, &config, Some(&sig)).unwrap();
+        assert_eq!(a, b);
+        assert!(ra.gaussians < encode(&s, &EncodeConfig::default()).unwrap().1.gaussians);
+    }
+}
