@@ -44,10 +44,9 @@ fn main() {
     println!("{}: λ {lambda}, {} → {} Gaussians, SH degree {}", args[1], scene.len(), r.gaussians, r.sh_degree);
     println!("chosen: {all_bytes} B, {all_psnr:.2} dB; fine start: {fine_bytes} B, {fine_psnr:.2} dB");
     println!(
-        "chosen steps: {:?}, min_opacity {}/255, min_footprint {:e}, min_significance {:e}, sh_drop {:?}",
+        "chosen steps: {:?}, min_opacity {}/255, min_significance {:e}, sh_drop {:?}",
         chosen.steps,
         chosen.min_opacity * 255.0,
-        chosen.min_footprint,
         chosen.min_significance,
         chosen.sh_drop
     );
@@ -75,12 +74,7 @@ fn main() {
         };
         println!("| {} | {:.1} | {spz_col} | {:.2} |", g.name(), ours(g.name()), psnr_of(&c).1);
     }
-    let prune = EncodeConfig {
-        min_opacity: chosen.min_opacity,
-        min_footprint: chosen.min_footprint,
-        min_significance: chosen.min_significance,
-        ..fine
-    };
+    let prune = EncodeConfig { min_opacity: chosen.min_opacity, min_significance: chosen.min_significance, ..fine };
     println!("| pruning ({} kept) | | | {:.2} |", r.gaussians, psnr_of(&prune).1);
     let deg = EncodeConfig { max_sh_degree: chosen.max_sh_degree, ..fine };
     println!("| SH degree {} | | | {:.2} |", chosen.max_sh_degree, psnr_of(&deg).1);

@@ -30,9 +30,6 @@ pub struct EncodeConfig {
     pub steps: Steps,
     /// Gaussians with opacity below this are pruned (1/255 is lossless: they never draw).
     pub min_opacity: f32,
-    /// Gaussians whose footprint (opacity × area, [`quantise::footprint`]) is below this are
-    /// pruned too (0 = off; the RD search sets it).
-    pub min_footprint: f32,
     /// Gaussians whose significance (how much of the standard views they cover after
     /// occlusion, [`importance::significance`] of the input scene) is below this are pruned too
     /// (0 = off; the RD search sets it).
@@ -53,7 +50,6 @@ impl Default for EncodeConfig {
         EncodeConfig {
             steps: Steps::default(),
             min_opacity: 1.0 / 255.0,
-            min_footprint: 0.0,
             min_significance: 0.0,
             sh_drop: [0.0; 3],
             max_sh_degree: 3,
@@ -81,8 +77,8 @@ impl EncodeConfig {
     }
 }
 
-/// The Gaussians of `splats` that `config`'s pruning keeps (opacity, footprint, significance:
-/// each a per-Gaussian test on the input), and their significance when it is given.
+/// The Gaussians of `splats` that `config`'s pruning keeps (opacity, then significance: each a
+/// per-Gaussian test on the input), and their significance when it is given.
 ///
 /// # Panics
 /// If `significance` is not one value per Gaussian of `splats`.
@@ -91,7 +87,6 @@ pub fn pruned(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32
     let keep: Vec<bool> = (0..splats.len())
         .map(|i| {
             gscodec_decoder::math::sigmoid(splats.opacity_logits[i]) >= config.min_opacity
-                && (config.min_footprint <= 0.0 || quantise::footprint(splats, i) >= config.min_footprint)
                 && (config.min_significance <= 0.0 || significance.is_none_or(|s| s[i] >= config.min_significance))
         })
         .collect();

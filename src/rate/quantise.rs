@@ -201,28 +201,11 @@ pub fn prune(splats: &Splats, min_opacity: f32) -> Splats {
     out
 }
 
-/// How much a Gaussian can show: opacity × the area of its two largest axes (world units²).
-/// Small faint Gaussians score low; large faint ones (which still tint many pixels) do not.
-pub fn footprint(splats: &Splats, i: usize) -> f32 {
-    let mut l = splats.log_scales[i];
-    l.sort_by(f32::total_cmp);
-    sigmoid(splats.opacity_logits[i]) * (l[1] + l[2]).exp()
-}
-
-/// Drops Gaussians whose [`footprint`] is below `min_footprint` (0 keeps all).
-pub fn prune_footprint(splats: &Splats, min_footprint: f32) -> Splats {
-    let mut out = splats.clone();
-    if min_footprint > 0.0 {
-        out.retain_indices(|i| footprint(splats, i) >= min_footprint);
-    }
-    out
-}
-
 /// How much colour band `b` (1..=3) of Gaussian `i` adds to the views: `weight · ‖c_{i,b}‖₂`,
 /// where `c_{i,b}` are the band's rest coefficients (all three colour channels). For the real
 /// orthonormal SH basis, `‖c_{i,b}‖₂² / 4π` is the mean over view directions of the squared
 /// colour the band adds, so the norm is its RMS colour up to one constant for every band;
-/// `weight` says how much of the views the Gaussian covers (e.g. its [`footprint`]).
+/// `weight` says how much of the views the Gaussian covers (its significance).
 pub fn band_contribution(splats: &Splats, i: usize, b: u8, weight: f32) -> f32 {
     let k = splats.rest_coeffs();
     let (b, first) = (usize::from(b), usize::from(b) * usize::from(b) - 1);
@@ -286,23 +269,9 @@ mod tests {
     }
 
     #[test]
-    fn footprint_pruning_drops_small_faint_gaussians_only() {
-        let mut s = Splats::new(0);
-        // small faint, large faint, small opaque
-        s.push([0.0; 3], [-5.0; 3], [1.0, 0.0, 0.0, 0.0], -3.0, [0.0; 3], &[]);
-        s.push([1.0; 3], [-1.0, -1.0, -6.0], [1.0, 0.0, 0.0, 0.0], -3.0, [0.0; 3], &[]);
-        s.push([2.0; 3], [-5.0; 3], [1.0, 0.0, 0.0, 0.0], 4.0, [0.0; 3], &[]);
-        let f: Vec<f32> = (0..3).map(|i| footprint(&s, i)).collect();
-        assert!(f[0] < f[2] && f[2] < f[1], "{f:?}");
-        let kept = prune_footprint(&s, f[0] * 1.01);
-        assert_eq!(kept.positions, vec![[1.0; 3], [2.0; 3]]);
-        assert_eq!(prune_footprint(&s, 0.0).len(), 3);
-    }
-
-    #[test]
     fn sh_band_dropping_zeroes_only_weak_bands_and_threshold_zero_is_the_identity() {
         let s = gscodec_decoder::testkit::random_splats(200, 3, 5);
-        let w: Vec<f32> = (0..s.len()).map(|i| footprint(&s, i)).collect();
+        let w: Vec<f32> = (0..s.len()).map(|i| 1.0 + (i % 7) as f32).collect();
         let mut same = s.clone();
         drop_sh_bands(&mut same, &w, [0.0; 3]);
         assert_eq!(same, s, "threshold 0 changes nothing");

@@ -65,12 +65,11 @@ impl<'a> Evaluator<'a> {
 }
 
 const MULTIPLIERS: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
-/// Pruning thresholds tried, in units of 1/255 opacity.
-const PRUNE_THRESHOLDS: [f32; 12] = [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 64.0, 512.0];
-/// Fractions of the Gaussians (smallest values first) the footprint and significance pruning try.
-const PRUNE_QUANTILES: [f32; 9] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7];
+/// Fractions of the Gaussians (least significant first) the significance pruning tries.
+const PRUNE_QUANTILES: [f32; 19] =
+    [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95];
 /// Fractions of the kept Gaussians (weakest first) whose band is zeroed by SH band dropping.
-const SH_DROP_QUANTILES: [f32; 6] = [0.1, 0.25, 0.4, 0.55, 0.7, 0.85];
+const SH_DROP_QUANTILES: [f32; 7] = [0.1, 0.25, 0.4, 0.55, 0.7, 0.85, 0.95];
 /// SH rest dead zones tried after the steps are chosen (see `Steps::rest_deadzone`).
 const DEADZONES: [f32; 4] = [0.1, 0.2, 0.3, 0.4];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
@@ -185,37 +184,23 @@ pub fn search_from(
     let mut trials = Trials { ev: Evaluator::new(scene), seen: Vec::new() };
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
-    // 1. Pruning threshold (at fine steps), including "everything" (an empty file).
-    let cands = PRUNE_THRESHOLDS.iter().map(|&t| (format!("prune<{t}/255"), EncodeConfig { min_opacity: t / 255.0, ..fine })).collect();
-    let best = log.stage(&mut trials, (f64::INFINITY, fine), cands)?;
-    // 1b. Pruning by footprint (small faint Gaussians) or by significance (what the views see
-    //     of a Gaussian after occlusion), at quantiles of the kept Gaussians' values; significance
-    //     also from the lossless threshold 1/255 (it subsumes opacity).
-    let sig = &trials.ev.significance;
-    let mut cands: Vec<(String, EncodeConfig)> = Vec::new();
-    let start = best.1;
-    let kept = pruned(scene, &start, None).0;
-    let fp = sorted((0..kept.len()).map(|i| super::quantise::footprint(&kept, i)).collect());
+    // 1. Pruning by significance (at fine steps): what the views see of a Gaussian after
+    //    occlusion. It subsumes opacity and footprint thresholds, which it beat on every scene
+    //    measured (docs/codec.md). Candidates: none, those no view sees, quantiles of the rest,
+    //    and everything (an empty file).
+    let sig = sorted(pruned(scene, &fine, Some(&trials.ev.significance)).1.expect("given"));
+    let mut cands =
+        vec![("prune none".to_string(), fine), ("prune unseen".to_string(), EncodeConfig { min_significance: f32::MIN_POSITIVE, ..fine })];
+    let mut last = f32::MIN_POSITIVE;
     for &f in &PRUNE_QUANTILES {
-        if let Some(&t) = fp.get((fp.len() as f64 * f64::from(f)) as usize) {
-            cands.push((format!("footprint<q{f}"), EncodeConfig { min_footprint: t, ..start }));
+        let t = sig.get((sig.len() as f64 * f64::from(f)) as usize).copied().unwrap_or(f32::INFINITY);
+        if t > last {
+            last = t;
+            cands.push((format!("prune significance<q{f}"), EncodeConfig { min_significance: t, ..fine }));
         }
     }
-    for from in [start, fine] {
-        let s = sorted(pruned(scene, &from, Some(sig)).1.expect("given"));
-        // Those no view sees at all, then quantiles.
-        let ts = std::iter::once((0.0, f32::MIN_POSITIVE))
-            .chain(PRUNE_QUANTILES.iter().filter_map(|&f| s.get((s.len() as f64 * f64::from(f)) as usize).map(|&t| (f, t))));
-        let mut last = 0.0;
-        for (f, t) in ts {
-            if t > last {
-                last = t;
-                let name = format!("significance<q{f} from opacity {}/255", from.min_opacity * 255.0);
-                cands.push((name, EncodeConfig { min_significance: t, ..from }));
-            }
-        }
-    }
-    let base = log.stage(&mut trials, best, cands)?.1;
+    cands.push(("prune all".to_string(), EncodeConfig { min_significance: f32::INFINITY, ..fine }));
+    let base = log.stage(&mut trials, (f64::INFINITY, fine), cands)?.1;
     let (b0, _, _) = trials.one(&base)?;
     if b0 < 200 {
         return Ok((EncodeConfig { learned_tables: true, ..base }, log.path)); // nothing (or almost nothing) left to allocate
