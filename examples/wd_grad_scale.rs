@@ -20,8 +20,12 @@ fn norm(v: &[f32]) -> f64 {
     v.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt()
 }
 
+/// Per group, the L2 norm of its values (each SH band alone, not the whole `sh_rest`).
 fn group_norms(g: &Splats) -> Vec<(Group, f64)> {
-    Group::ALL.into_iter().map(|grp| (grp, norm(group::values(g, grp)))).collect()
+    Group::ALL
+        .into_iter()
+        .map(|grp| (grp, group::per_gaussian(g, grp).flatten().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt()))
+        .collect()
 }
 
 fn main() {

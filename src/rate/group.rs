@@ -105,6 +105,13 @@ pub fn values_mut(s: &mut Splats, g: Group) -> &mut [f32] {
     }
 }
 
+/// Group `g`'s values of each Gaussian in turn (one slice per Gaussian; none for a band above
+/// the scene's degree).
+pub fn per_gaussian(s: &Splats, g: Group) -> impl Iterator<Item = &[f32]> {
+    let (stride, r) = layout(g, s.sh_degree);
+    values(s, g).chunks_exact(stride.max(1)).take(if stride == 0 { 0 } else { s.len() }).map(move |v| &v[r.clone()])
+}
+
 /// Index into [`values`] of value `c` (0-based within the group) of Gaussian `i`.
 pub fn index(g: Group, degree: u8, i: usize, c: usize) -> usize {
     let (stride, r) = layout(g, degree);
@@ -172,6 +179,12 @@ mod tests {
             }
             for g in Group::ALL {
                 assert!(values(&seen, g).iter().all(|&v| v == 0.0), "degree {degree}: {g:?} has unclaimed values");
+            }
+            // per_gaussian yields exactly the group's values of each Gaussian.
+            for g in Group::ALL {
+                let n: usize = per_gaussian(&s, g).map(<[f32]>::len).sum();
+                assert_eq!(n, 2 * layout(g, degree).1.len(), "degree {degree}: {g:?}");
+                assert_eq!(per_gaussian(&s, g).count(), if g.sh_band() > degree { 0 } else { 2 });
             }
             // SH band widths are the coded channel counts.
             for g in present(degree).filter(|g| g.sh_band() > 0) {

@@ -24,8 +24,7 @@ pub fn zeros_like(s: &Splats) -> Splats {
 /// First non-finite value, as `(gaussian, group)`.
 pub fn first_non_finite(s: &Splats) -> Option<(usize, Group)> {
     for g in group::present(s.sh_degree) {
-        let (stride, r) = group::layout(g, s.sh_degree);
-        let bad = group::values(s, g).chunks_exact(stride).position(|v| v[r.clone()].iter().any(|x| !x.is_finite()));
+        let bad = group::per_gaussian(s, g).position(|v| v.iter().any(|x| !x.is_finite()));
         if let Some(i) = bad {
             return Some((i, g));
         }
