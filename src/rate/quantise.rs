@@ -7,6 +7,8 @@ use gscodec_decoder::bitstream::positions::{morton_encode, position_of};
 use gscodec_decoder::math::sigmoid;
 use gscodec_decoder::Splats;
 
+use super::group::{layout, values, values_mut};
+
 /// Step sizes (quantisation bins) of every stored attribute.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Steps {
@@ -207,28 +209,28 @@ pub fn prune(splats: &Splats, min_opacity: f32) -> Splats {
 /// colour the band adds, so the norm is its RMS colour up to one constant for every band;
 /// `weight` says how much of the views the Gaussian covers (its significance).
 pub fn band_contribution(splats: &Splats, i: usize, b: u8, weight: f32) -> f32 {
-    let k = splats.rest_coeffs();
-    let (b, first) = (usize::from(b), usize::from(b) * usize::from(b) - 1);
-    let c = &splats.sh_rest[(i * k + first) * 3..(i * k + first + 2 * b + 1) * 3];
-    weight * c.iter().map(|x| x * x).sum::<f32>().sqrt()
+    let (stride, r) = layout(Group::for_band(b), splats.sh_degree);
+    weight * values(splats, Group::for_band(b))[i * stride..][r].iter().map(|x| x * x).sum::<f32>().sqrt()
 }
 
 /// Per-Gaussian SH band dropping: zeroes the rest coefficients of band `b` of every Gaussian
 /// whose [`band_contribution`] (with `weights[i]`) is below `thresholds[b − 1]` (0 keeps all).
 /// Zeros are cheap under the context tables, and a band that ends up all zero is left out.
+///
+/// # Panics
+/// If `weights` is not one value per Gaussian.
 pub fn drop_sh_bands(splats: &mut Splats, weights: &[f32], thresholds: [f32; 3]) {
-    let k = splats.rest_coeffs();
+    assert_eq!(weights.len(), splats.len(), "one weight per Gaussian");
     for b in 1..=splats.sh_degree.min(3) {
         let t = thresholds[usize::from(b) - 1];
         if t <= 0.0 {
             continue;
         }
-        let first = usize::from(b) * usize::from(b) - 1;
-        let w = (2 * usize::from(b) + 1) * 3;
-        for (i, &wt) in weights.iter().enumerate().take(splats.len()) {
-            if band_contribution(splats, i, b, wt) < t {
-                splats.sh_rest[(i * k + first) * 3..][..w].fill(0.0);
-            }
+        let g = Group::for_band(b);
+        let (stride, r) = layout(g, splats.sh_degree);
+        let drop: Vec<bool> = (0..splats.len()).map(|i| band_contribution(splats, i, b, weights[i]) < t).collect();
+        for (v, _) in values_mut(splats, g).chunks_exact_mut(stride).zip(&drop).filter(|x| *x.1) {
+            v[r.clone()].fill(0.0);
         }
     }
 }
