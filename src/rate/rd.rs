@@ -161,6 +161,57 @@ impl<F: FnMut(&Trial)> Log<'_, F> {
     }
 }
 
+/// Significance pruning candidates from `from`: none, those no view sees, the
+/// [`PRUNE_QUANTILES`] of `sig` (sorted significances of the Gaussians above the opacity
+/// threshold), and everything (an empty file).
+fn prune_candidates(sig: &[f32], from: &EncodeConfig) -> Vec<(String, EncodeConfig)> {
+    let with = |t: f32| EncodeConfig { min_significance: t, ..*from };
+    let mut cands = vec![("prune none".to_string(), with(0.0)), ("prune unseen".to_string(), with(f32::MIN_POSITIVE))];
+    let mut last = f32::MIN_POSITIVE;
+    for &f in &PRUNE_QUANTILES {
+        let t = sig.get((sig.len() as f64 * f64::from(f)) as usize).copied().unwrap_or(f32::INFINITY);
+        if t > last {
+            last = t;
+            cands.push((format!("prune significance<q{f}"), with(t)));
+        }
+    }
+    cands.push(("prune all".to_string(), with(f32::INFINITY)));
+    cands
+}
+
+/// One pass of per-group step multipliers from `start`: per group, the multiplier of `mults`
+/// minimising `ΔD + λ·R_group` (the group's own bytes). Every trial of a pass starts from
+/// `start`, so a pass is one parallel batch.
+fn step_pass<F: FnMut(&Trial)>(
+    trials: &mut Trials,
+    log: &mut Log<F>,
+    start: &EncodeConfig,
+    pass: usize,
+    mults: &[f32],
+) -> Result<EncodeConfig, SceneError> {
+    let group_bytes =
+        |r: &super::EncodeReport, k: Group| r.groups.iter().find(|g| g.group == k.name()).map_or(0, |g| g.stream_bytes + g.table_bytes);
+    let (_, d0, r0) = trials.one(start)?;
+    let knobs: Vec<(Group, f32)> =
+        Group::ALL.into_iter().filter(|&k| group_bytes(&r0, k) > 0).flat_map(|k| mults.iter().map(move |&m| (k, m))).collect();
+    let configs: Vec<EncodeConfig> = knobs.iter().map(|&(k, m)| with_knob(start, k, m)).collect();
+    let outcomes = trials.run(&configs)?;
+    let mut best: Vec<(Group, f64, f32)> = Vec::new();
+    for (&(k, m), (b, d, r)) in knobs.iter().zip(&outcomes) {
+        log.record(format!("pass{pass} {}x{m}", k.name()), *b, *d);
+        let cost = (d - d0) + log.lambda.rate_cost(group_bytes(r, k));
+        match best.last_mut() {
+            Some(x) if x.0 == k => {
+                if cost < x.1 {
+                    *x = (k, cost, m);
+                }
+            }
+            _ => best.push((k, cost, m)),
+        }
+    }
+    Ok(best.into_iter().fold(*start, |c, (k, _, m)| with_knob(&c, k, m)))
+}
+
 /// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the pruning threshold, then the SH degree, then per group
@@ -189,17 +240,7 @@ pub fn search_from(
     //    measured (docs/codec.md). Candidates: none, those no view sees, quantiles of the rest,
     //    and everything (an empty file).
     let sig = sorted(pruned(scene, &fine, Some(&trials.ev.significance)).1.expect("given"));
-    let mut cands =
-        vec![("prune none".to_string(), fine), ("prune unseen".to_string(), EncodeConfig { min_significance: f32::MIN_POSITIVE, ..fine })];
-    let mut last = f32::MIN_POSITIVE;
-    for &f in &PRUNE_QUANTILES {
-        let t = sig.get((sig.len() as f64 * f64::from(f)) as usize).copied().unwrap_or(f32::INFINITY);
-        if t > last {
-            last = t;
-            cands.push((format!("prune significance<q{f}"), EncodeConfig { min_significance: t, ..fine }));
-        }
-    }
-    cands.push(("prune all".to_string(), EncodeConfig { min_significance: f32::INFINITY, ..fine }));
+    let cands = prune_candidates(&sig, &fine);
     let base = log.stage(&mut trials, (f64::INFINITY, fine), cands)?.1;
     let (b0, _, _) = trials.one(&base)?;
     if b0 < 200 {
@@ -209,35 +250,11 @@ pub fn search_from(
     let cands =
         (0..=scene.sh_degree.min(3)).rev().map(|deg| (format!("sh_degree={deg}"), EncodeConfig { max_sh_degree: deg, ..base })).collect();
     let base = log.stage(&mut trials, (f64::INFINITY, base), cands)?.1;
-    let group_bytes =
-        |r: &super::EncodeReport, k: Group| r.groups.iter().find(|g| g.group == k.name()).map_or(0, |g| g.stream_bytes + g.table_bytes);
     // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
-    //    (half-octave moves around the first choice), then quarter-octave moves. Every trial of
-    //    a pass starts from the pass's start, so a pass is one parallel batch.
+    //    (half-octave moves around the first choice), then quarter-octave moves.
     let mut chosen = base;
     for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
-        let start = chosen;
-        let (_, d0, r0) = trials.one(&start)?;
-        let knobs: Vec<(Group, f32)> =
-            Group::ALL.into_iter().filter(|&k| group_bytes(&r0, k) > 0).flat_map(|k| mults.iter().map(move |&m| (k, m))).collect();
-        let configs: Vec<EncodeConfig> = knobs.iter().map(|&(k, m)| with_knob(&start, k, m)).collect();
-        let outcomes = trials.run(&configs)?;
-        let mut best: Vec<(Group, f64, f32)> = Vec::new();
-        for (&(k, m), (b, d, r)) in knobs.iter().zip(&outcomes) {
-            log.record(format!("pass{pass} {}x{m}", k.name()), *b, *d);
-            let cost = (d - d0) + lambda.rate_cost(group_bytes(r, k));
-            match best.last_mut() {
-                Some(x) if x.0 == k => {
-                    if cost < x.1 {
-                        *x = (k, cost, m);
-                    }
-                }
-                _ => best.push((k, cost, m)),
-            }
-        }
-        for (k, _, m) in best {
-            chosen = with_knob(&chosen, k, m);
-        }
+        chosen = step_pass(&mut trials, &mut log, &chosen, pass, mults)?;
     }
     // 4. Per-Gaussian SH band dropping (whole-file J), band by band: thresholds at quantiles of
     //    the kept Gaussians' band contributions.
