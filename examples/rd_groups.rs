@@ -76,6 +76,8 @@ fn main() {
     }
     let prune = EncodeConfig { min_opacity: chosen.min_opacity, min_significance: chosen.min_significance, ..fine };
     println!("| pruning ({} kept) | | | {:.2} |", r.gaussians, psnr_of(&prune).1);
+    let (b, p) = psnr_of(&EncodeConfig { sh_drop: [0.0; 3], ..chosen });
+    println!("| chosen without SH band dropping: {b} B | | | {p:.2} |");
     let deg = EncodeConfig { max_sh_degree: chosen.max_sh_degree, ..fine };
     println!("| SH degree {} | | | {:.2} |", chosen.max_sh_degree, psnr_of(&deg).1);
     let total: f64 = r.groups.iter().map(|x| 8.0 * (x.stream_bytes + x.table_bytes) as f64).sum::<f64>() / n;

@@ -214,8 +214,9 @@ fn step_pass<F: FnMut(&Trial)>(
 
 /// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
-/// step is chosen separately: first the pruning threshold, then the SH degree, then per group
-/// the multiplier of the fine step minimising `ΔD_g + λ·R_g`. `on_step` sees each trial.
+/// step is chosen separately: first the significance pruning threshold, then the SH degree and
+/// the per-Gaussian SH band dropping (whole-file J), then per group the multiplier of the fine
+/// step minimising `ΔD_g + λ·R_g`, then the SH rest dead zone. `on_step` sees each trial.
 ///
 /// The trials of each stage are independent and run in parallel; the result (and the trial
 /// list) is the same for any number of threads.
@@ -249,33 +250,34 @@ pub fn search_from(
     // 2. SH degree (at fine steps): keep the degree with the lowest J.
     let cands =
         (0..=scene.sh_degree.min(3)).rev().map(|deg| (format!("sh_degree={deg}"), EncodeConfig { max_sh_degree: deg, ..base })).collect();
-    let base = log.stage(&mut trials, (f64::INFINITY, base), cands)?.1;
-    // 3. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
-    //    (half-octave moves around the first choice), then quarter-octave moves.
-    let mut chosen = base;
-    for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
-        chosen = step_pass(&mut trials, &mut log, &chosen, pass, mults)?;
-    }
-    // 4. Per-Gaussian SH band dropping (whole-file J), band by band: thresholds at quantiles of
-    //    the kept Gaussians' band contributions.
-    if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
-        let (kept, weights) = pruned(scene, &chosen, Some(&trials.ev.significance));
+    let mut base = log.stage(&mut trials, (f64::INFINITY, base), cands)?.1;
+    // 3. Per-Gaussian SH band dropping (whole-file J, at fine steps so the steps adapt to it),
+    //    band by band: thresholds at quantiles of the kept Gaussians' band contributions
+    //    weighted by significance.
+    if base.max_sh_degree > 0 && scene.sh_degree > 0 {
+        let (kept, weights) = pruned(scene, &base, Some(&trials.ev.significance));
         let weights = weights.expect("given");
-        for b in 1..=chosen.max_sh_degree.min(kept.sh_degree) {
+        for b in 1..=base.max_sh_degree.min(kept.sh_degree) {
             let c = sorted((0..kept.len()).map(|i| super::quantise::band_contribution(&kept, i, b, weights[i])).collect());
             let cands = SH_DROP_QUANTILES
                 .iter()
                 .filter_map(|&f| {
                     let t = *c.get((c.len() as f64 * f64::from(f)) as usize)?;
-                    let mut cfg = chosen;
+                    let mut cfg = base;
                     cfg.sh_drop[usize::from(b) - 1] = t;
                     (t > 0.0).then(|| (format!("sh_drop band{b}<q{f}"), cfg))
                 })
                 .collect();
-            let (bytes, d, _) = trials.one(&chosen)?;
-            let keep = (log.j(bytes, d), chosen);
-            chosen = log.stage(&mut trials, keep, cands)?.1;
+            let (bytes, d, _) = trials.one(&base)?;
+            let keep = (log.j(bytes, d), base);
+            base = log.stage(&mut trials, keep, cands)?.1;
         }
+    }
+    // 4. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
+    //    (half-octave moves around the first choice), then quarter-octave moves.
+    let mut chosen = base;
+    for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
+        chosen = step_pass(&mut trials, &mut log, &chosen, pass, mults)?;
     }
     // 5. SH rest dead zone (whole-file J: it changes only the SH band groups).
     if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
