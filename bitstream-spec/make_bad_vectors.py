@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Writes the bad conformance vectors `vectors/bad/bad-*.gsc` and `vectors/bad/EXPECTED`
 (SPEC §9.2), and the good vector `vectors/quirks.gsc` with its `quirks.ply` (SPEC §9.3),
-deterministically from the good vector `vectors/hand.gsc`.
+deterministically from the good vectors `vectors/hand.gsc` and (for the levels section of
+format 4.0, SPEC §3.1) `vectors/levels.gsc`.
 
 Each bad vector breaks exactly one rule of SPEC.md; every other byte, including every CRC that
 is not the point of the vector, is kept valid, so that a decoder has to reach the broken rule
@@ -50,7 +51,7 @@ class File:
 
     def __init__(self, data):
         self.major, self.minor = data[4], data[5]
-        self.n, self.degree, sections = specdec.parse_container(data)
+        _, self.n, self.degree, sections = specdec.parse_container(data)
         self.flags = self.reserved = 0
         # [kind, chunk, flags, payload, crc or None (= correct)]
         self.sections = [[k, c, f, p, None] for (k, c), (f, p) in sections.items()]
@@ -179,8 +180,8 @@ def make(good):
     add("truncated", good[: len(good) - 7], "format", "the file ends 7 bytes before the last payload does")
     add("magic", b"\x8aGSD" + good[4:], "format", "magic is 8A 47 53 44, not 8A 47 53 43")
     f = edit()
-    f.major = 4
-    add("version", f.write(), "unsupported", "version_major 4 (header CRC valid)")
+    f.major = 5
+    add("version", f.write(), "unsupported", "version_major 5 (header CRC valid)")
     add("header-crc", edit().write(header_crc_xor=1), "checksum", "header CRC off by one bit")
     f = edit()
     s = f.section(0x24)
@@ -312,6 +313,49 @@ def make(good):
     return out
 
 
+def make_levels(good, hand):
+    """{name: (bytes, class, reason)}: the levels section (SPEC §3.1), from levels.gsc (4.0) and
+    hand.gsc (3.0)."""
+    out = {}
+
+    def add(name, data, cls, reason):
+        out[name] = (data, cls, reason)
+
+    def levels_of(f):
+        """The levels as a list of chunk-size lists."""
+        rd = specdec.Reader(f.section(0x01)[3], "levels")
+        return [[rd.varint() for _ in range(rd.varint())] for _ in range(rd.varint())]
+
+    def with_levels(levels):
+        f = File(good)
+        f.section(0x01)[3] = varint(len(levels)) + b"".join(varint(len(l)) + b"".join(varint(k) for k in l) for l in levels)
+        return f
+
+    levels = levels_of(File(good))
+    short = [l[:] for l in levels]
+    short[-1][-1] -= 1
+    add("levels-sum", with_levels(short).write(), "format", "the chunk sizes of the levels sum to N - 1")
+    zero = [l[:] for l in levels]
+    zero[-1].append(0)
+    add("levels-zero", with_levels(zero).write(), "format", "the last level has an extra chunk of 0 Gaussians")
+    big = [l[:] for l in levels]
+    big[-1][-1] = 65537
+    add("levels-big", with_levels(big).write(), "format", "a chunk of 65,537 Gaussians")
+    empty = [l[:] for l in levels] + [[]]
+    add("levels-empty", with_levels(empty).write(), "format", "a level of zero chunks")
+    f = File(good)
+    f.remove(0x01)
+    add("levels-missing", f.write(), "format", "a 4.0 file with N > 0 without its levels section")
+    f = File(good)
+    last = len([k for l in levels for k in l])
+    f.sections.append([0x23, last, 0, f.section(0x23, last - 1)[3], None])
+    add("levels-beyond", f.write(), "format", f"an opacity data section of chunk {last}, beyond the {last} chunks of the levels")
+    f = File(hand)
+    f.sections.insert(0, [0x01, 0, 0, varint(1) + varint(1) + varint(f.n), None])
+    add("levels-in-3", f.write(), "unsupported", "a 3.0 file with a levels section (kind 0x01, unknown in 3.0) without the optional bit")
+    return out
+
+
 def make_quirks(good):
     """quirks.gsc: a valid file that uses what the SPEC allows and our encoder never writes, so
     a decoder MUST accept it and decode it to quirks.ply."""
@@ -355,11 +399,12 @@ def main(argv):
     out_dir = argv[2] if len(argv) == 3 and argv[1] == "--out" else BAD
     good = open(os.path.join(VECTORS, "hand.gsc"), "rb").read()
     vectors = make(good)
+    vectors.update(make_levels(open(os.path.join(VECTORS, "levels.gsc"), "rb").read(), good))
     os.makedirs(out_dir, exist_ok=True)
     for old in os.listdir(out_dir):
         if old.startswith("bad-") and old.endswith(".gsc"):
             os.remove(os.path.join(out_dir, old))
-    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc"]
+    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc and levels.gsc"]
     for name, (data, cls, reason) in sorted(vectors.items()):
         with open(os.path.join(out_dir, f"bad-{name}.gsc"), "wb") as fh:
             fh.write(data)

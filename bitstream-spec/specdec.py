@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Independent decoder for the gscodec `.gsc` bitstream, version 3.x, written
+"""Independent decoder for the gscodec `.gsc` bitstream, versions 3.x and 4.x, written
 from bitstream-spec/SPEC.md alone (without reading the Rust decoder), as a check
 that the spec is complete.  Usage: python3 specdec.py IN.gsc OUT.ply
 
@@ -14,7 +14,7 @@ import zlib
 import numpy as np
 
 MAGIC = b"\x8aGSC"
-VERSION_MAJOR = 3
+VERSION_MAJORS = (3, 4)  # §2, §11: 4.x adds the levels section (§3.1)
 MAX_SECTIONS = 4096
 MAX_N = 1 << 26
 MAX_TABLE_N = 4096
@@ -25,6 +25,7 @@ PROB_TOTAL = 1 << PROB_BITS
 
 # group index -> channel count (position: its length table only)
 GROUP_CHANNELS = [1, 3, 4, 1, 3, 9, 15, 21]
+KIND_LEVELS = 0x01
 KIND_INFO = 0x100
 KIND_PADDING = 0x101
 
@@ -267,7 +268,7 @@ def parse_container(data):
     rd = Reader(data, "header")
     rd.take(4)
     major, minor = rd.u8(), rd.u8()
-    if major != VERSION_MAJOR:
+    if major not in VERSION_MAJORS:
         raise DecodeError("unsupported major version", f"{major}.{minor}")
     s_count = rd.u16()
     n = rd.u32()
@@ -302,29 +303,62 @@ def parse_container(data):
         sections[(kind, chunk)] = (sflags, payload)
     if rd.remaining():
         raise DecodeError("trailing data", f"{rd.remaining()} bytes after last payload")
-    return n, degree, sections
+    return major, n, degree, sections
 
 
-def classify_sections(n, degree, sections):
-    """Check known/unknown sections; return {(kind, chunk): payload} for known ones."""
+def read_levels(payload, n):
+    """§3.1: the levels section; returns the chunk sizes in file order."""
+    rd = Reader(payload, "levels")
+    sizes = []
+    for _ in range(rd.varint()):
+        c = rd.varint()
+        if c == 0:
+            raise corrupt("level of zero chunks")
+        for _ in range(c):
+            k = rd.varint()
+            if not 1 <= k <= CHUNK:
+                raise corrupt(f"chunk size {k}")
+            sizes.append(k)
+    rd.expect_end()
+    if len(sizes) > CHUNK:
+        raise corrupt(f"{len(sizes)} chunks")
+    if sum(sizes) != n:
+        raise corrupt(f"chunk sizes sum to {sum(sizes)}, N = {n}")
+    return sizes
+
+
+def classify_sections(major, n, degree, sections):
+    """Check known/unknown sections; return {(kind, chunk): payload} for known ones and
+    the chunk sizes (§3, §3.1)."""
     groups = (5 + degree) if n > 0 else 0
+    levels = major == 4
     chunks = (n + CHUNK - 1) // CHUNK
     known = {}
     for (kind, chunk), (sflags, payload) in sections.items():
         is_known = (
             (0x10 <= kind < 0x10 + groups and chunk == 0)
-            or (0x20 <= kind < 0x20 + groups and chunk < chunks)
+            or (0x20 <= kind < 0x20 + groups and (levels or chunk < chunks))
             or (kind in (KIND_INFO, KIND_PADDING) and chunk == 0)
+            or (levels and n > 0 and kind == KIND_LEVELS and chunk == 0)
         )
         if is_known:
             known[(kind, chunk)] = payload
         elif not sflags & 1:
             raise DecodeError("unknown required section", f"{kind:#x}/{chunk}")
+    if levels and n > 0:
+        if (KIND_LEVELS, 0) not in known:
+            raise DecodeError("missing section", "levels")
+        sizes = read_levels(known[(KIND_LEVELS, 0)], n)
+        for kind, chunk in known:
+            if 0x20 <= kind < 0x28 and chunk >= len(sizes):
+                raise corrupt(f"data section {kind:#x}/{chunk} beyond the {len(sizes)} chunks of the levels")
+    else:
+        sizes = [min(n, CHUNK * (c + 1)) - CHUNK * c for c in range(chunks)]
     for g in range(groups):
         if (0x10 + g, 0) not in known:
             raise DecodeError("missing section", f"parameters of group {g}")
     # The info section is informative (§3): its content is never a reason to reject a file.
-    return known, groups, chunks
+    return known, groups, sizes
 
 
 # ----------------------------------------------------------------------------
@@ -420,16 +454,15 @@ def check_finite(arr, what):
 
 
 def decode(data):
-    n, degree, sections = parse_container(data)
-    known, groups, chunks = classify_sections(n, degree, sections)
+    major, n, degree, sections = parse_container(data)
+    known, groups, sizes = classify_sections(major, n, degree, sections)
 
     cols = {}
     if n > 0:
         origin, pstep, bits, ltable = parse_position_params(known[(0x10, 0)])
         params = {g: parse_group_params(g, known[(0x10 + g, 0)]) for g in range(1, groups)}
         ints = {g: [] for g in range(groups)}
-        for c in range(chunks):
-            k = min(n, CHUNK * (c + 1)) - CHUNK * c
+        for c, k in enumerate(sizes):
             for g in range(groups):
                 payload = known.get((0x20 + g, c), b"")
                 what = f"data group {g} chunk {c}"

@@ -40,7 +40,7 @@ fn main() {
     let lambda: rate::Lambda = args[2].parse().unwrap();
     let (config, _) = rate::rd::search(&scene, lambda, |_| {}).unwrap();
     let s = quantise::prune(&scene, config.min_opacity);
-    let q = quantise::quantise(&s, &config.steps);
+    let q = quantise::quantise(&s, &config.steps, &[]);
     let (mut t0, mut t1, mut t2, mut t3) = (0.0, 0.0, 0.0, 0.0);
     for (g, _, chans) in &q.groups {
         let (mut a, mut b, mut c, mut d) = (0.0, 0.0, 0.0, 0.0);

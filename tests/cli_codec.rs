@@ -28,6 +28,30 @@ fn decode_and_info_of_a_vector() {
 }
 
 #[test]
+fn progressive_encode_writes_levels_that_info_shows() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let (one, levels) = (dir.path().join("one.gsc"), dir.path().join("levels.gsc"));
+    for (gsc, extra) in [(&one, None), (&levels, Some("--progressive"))] {
+        let mut args = vec!["encode", input.to_str().unwrap(), "-o", gsc.to_str().unwrap(), "--quiet"];
+        args.extend(extra);
+        let o = gscodec(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let info =
+        |gsc: &Path| serde_json::from_slice::<serde_json::Value>(&gscodec(&["info", gsc.to_str().unwrap(), "--json"]).stdout).unwrap();
+    let (a, b) = (info(&one), info(&levels));
+    assert_eq!((a["version"].as_str(), b["version"].as_str()), (Some("3.0"), Some("4.0")));
+    assert_eq!(a["gaussians"], b["gaussians"]);
+    let n = b["gaussians"].as_u64().unwrap();
+    let sizes: Vec<u64> = b["levels"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+    assert_eq!((sizes.len(), sizes.iter().sum::<u64>(), sizes[0]), (5, n, n.div_ceil(16)));
+    assert_eq!(a["levels"].as_array().unwrap().len(), 1);
+    let text = String::from_utf8_lossy(&gscodec(&["info", levels.to_str().unwrap()]).stdout).into_owned();
+    assert!(text.contains("levels      5: "), "{text}");
+}
+
+#[test]
 fn bad_files_exit_2_with_one_error_line_and_no_output() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.gsc");

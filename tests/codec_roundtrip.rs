@@ -227,3 +227,47 @@ fn decode_threads(bytes: &[u8], threads: usize) -> Result<Splats, gscodec_decode
     d.set_threads(threads);
     d.read_info()?.decode()
 }
+
+/// Every Gaussian of `s` as the bit patterns of its values, sorted: the scene as a multiset.
+fn gaussian_multiset(s: &Splats) -> Vec<Vec<u32>> {
+    let mut rows: Vec<Vec<u32>> = (0..s.len())
+        .map(|i| {
+            let mut r: Vec<f32> =
+                [&s.positions[i][..], &s.log_scales[i], &s.rotations[i], &[s.opacity_logits[i]], &s.sh_dc[i], s.rest_of(i)].concat();
+            r.iter_mut().for_each(|v| *v += 0.0); // −0.0 and +0.0 alike: order changes no value
+            r.iter().map(|v| v.to_bits()).collect()
+        })
+        .collect();
+    rows.sort();
+    rows
+}
+
+#[test]
+fn progressive_file_is_the_same_scene_most_significant_first() {
+    let s = scene(3000, 2, 1.0, 5);
+    let (plain, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+    let (levels, _, q) = rate::encode(&s, &EncodeConfig { progressive: true, ..EncodeConfig::default() }).unwrap();
+    assert_eq!((plain[4], levels[4]), (3, 4), "one level is a 3.0 file, levels a 4.0 one");
+    let (a, b) = (decode(&plain).unwrap(), decode(&levels).unwrap());
+    assert_eq!(b, quantise::dequantise(&q), "decode of the progressive file is the encoder's scene");
+    assert_eq!(gaussian_multiset(&a), gaussian_multiset(&b), "the same Gaussians in another order");
+    let info = gscodec_decoder::inspect(&levels).unwrap();
+    // Level ends at ⌈N/16⌉, ⌈N/8⌉, ⌈N/4⌉, ⌈N/2⌉, N (N after pruning).
+    let ends: Vec<usize> = [16, 8, 4, 2, 1].iter().map(|&d| b.len().div_ceil(d)).collect();
+    let sizes: Vec<usize> = ends.iter().scan(0, |prev, &e| Some(e - std::mem::replace(prev, e))).collect();
+    assert_eq!(info.levels, sizes);
+    assert_eq!(info.levels, q.levels);
+    // Importance falls from level to level (measured on the decoded scene, as the encoder did on
+    // its input: means, since quantisation moves values near the cuts).
+    let sig = gscodec::rate::importance::significance(&b);
+    let mut start = 0;
+    let means: Vec<f64> = info
+        .levels
+        .iter()
+        .map(|&k| {
+            start += k;
+            sig[start - k..start].iter().map(|&v| v as f64).sum::<f64>() / k as f64
+        })
+        .collect();
+    assert!(means.windows(2).all(|w| w[0] > w[1]), "mean significance per level {means:?}");
+}

@@ -9,11 +9,11 @@ use std::path::{Path, PathBuf};
 
 use gscodec::rate::{self, EncodeConfig};
 use gscodec::rng::Rng;
-use gscodec_decoder::bitstream::{self, Header, VERSION_MAJOR, VERSION_MINOR};
+use gscodec_decoder::bitstream::{self, Header, VERSION_MAJOR_UNIFORM, VERSION_MINOR};
 use gscodec_decoder::{decode, Decoder, Limits, Splats};
 use sha2::{Digest, Sha256};
 
-const NAMES: [&str; 8] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks"];
+const NAMES: [&str; 9] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels"];
 /// Vectors made by `bitstream-spec/make_bad_vectors.py`, not by our encoder.
 const SCRIPTED: [&str; 1] = ["quirks"];
 /// Vectors whose expected `.ply` is given by its SHA-256 only.
@@ -125,7 +125,7 @@ fn vector_scene(name: &str) -> Splats {
         "one" => one_scene(),
         "hand" => hand_scene(),
         "edge" => edge_scene(),
-        "tiny" => gscodec::io::read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap(),
+        "tiny" | "levels" => gscodec::io::read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap(),
         "chunks" => chunks_scene(),
         _ => unreachable!("{name}"),
     }
@@ -139,10 +139,11 @@ fn regenerate() {
         let bytes = if name == "empty3" {
             // No Gaussians but SH degree 3 (our encoder writes D = 0 for an empty scene): the
             // output still lists the 45 rest properties.
-            let h = Header { version_major: VERSION_MAJOR, version_minor: VERSION_MINOR, gaussians: 0, sh_degree: 3 };
+            let h = Header { version_major: VERSION_MAJOR_UNIFORM, version_minor: VERSION_MINOR, gaussians: 0, sh_degree: 3 };
             bitstream::write(&h, &[])
         } else {
-            rate::encode(&vector_scene(name), &EncodeConfig::default()).unwrap().0
+            // `levels`: the tiny scene in importance levels (format 4.0, SPEC §3.1).
+            rate::encode(&vector_scene(name), &EncodeConfig { progressive: name == "levels", ..EncodeConfig::default() }).unwrap().0
         };
         std::fs::write(dir().join(format!("{name}.gsc")), &bytes).unwrap();
         let ply = decode(&bytes).unwrap().to_ply();

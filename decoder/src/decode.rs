@@ -7,7 +7,8 @@ use std::sync::{Arc, Mutex};
 use rayon::prelude::*;
 
 use crate::bitstream::assemble::{assemble, Piece};
-use crate::bitstream::layout::{chunk_count, Group, CHUNK};
+use crate::bitstream::layout::Group;
+use crate::bitstream::levels::Layout;
 use crate::bitstream::params::read_all_params;
 use crate::bitstream::stream::decode_data_section;
 use crate::bitstream::Container;
@@ -43,15 +44,23 @@ pub(crate) fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> 
 }
 
 /// Decodes the groups up to SH degree `degree` of a checked container into `out` (unchanged on
-/// error). Chunk indices fit the table's `u16` because N ≤ 2^26 (checked with the header).
+/// error): its layout (SPEC §3.1), then [`decode_chunks`] of every chunk.
 pub(crate) fn decode_container(c: &Container<'_>, degree: u8, out: &mut Splats) -> Result<(), DecodeError> {
-    let n = c.header.gaussians as usize;
+    let layout = c.layout()?;
+    decode_chunks(c, &layout, layout.chunks(), degree, out)
+}
+
+/// Decodes the first `chunks` chunks of `layout` (the Gaussians they hold, in file order) with
+/// the groups up to SH degree `degree` into `out` (unchanged on error). Chunk indices fit the
+/// table's `u16` (at most 65,536 chunks, SPEC §3, §3.1).
+pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, degree: u8, out: &mut Splats) -> Result<(), DecodeError> {
+    let ranges = &layout.chunk_ranges()[..chunks];
+    let n = ranges.last().map_or(0, |r| r.end);
     if n == 0 {
         assemble(0, degree, &[], out);
         return Ok(());
     }
     let params = read_all_params(c, degree)?;
-    let chunks = chunk_count(n);
     // One job per (group, chunk); SH bands are split further into channel ranges of about
     // JOB_CHANNELS so that the work balances over the threads even for a one-chunk scene.
     let mut jobs: Vec<(usize, usize, Range<usize>)> = Vec::new();
@@ -66,8 +75,7 @@ pub(crate) fn decode_container(c: &Container<'_>, degree: u8, out: &mut Splats) 
         .par_iter()
         .map(|(gi, ch, channels)| {
             let (g, p) = &params[*gi];
-            let count = CHUNK.min(n - ch * CHUNK);
-            decode_data_section(*g, p, &mut c.reader(g.data_kind(), *ch as u16), count, channels.clone())
+            decode_data_section(*g, p, &mut c.reader(g.data_kind(), *ch as u16), ranges[*ch].len(), channels.clone())
         })
         .collect::<Result<_, _>>()?;
     let pieces: Vec<Piece> = jobs
@@ -80,7 +88,7 @@ pub(crate) fn decode_container(c: &Container<'_>, degree: u8, out: &mut Splats) 
                 Group::Rotation => 0..4,
                 _ => channels.clone(),
             };
-            Piece { group, first: ch * CHUNK, columns, values }
+            Piece { group, first: ranges[*ch].start, columns, values }
         })
         .collect();
     assemble(n, degree, &pieces, out);

@@ -5,12 +5,13 @@ use std::io::Read;
 
 use crate::bitstream::header::{self, check_allocation_bound, Header, HEADER_BYTES};
 use crate::bitstream::info::{read_info, EncoderInfo};
-use crate::bitstream::layout::{Group, INFO_KIND};
+use crate::bitstream::layout::{Group, INFO_KIND, LEVELS_KIND};
+use crate::bitstream::levels::Layout;
 use crate::bitstream::params::read_all_params;
 use crate::bitstream::sections::{self, read_table, table_bytes, Table};
 use crate::bitstream::tables::ChannelTable;
 use crate::bitstream::{self, SECTION_OPTIONAL};
-use crate::decode::{decode_container, in_pool};
+use crate::decode::{decode_chunks, decode_container, in_pool};
 use crate::error::{self, DecodeError, FormatErrorKind, Limit, Place, SectionId};
 use crate::math::sh_rest_coeffs;
 use crate::Splats;
@@ -68,7 +69,7 @@ pub struct SectionInfo {
     pub optional: bool,
     /// Payload bytes.
     pub bytes: usize,
-    /// Group name, or `info` / `padding` / `unknown`.
+    /// Group name, or `levels` / `info` / `padding` / `unknown`.
     pub name: &'static str,
 }
 
@@ -77,6 +78,7 @@ impl SectionInfo {
         let name = Group::of_kind(id.kind).map(|g| g.name()).unwrap_or(match id.kind {
             INFO_KIND => "info",
             bitstream::layout::PADDING_KIND => "padding",
+            LEVELS_KIND => "levels",
             _ => "unknown",
         });
         SectionInfo { kind: id.kind, chunk: id.chunk, optional: flags & SECTION_OPTIONAL != 0, bytes, name }
@@ -101,6 +103,11 @@ pub struct FileInfo {
     pub info: Info,
     /// The optional info section: the encoder's input before pruning and SH truncation.
     pub encoder: Option<EncoderInfo>,
+    /// Gaussians of each importance level, in file order (SPEC §3.1): several in a progressive
+    /// 4.0 file, one (all N) in a 3.0 file, none when N = 0.
+    pub levels: Vec<usize>,
+    /// Gaussians of each chunk, in file order.
+    pub chunks: Vec<usize>,
     /// Channels stored once as constants, as `group/channel`.
     pub constant_channels: Vec<String>,
     /// Channels coded with one table per context, as `group/channel`.
@@ -327,16 +334,20 @@ pub fn peek_header(bytes: &[u8]) -> Result<Header, DecodeError> {
     header::read_header(bytes).map(|(h, _)| h)
 }
 
-/// Parses and checks a whole file (every CRC and parameter section) without decoding its streams.
+/// Parses and checks a whole file (every CRC, the levels and every parameter section) without
+/// decoding its streams.
 ///
 /// # Errors
 /// Any [`DecodeError`] but `Io` and `LimitsExceeded` from caller limits.
 pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
     let c = sections::parse(bytes)?;
+    let layout = c.layout()?;
     let params = read_all_params(&c, c.header.sh_degree)?;
     let mut info = FileInfo {
         info: Info { header: c.header, file_bytes: bytes.len() as u64, sections: Vec::new() },
         encoder: None,
+        levels: layout.level_sizes(),
+        chunks: layout.chunk_sizes.iter().map(|&k| k as usize).collect(),
         constant_channels: Vec::new(),
         context_channels: Vec::new(),
     };
@@ -359,10 +370,13 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
 }
 
 /// Decodes what has arrived of a file written in the recommended section order (SPEC §3, §7.1):
-/// `Ok(None)` until the base (positions, scales, rotations, opacities, DC colours) is complete,
-/// then the scene with the highest SH degree (up to `limits.max_sh_degree`) whose sections have
-/// all arrived. Call it again as more bytes come in; given the whole file it equals [`decode`].
-/// Every section used is CRC-checked; corrupt data is an error, not `None`.
+/// `Ok(None)` until the first importance level is complete (levels, parameters and the base —
+/// positions, scales, rotations, opacities, DC colours — of its chunks), then the Gaussians of
+/// every complete level (a prefix of the file's Gaussians, in file order), with the highest SH
+/// degree (up to `limits.max_sh_degree`) whose sections for those Gaussians have all arrived. A
+/// 3.0 file, or a 4.0 file of one level, has one level: every Gaussian. Call it again as more
+/// bytes come in; given the whole file it equals [`decode`]. Every section used is CRC-checked;
+/// corrupt data is an error, not `None`.
 ///
 /// # Errors
 /// Any [`DecodeError`] but `Io`; a file that is merely incomplete is `Ok(None)`.
@@ -370,17 +384,46 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
 /// # Examples
 ///
 /// ```
-/// # let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../bitstream-spec/vectors/tiny.gsc")).unwrap();
+/// # let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../bitstream-spec/vectors/levels.gsc")).unwrap();
 /// use gscodec_decoder::{decode_prefix, Limits};
-/// let mut shown = None;
-/// for arrived in (0..=bytes.len()).step_by(4096).chain([bytes.len()]) {
+/// let mut shown = Vec::new();
+/// for arrived in (0..=bytes.len()).step_by(1024).chain([bytes.len()]) {
 ///     if let Some(scene) = decode_prefix(&bytes[..arrived], &Limits::default()).unwrap() {
-///         shown = Some(scene.sh_degree); // hand the scene to the renderer
+///         shown.push((scene.len(), scene.sh_degree)); // hand the scene to the renderer
 ///     }
 /// }
-/// assert_eq!(shown, Some(3));
+/// assert!(shown[0].0 < 100); // the first level: the most important ~1/16
+/// assert_eq!(shown.last(), Some(&(1000, 3)));
 /// ```
 pub fn decode_prefix(bytes: &[u8], limits: &Limits) -> Result<Option<Splats>, DecodeError> {
+    let Some(p) = arrived_prefix(bytes, limits)? else { return Ok(None) };
+    let mut out = Splats::new(p.degree);
+    decode_chunks(&p.container, &p.layout, p.chunks, p.degree, &mut out)?;
+    Ok(Some(out))
+}
+
+/// What [`decode_prefix`] would return for these bytes, without decoding the streams: `None`,
+/// or the number of Gaussians (whole levels) and the SH degree. Costs the parse and the CRCs of
+/// the sections that have arrived.
+///
+/// # Errors
+/// As [`decode_prefix`].
+pub fn prefix_extent(bytes: &[u8], limits: &Limits) -> Result<Option<(usize, u8)>, DecodeError> {
+    Ok(arrived_prefix(bytes, limits)?.map(|p| (p.layout.chunk_ranges()[..p.chunks].last().map_or(0, |r| r.end), p.degree)))
+}
+
+/// The part of a file [`decode_prefix`] decodes: its first `chunks` chunks (whole levels) with SH
+/// up to `degree`.
+struct Prefix<'a> {
+    container: sections::Container<'a>,
+    layout: Layout,
+    chunks: usize,
+    degree: u8,
+}
+
+/// The rule of [`decode_prefix`]: the levels whose base sections have all arrived, and the SH
+/// bands whose sections for them have.
+fn arrived_prefix<'a>(bytes: &'a [u8], limits: &Limits) -> Result<Option<Prefix<'a>>, DecodeError> {
     if bitstream::MAGIC.starts_with(bytes) {
         return Ok(None); // not even the magic has arrived
     }
@@ -391,12 +434,20 @@ pub fn decode_prefix(bytes: &[u8], limits: &Limits) -> Result<Option<Splats>, De
     };
     let table = read_table(bytes)?;
     let wanted = check_limits(&table, limits)?;
-    let arrived = |g: Group| !c.pending.iter().any(|id| id.kind == g.params_kind() || id.kind == g.data_kind());
-    if !Group::present(0).all(arrived) {
+    let pending: std::collections::HashSet<SectionId> = c.pending.iter().copied().collect();
+    let pending = |kind: u16, chunk: usize| u16::try_from(chunk).is_ok_and(|chunk| pending.contains(&SectionId { kind, chunk }));
+    if pending(LEVELS_KIND, 0) || !Group::present(0).all(|g| !pending(g.params_kind(), 0)) {
         return Ok(None);
     }
-    let degree = (1..=wanted).take_while(|&b| arrived(Group::for_band(b))).last().unwrap_or(0);
-    let mut out = Splats::new(degree);
-    decode_container(&c, degree, &mut out)?;
-    Ok(Some(out))
+    let layout = c.layout()?;
+    let arrived =
+        |g: Group, chunks: std::ops::Range<usize>| !pending(g.params_kind(), 0) && chunks.into_iter().all(|ch| !pending(g.data_kind(), ch));
+    let levels = layout.level_ranges();
+    let complete = levels.iter().take_while(|r| Group::present(0).all(|g| arrived(g, (*r).clone()))).count();
+    if complete == 0 && !levels.is_empty() {
+        return Ok(None);
+    }
+    let chunks = levels[..complete].last().map_or(0, |r| r.end);
+    let degree = (1..=wanted).take_while(|&b| arrived(Group::for_band(b), 0..chunks)).last().unwrap_or(0);
+    Ok(Some(Prefix { container: c, layout, chunks, degree }))
 }

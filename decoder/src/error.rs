@@ -8,20 +8,20 @@
 
 use std::fmt;
 
-use crate::bitstream::layout::{Group, INFO_KIND, PADDING_KIND};
+use crate::bitstream::layout::{Group, INFO_KIND, LEVELS_KIND, PADDING_KIND};
 
 /// A section of a `.gsc` file: its kind and chunk (SPEC §3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct SectionId {
-    /// Section kind (`0x10 + g` parameters, `0x20 + g` data, `0x100` info, `0x101` padding).
+    /// Section kind (`0x01` levels, `0x10 + g` parameters, `0x20 + g` data, `0x100` info, `0x101` padding).
     pub kind: u16,
     /// Chunk index (0 except for data sections).
     pub chunk: u16,
 }
 
 impl SectionId {
-    /// What the section holds: a group name with `parameters` or `data`, `info`, `padding` or
-    /// `unknown`.
+    /// What the section holds: a group name with `parameters` or `data`, `levels`, `info`,
+    /// `padding` or `unknown`.
     pub fn name(self) -> String {
         if let Some(g) = Group::of_kind(self.kind) {
             return format!("{} {}", g.name(), if g.params_kind() == self.kind { "parameters" } else { "data" });
@@ -29,6 +29,7 @@ impl SectionId {
         match self.kind {
             INFO_KIND => "info".into(),
             PADDING_KIND => "padding".into(),
+            LEVELS_KIND => "levels".into(),
             _ => "unknown".into(),
         }
     }
@@ -225,7 +226,12 @@ impl fmt::Display for UnsupportedError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.what {
             Unsupported::Version { major, minor } => {
-                write!(f, "unsupported format version {major}.{minor} (this decoder reads {}.x)", crate::bitstream::VERSION_MAJOR)
+                write!(
+                    f,
+                    "unsupported format version {major}.{minor} (this decoder reads {}.x and {}.x)",
+                    crate::bitstream::VERSION_MAJOR_UNIFORM,
+                    crate::bitstream::VERSION_MAJOR
+                )
             }
             Unsupported::Section { id, offset } => {
                 write!(f, "unknown required section kind {:#x} (chunk {}, table entry at byte {offset})", id.kind, id.chunk)

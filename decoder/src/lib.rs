@@ -58,7 +58,9 @@ pub use bitstream::info::EncoderInfo;
 pub use bitstream::layout::Group;
 pub use bitstream::Header;
 pub use camera::Camera;
-pub use decoder::{decode, decode_prefix, decode_with, inspect, peek_header, Decoder, FileInfo, Info, Limits, Reader, SectionInfo};
+pub use decoder::{
+    decode, decode_prefix, decode_with, inspect, peek_header, prefix_extent, Decoder, FileInfo, Info, Limits, Reader, SectionInfo,
+};
 pub use error::{ChecksumError, DecodeError, FormatError, FormatErrorKind, Limit, LimitError, SectionId, UnsupportedError};
 pub use render::{Image, RenderOptions};
 pub use splats::{SceneError, Splats};

@@ -54,6 +54,48 @@ fn every_prefix_decodes_to_nothing_the_base_or_more_bands() {
     assert_eq!(decode_prefix(&bytes[..first_base], &limits).unwrap().unwrap(), base);
 }
 
+/// The Gaussians `range` of `s`, as a scene.
+fn slice(s: &Splats, range: std::ops::Range<usize>) -> Splats {
+    let mut out = s.clone();
+    out.retain_indices(|i| range.contains(&i));
+    out
+}
+
+#[test]
+fn every_prefix_of_a_progressive_file_is_whole_levels() {
+    let bytes = vector("levels.gsc");
+    let limits = Limits::default();
+    let full = decode(&bytes).unwrap();
+    let info = gscodec_decoder::inspect(&bytes).unwrap();
+    assert_eq!((info.info.header.version_major, full.len(), full.sh_degree), (4, 1000, 3));
+    assert_eq!(info.levels, vec![63, 62, 125, 250, 500]);
+    // The Gaussian counts a prefix may show: every level complete, or none.
+    let ends: Vec<usize> = info.levels.iter().scan(0, |e, &k| Some(*e += k).map(|_| *e)).collect();
+    let mut shown = Vec::new();
+    for n in 0..=bytes.len() {
+        let Some(s) = decode_prefix(&bytes[..n], &limits).unwrap() else {
+            assert!(shown.is_empty(), "a longer prefix lost the scene at {n}");
+            continue;
+        };
+        assert!(ends.contains(&s.len()), "prefix {n}: {} Gaussians is not a level boundary", s.len());
+        if let Some(&(len, degree)) = shown.last() {
+            assert!(s.len() >= len && s.sh_degree >= degree, "prefix {n} shows less than a shorter one");
+        }
+        // The first Gaussians of the full decode, with the bands that have arrived.
+        assert_eq!(s, slice(&full, 0..s.len()).with_sh_degree(s.sh_degree), "prefix {n}");
+        if shown.last() != Some(&(s.len(), s.sh_degree)) {
+            shown.push((s.len(), s.sh_degree));
+        }
+    }
+    // Level by level with the base only, then the SH bands one by one.
+    assert_eq!(shown, vec![(63, 0), (125, 0), (250, 0), (500, 0), (1000, 0), (1000, 1), (1000, 2), (1000, 3)]);
+    // The levels section is checked as soon as it arrives: one chunk size off is an error.
+    let mut bad = bytes.clone();
+    let table_end = 20 + 16 * usize::from(u16::from_le_bytes([bad[6], bad[7]]));
+    bad[table_end + 2] ^= 1; // the first level's chunk size (63 → 62)
+    assert_eq!(decode_prefix(&bad[..table_end + 40], &limits).unwrap_err().class(), "checksum");
+}
+
 #[test]
 fn prefix_decoding_still_rejects_corruption() {
     let mut bytes = vector("tiny.gsc");

@@ -173,3 +173,56 @@ fn random_and_mutated_bytes_give_scenes_or_typed_errors() {
     eprintln!("{cases} cases, {decoded} decoded to a valid scene, the rest typed errors");
     assert!(decoded < cases, "no mutation was refused");
 }
+
+/// The levels section (SPEC §3.1) of `levels.gsc` replaced by random chunk and level lists —
+/// sizes of 0, 1, around the real ones, 65,536 and beyond, sums right and wrong — with the table
+/// and CRCs made valid, so that every one reaches the levels reader and what follows it.
+#[test]
+fn random_levels_sections_give_scenes_or_typed_errors() {
+    let bytes = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("../bitstream-spec/vectors/levels.gsc")).unwrap();
+    let table_end = 20 + 16 * usize::from(u16::from_le_bytes([bytes[6], bytes[7]]));
+    assert_eq!(u16::from_le_bytes([bytes[16], bytes[17]]), 0x01, "the levels section is the first entry");
+    let old_len = u32::from_le_bytes(bytes[24..28].try_into().unwrap()) as usize;
+    let varint = |out: &mut Vec<u8>, mut v: u32| loop {
+        let b = (v & 0x7f) as u8;
+        v >>= 7;
+        out.push(if v != 0 { b | 0x80 } else { b });
+        if v == 0 {
+            break;
+        }
+    };
+    let mut rng = Rng::new(0x1e7e_15);
+    let sizes = [0u32, 1, 2, 62, 63, 64, 125, 250, 500, 937, 1000, 65_536, 65_537, u32::MAX];
+    let (mut decoded, mut cases) = (0, 0);
+    for round in 0..600 {
+        let mut payload = Vec::new();
+        let levels = below(&mut rng, 7) as u32;
+        varint(&mut payload, levels);
+        for _ in 0..levels {
+            let chunks = below(&mut rng, 4) as u32;
+            varint(&mut payload, chunks);
+            for _ in 0..chunks {
+                varint(&mut payload, sizes[below(&mut rng, sizes.len())]);
+            }
+        }
+        if round % 3 == 0 {
+            // One level of chunks summing to N, split at random points.
+            payload.clear();
+            let mut cuts: Vec<u32> = (0..below(&mut rng, 6)).map(|_| 1 + below(&mut rng, 999) as u32).chain([0, 1000]).collect();
+            cuts.sort_unstable();
+            cuts.dedup();
+            varint(&mut payload, 1);
+            varint(&mut payload, cuts.len() as u32 - 1);
+            cuts.windows(2).for_each(|w| varint(&mut payload, w[1] - w[0]));
+        }
+        let mut b = bytes[..table_end].to_vec();
+        b[24..28].copy_from_slice(&(payload.len() as u32).to_le_bytes());
+        b.extend_from_slice(&payload);
+        b.extend_from_slice(&bytes[table_end + old_len..]);
+        repair_crcs(&mut b);
+        decoded += usize::from(check(&b, &format!("levels {round}"), false));
+        cases += 1;
+    }
+    eprintln!("{cases} levels sections, {decoded} decoded");
+    assert!(decoded < cases);
+}

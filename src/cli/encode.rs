@@ -45,6 +45,11 @@ pub struct Args {
     /// is one, else cpu).
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
+    /// Write the Gaussians in importance levels (format 4.0): a player that has a prefix of the
+    /// file draws the most important 1/16 first, then 1/16, 1/8, 1/4 and 1/2 more (docs/codec.md
+    /// gives its cost in bytes).
+    #[arg(long)]
+    pub progressive: bool,
     /// Write a JSON report (sizes per attribute group, estimated vs actual, stage times, time series).
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -70,6 +75,7 @@ impl Args {
             .with_learned_steps(!self.fixed_steps)
             .with_loss(LossSpec::from_args(&self.loss, LossKind::Wdr))
             .with_backend(self.backend)
+            .with_progressive(self.progressive)
     }
 }
 

@@ -1,4 +1,5 @@
-//! `gscodec info`: what a `.gsc` file holds (version, counts, per-section bytes, what was left out).
+//! `gscodec info`: what a `.gsc` file holds (version, counts, importance levels, per-section bytes,
+//! what was left out).
 
 use std::path::PathBuf;
 
@@ -48,6 +49,7 @@ pub fn run(args: Args) -> crate::Result<()> {
             "sh_degree": h.sh_degree,
             "bytes": info.info.file_bytes,
             "sections": sections,
+            "levels": info.levels,
             "group_bytes": groups.iter().map(|(n, b)| (n.clone(), json!(b))).collect::<serde_json::Map<_, _>>(),
             "left_out": {
                 "pruned_gaussians": pruned,
@@ -64,6 +66,10 @@ pub fn run(args: Args) -> crate::Result<()> {
         println!("gaussians   {}", h.gaussians);
         println!("sh_degree   {}", h.sh_degree);
         println!("bytes       {}", info.info.file_bytes);
+        if info.levels.len() > 1 {
+            let sizes: Vec<String> = info.levels.iter().map(|k| k.to_string()).collect();
+            println!("levels      {}: {} Gaussians", info.levels.len(), sizes.join(" + "));
+        }
         for (name, b) in &groups {
             println!("  {name:<10} {b:>10} bytes");
         }

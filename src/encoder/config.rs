@@ -26,6 +26,8 @@ pub struct EncoderConfig {
     pub backend: Backend,
     /// Training seed.
     pub seed: u64,
+    /// Write importance levels (a progressive 4.0 file, [`crate::rate::EncodeConfig::progressive`]).
+    pub progressive: bool,
 }
 
 impl Default for EncoderConfig {
@@ -37,6 +39,7 @@ impl Default for EncoderConfig {
             loss: LossSpec { kind: LossKind::Wdr, ..LossSpec::default() },
             backend: Backend::default(),
             seed: 0,
+            progressive: false,
         }
     }
 }
@@ -75,6 +78,12 @@ impl EncoderConfig {
     /// Sets the training seed.
     pub fn with_seed(mut self, seed: u64) -> Self {
         self.seed = seed;
+        self
+    }
+
+    /// Writes importance levels (true) or one level (false).
+    pub fn with_progressive(mut self, progressive: bool) -> Self {
+        self.progressive = progressive;
         self
     }
 

@@ -224,6 +224,7 @@ impl Encoder {
         heldout: Option<&Dataset>,
     ) -> Result<Encoded> {
         let t = Instant::now();
+        let config = &EncodeConfig { progressive: self.config.progressive, ..*config };
         let (bytes, r, q) = rate::encode(coded, config).map_err(|e| Error::Input(e.to_string()))?;
         stages.write_s = t.elapsed().as_secs_f64();
         let t = Instant::now();

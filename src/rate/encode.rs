@@ -5,12 +5,14 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use gscodec_decoder::bitstream::info::{write_info, EncoderInfo};
-use gscodec_decoder::bitstream::layout::{chunk_count, Group, CHUNK, INFO_KIND};
+use std::ops::Range;
+
+use gscodec_decoder::bitstream::layout::{Group, INFO_KIND, LEVELS_KIND};
 use gscodec_decoder::bitstream::params::{write_channel_params, write_position_params};
 use gscodec_decoder::bitstream::positions::{delta_length, delta_raw_bits, morton_deltas, write_position_stream};
 use gscodec_decoder::bitstream::sections::write_padded;
 use gscodec_decoder::bitstream::stream::write_channel_streams;
-use gscodec_decoder::bitstream::{Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MINOR};
+use gscodec_decoder::bitstream::{Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MAJOR_UNIFORM, VERSION_MINOR};
 use gscodec_decoder::entropy::ChannelTable;
 
 use super::quantise::Quantised;
@@ -65,12 +67,11 @@ struct GroupPlan {
     context_bits: f64,
 }
 
-fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
-    let compare = |v: &[i32], contexts: bool| if learned { tables::compare(v, contexts) } else { tables::histogram_only(v, contexts) };
+fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool) -> Vec<GroupPlan> {
+    let compare = |v: &[i32], contexts| if learned { tables::compare(v, contexts) } else { tables::histogram_only(v, contexts) };
     let mut plans = Vec::new();
-    let deltas = morton_deltas(&q.morton);
     let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
-    let cmp = compare(&lens, false); // position lengths are never context-coded (SPEC §4)
+    let cmp = compare(&lens, None); // position lengths are never context-coded (SPEC §4)
     let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
     let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
     let t = cmp.best;
@@ -83,7 +84,7 @@ fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
         context_bits: f64::NAN,
     });
     for (g, steps, chans) in &q.groups {
-        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| compare(c, true)).collect();
+        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| compare(c, Some(chunks))).collect();
         let histogram_bits = cmps.iter().map(|c| c.histogram_bits).sum();
         let learned_bits = cmps.iter().map(|c| c.learned_bits).sum();
         // A channel where contexts were not tried (a constant) costs its histogram bits.
@@ -95,9 +96,8 @@ fn plan(q: &Quantised, learned: bool) -> Vec<GroupPlan> {
     plans
 }
 
-/// The data section of plan `p`'s group, chunk `ch`.
-fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<u8> {
-    let range = ch * CHUNK..((ch + 1) * CHUNK).min(q.len());
+/// The data section of plan `p`'s group for the chunk of Gaussians `range`.
+fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], range: Range<usize>) -> Vec<u8> {
     if p.group == Group::Position {
         write_position_stream(&p.tables[0].table, &deltas[range])
     } else {
@@ -109,17 +109,34 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], ch: usize) -> Vec<
 }
 
 /// Encodes a quantised scene. `input` = (Gaussians, SH degree) of the encoder's input, for `info`.
+///
+/// A scene with levels ([`Quantised::levels`]) is written as format 4.0 with a levels section,
+/// in the payload order of SPEC §3 for progressive decoding: levels, parameters, then chunk by
+/// chunk the base groups (position, scale, rotation, opacity, DC colour), then each SH band chunk
+/// by chunk, then info. Without levels it is a 3.0 file (same order, one level).
 pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8>, EncodeReport) {
     let n = q.len();
-    let header = Header { version_major: VERSION_MAJOR, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
+    let progressive = !q.levels.is_empty();
+    let version_major = if progressive { VERSION_MAJOR } else { VERSION_MAJOR_UNIFORM };
+    let header = Header { version_major, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
     let info = write_info(&EncoderInfo { input_gaussians: input.0.min(u32::MAX as usize) as u32, input_sh_degree: input.1 });
     let mut report = EncodeReport { gaussians: n, sh_degree: q.sh_degree, position_bits: q.grid.2, file_bytes: 0, groups: Vec::new() };
     let mut payloads: Vec<(u16, u16, u32, Vec<u8>)> = Vec::new();
     if n > 0 {
-        let deltas = morton_deltas(&q.morton);
-        let plans = plan(q, learned_tables);
-        let jobs: Vec<(usize, usize)> = (0..plans.len()).flat_map(|p| (0..chunk_count(n)).map(move |c| (p, c))).collect();
-        let streams: Vec<Vec<u8>> = jobs.par_iter().map(|&(p, c)| encode_chunk(q, &plans[p], &deltas, c)).collect();
+        let layout = q.layout();
+        if progressive {
+            payloads.push((LEVELS_KIND, 0, 0, layout.write()));
+        }
+        let chunks = layout.chunk_ranges();
+        let deltas = morton_deltas(&q.morton, &chunks);
+        let plans = plan(q, &chunks, &deltas, learned_tables);
+        // Chunk-major for the base groups, then band-major for SH (plans are in group order).
+        let base = plans.iter().take_while(|p| p.group.sh_band() == 0).count();
+        let jobs: Vec<(usize, usize)> = (0..chunks.len())
+            .flat_map(|c| (0..base).map(move |p| (p, c)))
+            .chain((base..plans.len()).flat_map(|p| (0..chunks.len()).map(move |c| (p, c))))
+            .collect();
+        let streams: Vec<Vec<u8>> = jobs.par_iter().map(|&(p, c)| encode_chunk(q, &plans[p], &deltas, chunks[c].clone())).collect();
         for p in &plans {
             payloads.push((p.group.params_kind(), 0, 0, p.params.clone()));
             report.groups.push(GroupReport {

@@ -6,6 +6,9 @@
 //! ([`gscodec_decoder::render::contributions`]). The unit is pixels of those views: a Gaussian
 //! that alone covers one pixel fully in one view scores 1; one that no view sees (culled,
 //! off-screen, always under 1/255 alpha or behind opaque Gaussians) scores 0.
+//!
+//! [`levels`] cuts the Gaussians, most significant first, into the importance levels of a
+//! progressive file (SPEC §3.1): sizes doubling, 1/16, 1/16, 1/8, 1/4, 1/2 of them.
 
 use gscodec_decoder::render::contributions;
 use gscodec_decoder::{RenderOptions, Splats};
@@ -26,6 +29,28 @@ pub fn significance(scene: &Splats) -> Vec<f32> {
         }
     }
     sum.into_iter().map(|v| v as f32).collect()
+}
+
+/// Number of importance levels of a progressive file.
+pub const LEVELS: u32 = 5;
+
+/// The importance level of every Gaussian given their `significance`: ranked by decreasing
+/// significance (ties by index), level `l` holds the ranks below `⌈N / 2^(LEVELS−1−l)⌉` not in
+/// an earlier level — the top 1/16, the next 1/16, then 1/8, 1/4 and the remaining 1/2.
+pub fn levels(significance: &[f32]) -> Vec<u8> {
+    let n = significance.len();
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| significance[b].total_cmp(&significance[a]).then(a.cmp(&b)));
+    let end = |l: u32| n.div_ceil(1 << (LEVELS - 1 - l));
+    let mut level = vec![0u8; n];
+    let mut l = 0;
+    for (rank, &i) in order.iter().enumerate() {
+        while rank >= end(l) {
+            l += 1;
+        }
+        level[i] = l as u8;
+    }
+    level
 }
 
 #[cfg(test)]
@@ -53,5 +78,22 @@ mod tests {
         let total: f64 = sig.iter().map(|&v| v as f64).sum();
         assert!(covered > 1000.0, "{covered}");
         assert!((total - covered).abs() < 1e-4 * covered, "Σ significance {total} vs covered {covered}");
+    }
+
+    #[test]
+    fn levels_double_and_follow_significance() {
+        let sig: Vec<f32> = (0..100).map(|i| ((i * 37) % 100) as f32).collect();
+        let level = levels(&sig);
+        let sizes: Vec<usize> = (0..LEVELS as u8).map(|l| level.iter().filter(|&&x| x == l).count()).collect();
+        assert_eq!(sizes, vec![7, 6, 12, 25, 50]); // ends at ⌈100/16⌉, ⌈100/8⌉, 25, 50, 100
+        for i in 0..100 {
+            for j in 0..100 {
+                if sig[i] > sig[j] {
+                    assert!(level[i] <= level[j]);
+                }
+            }
+        }
+        assert_eq!(levels(&[1.0, 3.0, 2.0]), vec![4, 0, 3]); // ends 1, 1, 1, 2, 3: levels 1 and 2 empty
+        assert!(levels(&[]).is_empty());
     }
 }

@@ -6,7 +6,7 @@
 //! * [`importance`] — per-Gaussian significance (blending weight summed over the standard views).
 //! * [`lambda`] — [`Lambda`], the one unit of the rate–distortion trade-off, and its conversions.
 //! * [`tables`] — the integer tables written to the file and their exact cost.
-//! * [`encode`] — streams per (group, chunk) and the container.
+//! * [`encode`] — streams per (group, chunk), levels, and the container.
 
 pub mod encode;
 pub mod group;
@@ -43,6 +43,10 @@ pub struct EncodeConfig {
     /// Also fit the learned density per channel and store it where it is cheaper than the
     /// static histogram (slower; the RD search turns it off for its trial encodes).
     pub learned_tables: bool,
+    /// Write the Gaussians in importance levels ([`importance::levels`], SPEC §3.1, format 4.0)
+    /// so that a player can draw the most important ones from a prefix of the file; off = one
+    /// level (format 3.0).
+    pub progressive: bool,
 }
 
 impl Default for EncodeConfig {
@@ -54,6 +58,7 @@ impl Default for EncodeConfig {
             sh_drop: [0.0; 3],
             max_sh_degree: 3,
             learned_tables: true,
+            progressive: false,
         }
     }
 }
@@ -124,7 +129,8 @@ pub fn encode_with(
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);
     }
-    let q = quantise::quantise(&s, &config.steps);
+    let level = if config.progressive { importance::levels(&importance::significance(&s)) } else { Vec::new() };
+    let q = quantise::quantise(&s, &config.steps, &level);
     let (bytes, report) = encode::write(&q, input, config.learned_tables);
     Ok((bytes, report, q))
 }

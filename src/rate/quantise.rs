@@ -3,6 +3,7 @@
 
 use gscodec_decoder::bitstream::assemble::{assemble, dequantise_channels, Piece};
 use gscodec_decoder::bitstream::layout::{Group, MAX_POSITION_BITS};
+use gscodec_decoder::bitstream::levels::Layout;
 use gscodec_decoder::bitstream::positions::{morton_encode, position_of};
 use gscodec_decoder::math::sigmoid;
 use gscodec_decoder::Splats;
@@ -60,13 +61,17 @@ impl Steps {
     }
 }
 
-/// A scene in quantised form, Gaussians in Morton order: exactly what the file holds.
+/// A scene in quantised form, Gaussians in file order (by level, then Morton order within each
+/// level): exactly what the file holds.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Quantised {
     pub sh_degree: u8,
     /// Grid origin, step and bits per axis.
     pub grid: ([f32; 3], [f32; 3], u8),
-    /// Sorted Morton codes of the grid positions.
+    /// Gaussians of each importance level (SPEC §3.1), in file order; empty for a file without
+    /// levels (format 3.0: one level).
+    pub levels: Vec<usize>,
+    /// Morton codes of the grid positions, sorted within each level.
     pub morton: Vec<u64>,
     /// For every group except Position: dequantisation steps and channel values (`[channel][gaussian]`).
     pub groups: Vec<(Group, Vec<f32>, Vec<Vec<i32>>)>,
@@ -79,6 +84,15 @@ impl Quantised {
 
     pub fn is_empty(&self) -> bool {
         self.morton.is_empty()
+    }
+
+    /// The file's chunks and levels.
+    pub fn layout(&self) -> Layout {
+        if self.levels.is_empty() {
+            Layout::uniform(self.len())
+        } else {
+            Layout::from_levels(&self.levels)
+        }
     }
 }
 
@@ -113,7 +127,9 @@ fn q_dz(v: f32, step: f32, dz: f32) -> i32 {
 }
 
 /// Quantises `splats` (already pruned and validated) with `steps`, reordering to Morton order.
-pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
+/// With `level` (one entry per Gaussian, e.g. [`super::importance::levels`]), Gaussians are
+/// ordered by level first and [`Quantised::levels`] holds the level sizes; empty = one level.
+pub fn quantise(splats: &Splats, steps: &Steps, level: &[u8]) -> Quantised {
     let n = splats.len();
     let bits = steps.position_bits.unwrap_or_else(|| position_bits(splats, steps.position_rel)).min(MAX_POSITION_BITS);
     let (lo, hi) = splats.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
@@ -127,17 +143,26 @@ pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
         }
     }
     let max_q = (1u64 << bits) - 1;
-    let mut keyed: Vec<(u64, usize)> = (0..n)
+    let level_of = |i: usize| level.get(i).copied().unwrap_or(0);
+    let mut keyed: Vec<(u8, u64, usize)> = (0..n)
         .map(|i| {
             let qs: [u32; 3] = std::array::from_fn(|a| {
                 let t = (f64::from(splats.positions[i][a]) - f64::from(lo[a])) / f64::from(step[a]);
                 t.round().clamp(0.0, max_q as f64) as u32
             });
-            (morton_encode(qs, bits), i)
+            (level_of(i), morton_encode(qs, bits), i)
         })
         .collect();
     keyed.sort_unstable();
-    let order: Vec<usize> = keyed.iter().map(|&(_, i)| i).collect();
+    let order: Vec<usize> = keyed.iter().map(|&(_, _, i)| i).collect();
+    let mut levels = Vec::new();
+    if !level.is_empty() {
+        for &(l, ..) in &keyed {
+            levels.resize(levels.len().max(l as usize + 1), 0);
+            levels[l as usize] += 1;
+        }
+        levels.retain(|&k| k > 0);
+    }
 
     let mut groups = Vec::new();
     let per = |f: &dyn Fn(usize) -> i32| order.iter().map(|&i| f(i)).collect::<Vec<i32>>();
@@ -158,8 +183,13 @@ pub fn quantise(splats: &Splats, steps: &Steps) -> Quantised {
         let chans = (0..w).map(|j| per(&|i| q_dz(splats.sh_rest[(i * k + first) * 3 + j], s, steps.rest_deadzone))).collect();
         groups.push((Group::for_band(b), vec![s; w], chans));
     }
-    let mut out =
-        Quantised { sh_degree: splats.sh_degree, grid: (lo, step, bits), morton: keyed.iter().map(|&(m, _)| m).collect(), groups };
+    let mut out = Quantised {
+        sh_degree: splats.sh_degree,
+        grid: (lo, step, bits),
+        levels,
+        morton: keyed.iter().map(|&(_, m, _)| m).collect(),
+        groups,
+    };
     // Leave out SH bands whose coefficients all quantise to zero.
     while out.sh_degree > 0 {
         let g = Group::for_band(out.sh_degree);

@@ -1,7 +1,8 @@
 //! Choosing a channel's integer table: range, escape and weight precision that minimise
 //! table bytes plus coded bits (the static-histogram model), and its exact cost.
 
-use gscodec_decoder::bitstream::layout::CHUNK;
+use std::ops::Range;
+
 use gscodec_decoder::bitstream::ByteWriter;
 use gscodec_decoder::entropy::{in_context, symbol_of, ChannelTable, FreqTable, SymbolEncoder, CONTEXTS, MAX_SYMBOLS};
 
@@ -88,17 +89,17 @@ fn best_weights(shape: &[f64], counts: &[u64]) -> (Vec<u32>, FreqTable, f64) {
 }
 
 /// The context-coded version of a coded channel `base` (same range and escape): one histogram
-/// per context, contexts as the decoder sees them: per chunk of [`CHUNK`] Gaussians (one stream),
+/// per context, contexts as the decoder sees them: per chunk (`chunks`, one stream each),
 /// [`in_context`] with the channel's median as the centre.
-pub fn with_contexts(values: &[i32], base: &ChosenTable) -> Option<ChosenTable> {
+pub fn with_contexts(values: &[i32], base: &ChosenTable, chunks: &[Range<usize>]) -> Option<ChosenTable> {
     let ChannelTable::Coded { lo, table } = &base.table else { return None };
     let (lo, n) = (*lo, table.len() - 1);
     let mut scratch = values.to_vec();
     let half = scratch.len() / 2;
     let centre = *scratch.select_nth_unstable(half).1; // the median
     let mut counts = [(); CONTEXTS].map(|_| vec![0u64; n + 1]);
-    for chunk in values.chunks(CHUNK) {
-        for (ctx, v) in in_context(chunk, centre) {
+    for chunk in chunks {
+        for (ctx, v) in in_context(&values[chunk.clone()], centre) {
             counts[ctx][symbol_of(lo, n, v)] += 1;
         }
     }
@@ -128,11 +129,12 @@ pub struct Compared {
     pub context_bits: f64,
 }
 
-/// The static histogram, and its context-coded version when `contexts` (the learned cost is NaN).
-pub fn histogram_only(values: &[i32], contexts: bool) -> Compared {
+/// The static histogram, and its context-coded version when `contexts` gives the chunks (the
+/// learned cost is NaN).
+pub fn histogram_only(values: &[i32], contexts: Option<&[Range<usize>]>) -> Compared {
     let hist = choose(values);
     let h = hist.total_bits();
-    let ctx = if contexts { with_contexts(values, &hist) } else { None };
+    let ctx = contexts.and_then(|chunks| with_contexts(values, &hist, chunks));
     let c = ctx.as_ref().map_or(f64::NAN, ChosenTable::total_bits);
     let best = match ctx {
         Some(ctx) if c < h => ctx,
@@ -141,8 +143,9 @@ pub fn histogram_only(values: &[i32], contexts: bool) -> Compared {
     Compared { best, histogram_bits: h, learned_bits: f64::NAN, context_bits: c }
 }
 
-/// Builds all the tables for `values` (contexts only when `contexts`) and keeps the cheapest.
-pub fn compare(values: &[i32], contexts: bool) -> Compared {
+/// Builds all the tables for `values` (contexts only when `contexts` gives the chunks, each one
+/// stream) and keeps the cheapest.
+pub fn compare(values: &[i32], contexts: Option<&[Range<usize>]>) -> Compared {
     let mut out = histogram_only(values, contexts);
     if matches!(out.best.table, ChannelTable::Constant(_)) {
         out.learned_bits = out.histogram_bits;

@@ -3,8 +3,8 @@
 //!
 //! * [`decode`]`(bytes, options?)` → a scene of `Float32Array`s.
 //! * [`info`]`(bytes)` → header, sections and their sizes, without decoding.
-//! * [`StreamDecoder`]: `push(chunk)` hands out coarse scenes as SH bands arrive, `finish()` the
-//!   whole scene.
+//! * [`StreamDecoder`]: `push(chunk)` hands out coarse scenes as importance levels and SH bands
+//!   arrive, `finish()` the whole scene.
 //!
 //! The JavaScript layer here only converts; the logic is in [`scene`] (tested on the host) and the
 //! decoder calls are in [`door`].
@@ -69,6 +69,9 @@ export interface FileInfo extends Header {
   /** Gaussians and SH degree of the encoder's input, when the file records them. */
   inputGaussians?: number;
   inputShDegree?: number;
+  /** Gaussians of each importance level, in file order: several in a progressive (4.0) file,
+   *  one (all) otherwise, none when empty. A StreamDecoder hands out the levels one by one. */
+  levels: number[];
   /** Channels stored as one constant, and channels coded with context tables ("group/channel"). */
   constantChannels: string[];
   contextChannels: string[];
@@ -176,6 +179,7 @@ pub fn info(bytes: &[u8]) -> Result<JsValue, JsValue> {
         sections.push(&o);
     }
     set(&obj, "sections", sections);
+    set(&obj, "levels", fi.levels.iter().map(|&k| JsValue::from(k as f64)).collect::<Array>());
     if let Some(e) = fi.encoder {
         set(&obj, "inputGaussians", e.input_gaussians);
         set(&obj, "inputShDegree", e.input_sh_degree);
@@ -201,9 +205,10 @@ impl StreamDecoder {
         Ok(StreamDecoder { stream: Stream::new(degree), units })
     }
 
-    /// Appends the next bytes. Returns a coarse scene when one with more SH bands than the last
-    /// became available (the base first, then each band, short of the full scene), else
-    /// `undefined`. Throws on a malformed file; after an error every call throws it again.
+    /// Appends the next bytes. Returns a coarse scene when one with more than the last became
+    /// available (in a progressive file each importance level of Gaussians, then in any file each
+    /// SH band, short of the full scene), else `undefined`. Throws on a malformed file; after an
+    /// error every call throws it again.
     #[wasm_bindgen(unchecked_return_type = "Scene | undefined")]
     pub fn push(&mut self, chunk: &[u8]) -> Result<JsValue, JsValue> {
         let scene = self.stream.push(chunk).map_err(js_error)?;

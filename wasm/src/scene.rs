@@ -111,9 +111,10 @@ const HEADER_BYTES: usize = 16;
 /// looking on every small network chunk would cost time quadratic in the file size.
 const MIN_CHECK_STEP: usize = 16 << 10;
 
-/// Decodes a file as it arrives. [`Stream::push`] hands out a coarse scene whenever more SH bands
-/// have arrived than the last one had (the base — positions, scales, rotations, opacities, DC
-/// colour — first, then each band), as long as that is still short of the full scene;
+/// Decodes a file as it arrives. [`Stream::push`] hands out a coarse scene whenever more has
+/// arrived than the last one had — in a progressive (4.0) file each importance level of
+/// Gaussians (their base: positions, scales, rotations, opacities, DC colour), then, in any file,
+/// each SH band — as long as that is still short of the full scene;
 /// [`Stream::finish`] decodes and checks the whole file. A failure is final: later calls repeat it.
 #[derive(Debug)]
 pub struct Stream {
@@ -121,8 +122,8 @@ pub struct Stream {
     min_check_step: usize,
     buf: Vec<u8>,
     header: Option<Header>,
-    /// SH degree of the last coarse scene handed out.
-    shown: Option<u8>,
+    /// Gaussians and SH degree of the last coarse scene handed out.
+    shown: Option<(usize, u8)>,
     next_check: usize,
     failed: Option<Error>,
     finished: bool,
@@ -184,16 +185,18 @@ impl Stream {
             None if self.buf.len() < HEADER_BYTES => return Ok(None),
             None => *self.header.insert(door::peek(&self.buf)?),
         };
-        // The best coarse scene has one band less than the full one.
-        let Some(best) = header.sh_degree.min(self.max_sh_degree).checked_sub(1) else { return Ok(None) };
-        if header.gaussians == 0 || self.shown == Some(best) || self.buf.len() < self.next_check {
+        // The full scene is `finish`'s; the best coarse one has every Gaussian and one band less.
+        let (n, wanted) = (header.gaussians as usize, header.sh_degree.min(self.max_sh_degree));
+        let done = |s: (usize, u8)| s.0 == n && s.1 + 1 >= wanted;
+        if n == 0 || self.shown.is_some_and(done) || self.buf.len() < self.next_check {
             return Ok(None);
         }
         self.next_check = self.buf.len() + (self.buf.len() / 8).max(self.min_check_step);
-        match door::arrived_degree(&self.buf, self.max_sh_degree)? {
-            Some(d) if d <= best && self.shown.is_none_or(|s| d > s) => {
+        match door::prefix_extent(&self.buf, self.max_sh_degree)? {
+            // More Gaussians, or as many with more bands (levels arrive before the bands).
+            Some(e) if e != (n, wanted) && self.shown.is_none_or(|s| e > s) => {
                 let scene = door::decode_prefix(&self.buf, self.max_sh_degree)?;
-                self.shown = scene.as_ref().map(|s| s.sh_degree).or(self.shown);
+                self.shown = scene.as_ref().map(|s| (s.len(), s.sh_degree)).or(self.shown);
                 Ok(scene)
             }
             _ => Ok(None),
@@ -293,6 +296,30 @@ mod tests {
         let (previews, last) = stream(&bytes, 3, bytes.len(), 1);
         assert!(previews.is_empty());
         assert_eq!(last, full);
+    }
+
+    #[test]
+    fn stream_hands_out_each_importance_level_then_each_band() {
+        let bytes = vector("levels.gsc");
+        let full = door::decode(&bytes, 3).unwrap();
+        let (previews, last) = stream(&bytes, 3, 97, 1);
+        assert_eq!(last, full);
+        // Growing, from the first level on, each a whole-level prefix; the growing look interval
+        // may skip a step that arrives between two looks.
+        let shown: Vec<(usize, u8)> = previews.iter().map(|s| (s.len(), s.sh_degree)).collect();
+        let steps = [(63, 0), (125, 0), (250, 0), (500, 0), (1000, 0), (1000, 1), (1000, 2)];
+        assert!(shown.len() >= 5 && shown[0] == steps[0] && shown.windows(2).all(|w| w[0] < w[1]), "{shown:?}");
+        assert!(shown.iter().all(|s| steps.contains(s)), "{shown:?}");
+        // Each is the first Gaussians of the full scene, with the bands that arrived.
+        for p in &previews {
+            let mut first = full.clone();
+            first.retain_indices(|i| i < p.len());
+            assert_eq!(*p, first.with_sh_degree(p.sh_degree));
+        }
+        // Limited to SH 0, the levels are still handed out, short of the last one.
+        let (previews, _) = stream(&bytes, 0, 97, 1);
+        let shown: Vec<(usize, u8)> = previews.iter().map(|s| (s.len(), s.sh_degree)).collect();
+        assert!(!shown.is_empty() && shown.iter().all(|s| steps[..4].contains(s)), "{shown:?}");
     }
 
     #[test]

@@ -6,7 +6,7 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use super::layout::{Group, CHUNK};
+use super::layout::Group;
 use crate::Splats;
 
 /// A channel value `v` with step `s`: `f32(v) · s` (SPEC §8).
@@ -92,8 +92,8 @@ impl Piece<'_> {
 
 /// Builds a scene of `n` Gaussians and SH degree `degree` from `pieces` into `out` (its
 /// allocations are reused). The pieces of each base group, in order of `first`, must cover
-/// Gaussians `0..n`; each SH piece covers whole runs of `CHUNK` Gaussians, and SH values no
-/// piece covers are zero.
+/// Gaussians `0..n`; SH pieces may cover any runs of Gaussians, and SH values no piece covers are
+/// zero.
 pub fn assemble(n: usize, degree: u8, pieces: &[Piece<'_>], out: &mut Splats) {
     out.sh_degree = degree;
     let of = |group: Group| {
@@ -125,8 +125,19 @@ pub fn assemble(n: usize, degree: u8, pieces: &[Piece<'_>], out: &mut Splats) {
                 ((b * b - 1) * 3 + p.columns.start, p)
             })
             .collect();
-        sh_rest.par_chunks_mut(CHUNK * row).enumerate().for_each(|(block, rows)| {
-            let (start, count) = (block * CHUNK, rows.len() / row);
+        // Blocks of rows between consecutive piece boundaries: each piece covers whole blocks.
+        let mut cuts: Vec<usize> = sh.iter().flat_map(|(_, p)| [p.first, p.first + p.count()]).chain([0, n]).filter(|&c| c <= n).collect();
+        cuts.sort_unstable();
+        cuts.dedup();
+        let mut blocks: Vec<(usize, &mut [f32])> = Vec::with_capacity(cuts.len());
+        let mut rest = &mut sh_rest[..];
+        for w in cuts.windows(2) {
+            let (block, tail) = std::mem::take(&mut rest).split_at_mut((w[1] - w[0]) * row);
+            blocks.push((w[0], block));
+            rest = tail;
+        }
+        blocks.into_par_iter().for_each(|(start, rows)| {
+            let count = rows.len() / row;
             let mine: Vec<(usize, usize, &[f32])> = sh
                 .iter()
                 .filter(|(_, p)| p.first <= start && p.first + p.count() >= start + count)

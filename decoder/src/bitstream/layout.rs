@@ -1,7 +1,8 @@
 //! What the sections of a `.gsc` file hold (SPEC §3): attribute groups, their channels and
 //! section kinds, and chunking.
 
-/// Gaussians are coded in chunks of this many; each (group, chunk) is an independent stream.
+/// Most Gaussians of a chunk (each (group, chunk) is an independent stream): every chunk of a
+/// 3.0 file but the last has this many; a 4.0 file lists its chunk sizes (SPEC §3.1).
 pub const CHUNK: usize = 1 << 16;
 /// Largest position grid resolution in bits per axis (3 × 21 = 63-bit Morton codes).
 pub const MAX_POSITION_BITS: u8 = 21;
@@ -100,12 +101,15 @@ impl Group {
     }
 }
 
+/// Required section of a 4.0 file with N > 0: the chunk sizes and levels (SPEC §3.1,
+/// [`super::levels::Layout`]).
+pub const LEVELS_KIND: u16 = 0x01;
 /// Optional section: encoder information (`u32` Gaussians before pruning, `u8` SH degree of the input).
 pub const INFO_KIND: u16 = 0x100;
 /// Optional section: padding (ignored).
 pub const PADDING_KIND: u16 = 0x101;
 
-/// Number of chunks for `n` Gaussians.
+/// Number of chunks for `n` Gaussians in a 3.0 file.
 pub fn chunk_count(n: usize) -> usize {
     n.div_ceil(CHUNK)
 }

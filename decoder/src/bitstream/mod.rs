@@ -8,6 +8,7 @@
 //! | [`header`] | §2 | [`header::read_header`] | [`header::write_header`] |
 //! | [`sections`] | §2, §3 | [`sections::read_table`], [`sections::parse`], [`sections::parse_prefix`] | [`sections::write`], [`sections::write_padded`] |
 //! | [`layout`] | §3 | attribute groups, section kinds, chunks | |
+//! | [`levels`] | §3.1 | [`levels::Layout::read`] | [`levels::Layout::write`] |
 //! | [`params`] | §4 | [`params::read_params`] | [`params::write_position_params`], [`params::write_channel_params`] |
 //! | [`tables`] | §4.1 | [`tables::ChannelTable::read`] | `ChannelTable::write_*` |
 //! | [`stream`] | §6, §6.2 | channel streams of a data section | [`stream::write_channel_streams`], [`stream::push_stream`] |
@@ -22,6 +23,7 @@ pub mod bytes;
 pub mod header;
 pub mod info;
 pub mod layout;
+pub mod levels;
 pub mod params;
 pub mod positions;
 pub mod sections;
@@ -34,9 +36,13 @@ pub use sections::{parse, parse_prefix, write, Container, Section};
 
 /// First four bytes of every `.gsc` file.
 pub const MAGIC: [u8; 4] = [0x8A, b'G', b'S', b'C'];
-/// Format major version written and read by this crate.
-pub const VERSION_MAJOR: u8 = 3;
-/// Format minor version written by this crate (a reader accepts any minor of its major).
+/// Format major version of this crate: files with importance levels (SPEC §3.1) are written as
+/// 4.0; files of [`VERSION_MAJOR_UNIFORM`] are read too.
+pub const VERSION_MAJOR: u8 = 4;
+/// The previous major version (3.0: no levels section, chunks of 65,536), read by this crate and
+/// written for files of one level of such chunks, so that 3.0 readers can read them.
+pub const VERSION_MAJOR_UNIFORM: u8 = 3;
+/// Format minor version written by this crate (a reader accepts any minor of its majors).
 pub const VERSION_MINOR: u8 = 0;
 /// Section flag: a reader that does not know this section kind may skip it.
 pub const SECTION_OPTIONAL: u32 = 1;

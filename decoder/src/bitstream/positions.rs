@@ -3,7 +3,6 @@
 //! below its leading one raw.
 
 use super::assemble::dequantise_position;
-use super::layout::CHUNK;
 use super::params::{Grid, GroupParams};
 use super::stream::{next_stream, push_stream, stream_decoder};
 use super::tables::ChannelTable;
@@ -50,11 +49,13 @@ pub fn delta_raw_bits(d: u64) -> u32 {
     delta_length(d).saturating_sub(1)
 }
 
-/// The deltas of sorted Morton codes, restarting at 0 in each chunk.
-pub fn morton_deltas(morton: &[u64]) -> Vec<u64> {
-    morton
-        .chunks(CHUNK)
-        .flat_map(|c| {
+/// The deltas of Morton codes sorted within each chunk (`chunks`: the Gaussians of each, in
+/// order, covering `morton`), restarting at 0 in each chunk.
+pub fn morton_deltas(morton: &[u64], chunks: &[std::ops::Range<usize>]) -> Vec<u64> {
+    chunks
+        .iter()
+        .flat_map(|r| {
+            let c = &morton[r.clone()];
             let mut prev = 0;
             c.iter().map(move |&m| {
                 let d = m - prev;
@@ -178,7 +179,7 @@ mod tests {
                 break;
             }
         }
-        let deltas = morton_deltas(&morton);
+        let deltas = morton_deltas(&morton, &[0..morton.len()]);
         let mut weights = vec![1u32; 64];
         weights[0] = 5;
         let table = ChannelTable::Coded { lo: 0, table: FreqTable::from_weights(&weights) };

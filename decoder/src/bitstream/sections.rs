@@ -2,7 +2,8 @@
 //! of one, and writing a file from its sections.
 
 use super::header::{self, check_allocation_bound, Header, HEADER_BYTES};
-use super::layout::{self, Group, INFO_KIND, PADDING_KIND};
+use super::layout::{self, Group, INFO_KIND, LEVELS_KIND, PADDING_KIND};
+use super::levels::Layout;
 use super::{ByteReader, ByteWriter, SECTION_OPTIONAL};
 use crate::error::{self, DecodeError, FormatErrorKind, Place, SectionId};
 
@@ -129,6 +130,35 @@ impl<'a> Container<'a> {
         }
     }
 
+    /// The file's chunks and levels: a 3.0 file's implicit layout, or a 4.0 file's levels
+    /// section (SPEC §3.1), which must be present when N > 0 and list more chunks than the
+    /// highest chunk index of a (known) data section (else a `format` error).
+    pub fn layout(&self) -> Result<Layout, DecodeError> {
+        let n = self.header.gaussians as usize;
+        if !self.header.has_levels() || n == 0 {
+            return Ok(Layout::uniform(n));
+        }
+        if self.section(LEVELS_KIND, 0).is_none() {
+            return Err(self.missing(SectionId { kind: LEVELS_KIND, chunk: 0 }, "levels"));
+        }
+        let layout = Layout::read(&mut self.reader(LEVELS_KIND, 0), n)?;
+        let beyond = |id: &SectionId| {
+            Group::of_kind(id.kind).is_some_and(|g| g.data_kind() == id.kind)
+                && is_known(&self.header, id.kind, id.chunk)
+                && usize::from(id.chunk) >= layout.chunks()
+        };
+        let listed = self
+            .sections
+            .iter()
+            .map(Section::id)
+            .zip(self.offsets.iter().copied())
+            .chain(self.pending.iter().map(|&id| (id, self.payloads_start)));
+        if let Some((id, offset)) = listed.into_iter().find(|(id, _)| beyond(id)) {
+            return Err(Place { section: Some(id), offset }.corrupt("data section of a chunk the levels do not list"));
+        }
+        Ok(layout)
+    }
+
     /// A missing required section.
     pub fn missing(&self, id: SectionId, what: &'static str) -> DecodeError {
         Place { section: Some(id), offset: self.payloads_start }.error(FormatErrorKind::MissingSection, what)
@@ -211,17 +241,23 @@ fn check_entry(c: &Container<'_>, e: &TableEntry, data: &[u8], at: Place, entry_
     Ok(())
 }
 
-/// Whether (kind, chunk) is a section this version defines for a file with `header`'s Gaussian
-/// count and SH degree (SPEC §3): parameters (chunk 0) and data (chunk < chunk count) of a present
-/// group, info and padding (chunk 0). Anything else is unknown: skipped when OPTIONAL, else an error.
+/// Whether (kind, chunk) is a section the file's version defines for a file with `header`'s
+/// Gaussian count and SH degree (SPEC §3): parameters (chunk 0) and data of a present group, info
+/// and padding (chunk 0), and in 4.0 the levels section (chunk 0, N > 0). A 3.0 data section must
+/// have a chunk < ⌈N / 65536⌉; a 4.0 one may have any chunk here, and one beyond the levels'
+/// last chunk is corrupt ([`Container::layout`]). Anything else is unknown: skipped when
+/// OPTIONAL, else an error.
 pub fn is_known(header: &Header, kind: u16, chunk: u16) -> bool {
     if kind == INFO_KIND || kind == PADDING_KIND {
         return chunk == 0;
     }
     let n = header.gaussians as usize;
+    if kind == LEVELS_KIND {
+        return header.has_levels() && n > 0 && chunk == 0;
+    }
+    let data_chunk = |c: u16| header.has_levels() || usize::from(c) < layout::chunk_count(n);
     n > 0
-        && Group::present(header.sh_degree)
-            .any(|g| (kind == g.params_kind() && chunk == 0) || (kind == g.data_kind() && usize::from(chunk) < layout::chunk_count(n)))
+        && Group::present(header.sh_degree).any(|g| (kind == g.params_kind() && chunk == 0) || (kind == g.data_kind() && data_chunk(chunk)))
 }
 
 /// Serialises a file: header, section table with each payload's CRC, header CRC, then the
@@ -261,10 +297,11 @@ pub fn write_padded(header: &Header, sections: &[Section<'_>]) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bitstream::{VERSION_MAJOR, VERSION_MINOR};
+    use crate::bitstream::{VERSION_MAJOR, VERSION_MAJOR_UNIFORM, VERSION_MINOR};
 
+    /// A 3.0 header.
     fn header(gaussians: u32) -> Header {
-        Header { version_major: VERSION_MAJOR, version_minor: VERSION_MINOR, gaussians, sh_degree: 1 }
+        Header { version_major: VERSION_MAJOR_UNIFORM, version_minor: VERSION_MINOR, gaussians, sh_degree: 1 }
     }
 
     fn sample() -> Vec<u8> {
@@ -279,8 +316,9 @@ mod tests {
         for (kind, chunk) in [(0x10, 0), (0x15, 0), (0x20, 0), (0x25, 0), (0x100, 0), (0x101, 0)] {
             assert!(with(kind, chunk, 0).is_ok(), "{kind:#x}/{chunk}");
         }
-        // Unknown: an absent SH band, a chunk past the last, parameters of chunk 1, a new kind.
-        for (kind, chunk) in [(0x16, 0), (0x26, 0), (0x20, 1), (0x11, 1), (0x18, 0), (0x102, 0), (0x100, 1)] {
+        // Unknown: an absent SH band, a chunk past the last, parameters of chunk 1, a new kind,
+        // the levels section of 4.0.
+        for (kind, chunk) in [(0x16, 0), (0x26, 0), (0x20, 1), (0x11, 1), (0x18, 0), (0x102, 0), (0x100, 1), (0x01, 0)] {
             let e = with(kind, chunk, 0).unwrap_err();
             let DecodeError::Unsupported(u) = e else { panic!("{kind:#x}/{chunk}: {e}") };
             assert_eq!(u.section(), Some(SectionId { kind, chunk }));
@@ -288,6 +326,27 @@ mod tests {
         }
         let e = parse(&write(&header(0), &[Section { kind: 0x10, chunk: 0, flags: 0, data: b"" }])).unwrap_err();
         assert_eq!(e.class(), "unsupported");
+        // 4.0: the levels section is known (N > 0), and any data chunk (the levels bound it).
+        let v4 = |gaussians| Header { version_major: VERSION_MAJOR, ..header(gaussians) };
+        for (kind, chunk, known) in [(0x01, 0, true), (0x01, 1, false), (0x20, 1, true), (0x25, 65_535, true), (0x26, 0, false)] {
+            assert_eq!(is_known(&v4(3), kind, chunk), known, "{kind:#x}/{chunk}");
+        }
+        assert!(!is_known(&v4(0), 0x01, 0));
+    }
+
+    #[test]
+    fn data_sections_beyond_the_levels_are_corrupt() {
+        let h = Header { version_major: VERSION_MAJOR, ..header(5) };
+        let levels = Layout::from_levels(&[2, 3]).write();
+        let with = |chunk: u16| {
+            let sections =
+                [Section { kind: LEVELS_KIND, chunk: 0, flags: 0, data: &levels }, Section { kind: 0x21, chunk, flags: 0, data: b"" }];
+            parse(&write(&h, &sections)).unwrap().layout().map(|l| l.chunk_sizes)
+        };
+        assert_eq!(with(1).unwrap(), vec![2, 3]);
+        assert_eq!(with(2).unwrap_err().class(), "format");
+        let e = parse(&write(&h, &[])).unwrap().layout().unwrap_err();
+        assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::MissingSection));
     }
 
     #[test]
