@@ -83,7 +83,8 @@ impl EncodeConfig {
 }
 
 /// The Gaussians of `splats` that `config`'s pruning keeps (opacity, then significance: each a
-/// per-Gaussian test on the input), and their significance when it is given.
+/// per-Gaussian test on the input), and their significance when it is given. Without
+/// `significance` the significance test is skipped ([`encode`] computes it when needed).
 ///
 /// # Panics
 /// If `significance` is not one value per Gaussian of `splats`.

@@ -1,5 +1,6 @@
 //! Rate–distortion search over the encoder's choices by rendering: per-group step sizes, the
-//! pruning threshold and the SH degree, greedily coarsened while `J = D + λ·R` falls.
+//! significance pruning threshold, the SH degree and per-Gaussian SH band dropping, greedily
+//! coarsened while `J = D + λ·R` falls; the trials of each stage run in parallel.
 //!
 //! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
 //!   ([`crate::views::orbit_cameras`], up −y as `eval --orbit`, 8 views at 96×96) against the views of the input scene.
