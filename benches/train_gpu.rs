@@ -1,15 +1,37 @@
 //! GPU training iteration time by stage (feature `gpu`): one iteration at 200×200 with 10k and 50k
-//! Gaussians (SH degree 3), the scene of `benches/train.rs` (the CPU counterpart). Each stage is
-//! submitted and waited for on its own, so the sum is a little more than a pipelined iteration.
-//! Skips (prints why) when there is no adapter.
+//! Gaussians (SH degree 3), the scene of `benches/train.rs` (the CPU counterpart), and at 1280×960
+//! (1.2 MP) with 1 M Gaussians. Each stage is submitted and waited for on its own, so the sum is a
+//! little more than a pipelined iteration (`iteration`: all stages in one submission, as the
+//! trainer records them). Skips (prints why) when there is no adapter.
+//!
+//! Environment: `GSC_TRAIN_SIZES=200x200:10000,1280x960:1000000` picks `WxH:Gaussians` cases
+//! (default: the three above); `GSC_TRAIN_STAGES=iteration` times only whole iterations (e.g. for
+//! a memory measurement). `scripts/device-measure` runs it on a device machine.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use gscodec::testkit::{random_splats, rig_cameras};
 use gscodec::train::gpu::{Gpu, Session};
 use gscodec::train::targets::render_targets;
+use gscodec_decoder::Image;
 
 fn wait(gpu: &Gpu) {
     gpu.device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+}
+
+/// `(width, height, Gaussians)` cases from `GSC_TRAIN_SIZES`.
+fn cases() -> Vec<(u32, u32, usize)> {
+    let spec = std::env::var("GSC_TRAIN_SIZES").unwrap_or_else(|_| "200x200:10000,200x200:50000,1280x960:1000000".into());
+    spec.split(',')
+        .map(|c| {
+            let bad = || -> (u32, u32, usize) { panic!("GSC_TRAIN_SIZES: `{c}` is not WxH:N") };
+            let Some((size, n)) = c.trim().split_once(':') else { return bad() };
+            let Some((w, h)) = size.split_once('x') else { return bad() };
+            match (w.parse(), h.parse(), n.parse()) {
+                (Ok(w), Ok(h), Ok(n)) => (w, h, n),
+                _ => bad(),
+            }
+        })
+        .collect()
 }
 
 fn bench_stages(c: &mut Criterion) {
@@ -18,24 +40,31 @@ fn bench_stages(c: &mut Criterion) {
         return;
     };
     eprintln!("adapter: {}", gpu.adapter_name());
-    let mut group = c.benchmark_group("train_gpu_200x200");
+    let only_iteration = std::env::var("GSC_TRAIN_STAGES").is_ok_and(|v| v == "iteration");
+    let mut group = c.benchmark_group("train_gpu");
     group.sample_size(10);
-    for n in [10_000usize, 50_000] {
+    for (w, h, n) in cases() {
+        let id = format!("{w}x{h}/{n}");
+        // Scales shrink with the count so that the pairs per Gaussian stay a few.
         let shrink = (n as f32 / 120.0).cbrt().ln();
-        let mut truth = random_splats(n, 1, 1).with_sh_degree(3);
-        truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-        let ds = render_targets(&truth, &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
         let mut params = random_splats(n, 1, 2).with_sh_degree(3);
         params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-        let frame = &ds.frames[0];
-        let cam = frame.camera;
-        let target = gpu.storage_init("target", bytemuck::cast_slice(&frame.image.data));
+        let cam = rig_cameras(2, 4.0, w, h).remove(0);
+        // The target: a render of another random scene at small sizes; a flat grey at large ones
+        // (the CPU render of a million Gaussians would dominate the set-up; the loss costs the same).
+        let image = if n <= 100_000 {
+            let mut truth = random_splats(n, 1, 1).with_sh_degree(3);
+            truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+            render_targets(&truth, &[cam], [1.0; 3]).frames.remove(0).image
+        } else {
+            Image::filled(w, h, [0.5; 3])
+        };
+        let target = gpu.storage_init("target", bytemuck::cast_slice(&image.data));
         let mut s = Session::new(&gpu, &params).unwrap();
-        let pairs = s.project(&cam, [1.0; 3], 3).unwrap().pairs;
+        drop(params);
         let lr = [1e-5, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4];
-        group.bench_with_input(BenchmarkId::new("project+scan+readback", n), &n, |b, _| b.iter(|| s.project(&cam, [1.0; 3], 3).unwrap()));
         let mut stage = |name: &str, f: &mut dyn FnMut(&mut Session, &mut wgpu::CommandEncoder)| {
-            group.bench_with_input(BenchmarkId::new(name, n), &n, |b, _| {
+            group.bench_with_input(BenchmarkId::new(name, &id), &n, |b, _| {
                 b.iter(|| {
                     let mut enc = gpu.device.create_command_encoder(&Default::default());
                     f(&mut s, &mut enc);
@@ -44,16 +73,22 @@ fn bench_stages(c: &mut Criterion) {
                 })
             });
         };
-        stage("sort+rasterize", &mut |s, enc| s.rasterize(enc, &cam, pairs).unwrap());
-        stage("loss", &mut |s, enc| s.loss(enc, &target, 0.2));
-        stage("backward", &mut |s, enc| s.backward(enc, &cam, true));
-        stage("adam", &mut |s, enc| s.adam(enc, lr));
+        // A first iteration sizes the key buffers and the image buffers.
         stage("iteration", &mut |s, enc| {
-            s.rasterize(enc, &cam, pairs).unwrap();
+            s.project(enc, &cam, [1.0; 3], 3).unwrap();
+            s.rasterize(enc, &cam).unwrap();
             s.loss(enc, &target, 0.2);
             s.backward(enc, &cam, true);
             s.adam(enc, lr);
         });
+        if only_iteration {
+            continue;
+        }
+        stage("project+scan", &mut |s, enc| s.project(enc, &cam, [1.0; 3], 3).unwrap());
+        stage("sort+rasterize", &mut |s, enc| s.rasterize(enc, &cam).unwrap());
+        stage("loss", &mut |s, enc| s.loss(enc, &target, 0.2));
+        stage("backward", &mut |s, enc| s.backward(enc, &cam, true));
+        stage("adam", &mut |s, enc| s.adam(enc, lr));
     }
     group.finish();
 }

@@ -1,10 +1,12 @@
 // Stable LSD radix sort of (tile, depth, id) triples, 4 bits per pass, using workgroup-shared
 // prefix sums only. `radix_count` histograms each 1024-key block into counts[digit * blocks + block];
 // after an exclusive scan of `counts`, `radix_scatter` ranks every key within its block (thread
-// order, then item order: stable) and writes it to its final place.
+// order, then item order: stable) and writes it to its final place. The number of keys sorted is
+// min(n, counts[16 · blocks]): the host copies it there from a GPU buffer (the renderer's scan
+// total, the trainer's clamped pair count), so it need not be read back.
 
 struct SortParams {
-    n: u32,        // keys
+    n: u32,        // keys the buffers hold (an upper bound)
     shift: u32,    // bit offset of the digit
     word: u32,     // 0 = depth word, 1 = tile word
     blocks: u32,   // number of 1024-key blocks
@@ -29,7 +31,7 @@ var<workgroup> thread_sums: array<u32, 128>;
 var<workgroup> digit_start: array<u32, 16>;
 
 fn digit_of(i: u32) -> u32 {
-    if (i >= sp.n) {
+    if (i >= min(sp.n, counts[sp.blocks * RADIX])) {
         return RADIX;
     }
     var k = src_depth[i];

@@ -4,8 +4,8 @@
 // alpha < 1/255, stop before transmittance drops below 1e-4).
 
 struct RangeParams {
-    n: u32,
-    _p0: u32,
+    n: u32,          // keys the buffers hold (an upper bound)
+    count_at: u32,   // the number of sorted keys is min(n, range_count[count_at])
     _p1: u32,
     _p2: u32,
 }
@@ -17,18 +17,20 @@ struct RangeParams {
 @group(0) @binding(4) var<storage, read_write> ranges: array<vec2<u32>>;
 @group(0) @binding(5) var<storage, read> projected: array<Projected>;
 @group(0) @binding(6) var<storage, read_write> image: array<f32>;
+@group(0) @binding(7) var<storage, read> range_count: array<u32>;
 
 @compute @workgroup_size(256)
 fn tile_ranges(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = gid.y * nwg.x * 256u + gid.x;
-    if (i >= rp.n) {
+    let n = min(rp.n, range_count[rp.count_at]);
+    if (i >= n) {
         return;
     }
     let t = key_tile[i];
     if (i == 0u || key_tile[i - 1u] != t) {
         ranges[t].x = i;
     }
-    if (i + 1u == rp.n || key_tile[i + 1u] != t) {
+    if (i + 1u == n || key_tile[i + 1u] != t) {
         ranges[t].y = i + 1u;
     }
 }

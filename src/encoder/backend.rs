@@ -44,7 +44,7 @@ impl Backend {
 }
 
 /// The GPU trainer, if this build has one and (with `auto`) a hardware adapter exists. `auto`
-/// runs on the CPU the jobs the GPU trainer cannot (a WD loss, the rate term).
+/// runs on the CPU the jobs the GPU trainer cannot (a WD loss).
 #[cfg(feature = "gpu")]
 fn gpu_backend(auto: bool) -> Option<Box<dyn TrainBackend>> {
     // `auto` looks for a hardware adapter only when a job the GPU trainer can run arrives
@@ -75,18 +75,16 @@ impl TrainBackend for GpuBackend {
 
     fn train(&mut self, job: TrainJob<'_>, progress: &mut dyn FnMut(&Progress)) -> Result<(Splats, TrainReport)> {
         let loss = crate::train::gpu::GpuLoss::from(job.loss.kind);
-        let refused = if job.rate.is_some() {
-            Some(crate::train::gpu::rate_unsupported())
-        } else if job.run.checkpoint.is_some() || job.run.resume.is_some() {
-            Some(Error::Input("GPU training does not write or resume checkpoints yet; use --backend cpu".into()))
-        } else {
-            loss.check().err()
-        };
+        let refused = loss.check().err();
         match refused {
             Some(_) if self.fall_back_to_cpu => CpuBackend.train(job, progress),
             Some(e) => Err(e),
             None if self.fall_back_to_cpu && !crate::train::gpu::hardware_adapter_available() => CpuBackend.train(job, progress),
-            None => crate::train::gpu::train(job.dataset, job.init, job.config, &loss, progress),
+            None => {
+                let gpu = crate::train::gpu::gpu_or_error()?;
+                let rate = job.rate.map(RateObjective::term);
+                crate::train::gpu::train_with(&gpu, job.dataset, job.init, job.config, &loss, rate, progress, job.run)
+            }
         }
     }
 }
@@ -143,6 +141,16 @@ pub struct RateObjective {
     pub start_iter: usize,
 }
 
+impl RateObjective {
+    /// The rate term that trains under this objective (both backends run its maths).
+    pub fn term(self) -> RateTerm {
+        let mut term = RateTerm::new(self.lambda, self.steps, self.min_opacity);
+        term.learn_steps = self.learn_steps;
+        term.start_iter = self.start_iter;
+        term
+    }
+}
+
 /// One training run, as handed to a [`TrainBackend`].
 pub struct TrainJob<'a> {
     /// Training (and held-out) views.
@@ -185,12 +193,7 @@ impl TrainBackend for CpuBackend {
 
     fn train(&mut self, job: TrainJob<'_>, progress: &mut dyn FnMut(&Progress)) -> Result<(Splats, TrainReport)> {
         let loss = job.loss.build(job.config.iters)?;
-        let rd = job.rate.map(|r| {
-            let mut term = RateTerm::new(r.lambda, r.steps, r.min_opacity);
-            term.learn_steps = r.learn_steps;
-            term.start_iter = r.start_iter;
-            Box::new(term) as Box<dyn crate::train::RdTerm>
-        });
+        let rd = job.rate.map(|r| Box::new(r.term()) as Box<dyn crate::train::RdTerm>);
         crate::train::train_with(job.dataset, job.init, job.config, loss, rd, progress, job.run)
     }
 }
@@ -214,11 +217,11 @@ mod tests {
         assert_eq!(Backend::Auto.resolve().unwrap().name(), "cpu");
     }
 
-    /// With the `gpu` feature, `gpu` refuses the rate term as bad input and `auto` runs such a
-    /// job on the CPU (whatever adapter the machine has).
+    /// With the `gpu` feature, `gpu` trains a rate job on the GPU (any adapter, lavapipe too) and
+    /// `auto` sends it there only when a hardware adapter exists.
     #[cfg(feature = "gpu")]
     #[test]
-    fn with_the_gpu_feature_auto_runs_rate_jobs_on_the_cpu() {
+    fn with_the_gpu_feature_rate_jobs_run_on_the_gpu() {
         let scene = crate::sample::scene(40, 2);
         let cams = crate::views::orbit_cameras(&scene, 4, 32, 32, crate::views::UpAxis::NegY.vector());
         let dataset = crate::train::targets::render_targets(&scene, &cams, [0.0; 3]);
@@ -228,16 +231,16 @@ mod tests {
             RateObjective { lambda: Lambda::DEFAULT, steps: Steps::default(), min_opacity: 1.0 / 255.0, learn_steps: true, start_iter: 0 };
         let run = RunOptions::default();
         let job = || TrainJob { dataset: &dataset, init: Some(scene.clone()), config: &cfg, loss: &loss, rate: Some(rate), run: &run };
-        let e = gpu_backend(false).unwrap().train(job(), &mut |_| {}).err().expect("refused");
-        assert!(e.exit_code() == 2 && e.to_string().contains("rate term"), "{e}");
+        if crate::train::gpu::Gpu::new().unwrap().is_some() {
+            let (_, r) = gpu_backend(false).unwrap().train(job(), &mut |_| {}).unwrap();
+            assert_eq!(r.backend, "gpu");
+            assert!(r.rate.and_then(|o| o.estimated_bits).is_some_and(|b| b > 0.0), "{:?}", r.rate);
+        } else {
+            crate::testkit::skip("no GPU adapter: only auto's choice is tested");
+        }
         let (_, r) = GpuBackend { fall_back_to_cpu: true }.train(job(), &mut |_| {}).unwrap();
-        assert_eq!(r.backend, "cpu");
-        assert!(r.rate.is_some());
-        // A job the GPU trainer can run goes to the GPU only when a hardware adapter exists
-        // (not Mesa's lavapipe).
-        let plain = TrainJob { rate: None, ..job() };
-        let (_, r) = GpuBackend { fall_back_to_cpu: true }.train(plain, &mut |_| {}).unwrap();
         let want = if crate::train::gpu::hardware_adapter_available() { "gpu" } else { "cpu" };
         assert_eq!(r.backend, want);
+        assert!(r.rate.is_some());
     }
 }

@@ -50,9 +50,9 @@ pub const FIXED_BITS_PER_GAUSSIAN: f64 = 30.0;
 /// far below a pixel).
 pub const LEARNED_GROUPS: [Group; 6] = [Group::Scale, Group::Opacity, Group::ShDc, Group::Sh1, Group::Sh2, Group::Sh3];
 /// Adam learning rate of the log steps (per iteration).
-const STEP_LR: f32 = 2e-3;
+pub(crate) const STEP_LR: f32 = 2e-3;
 /// A learned step stays within this factor of its starting value.
-const STEP_RANGE: f32 = 8.0;
+pub(crate) const STEP_RANGE: f32 = 8.0;
 
 /// What a [`RateTerm`] shares with its owner during training.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -134,12 +134,30 @@ impl RateTerm {
         self.shared.lock().expect("term lock").steps = self.steps;
     }
 
+    /// The steps the term started from (a learned step stays within [`STEP_RANGE`] of them).
+    #[cfg_attr(not(feature = "gpu"), allow(dead_code))] // the GPU trainer's uniform
+    pub(crate) fn start_steps(&self) -> Steps {
+        self.start_steps
+    }
+
     /// The channels the term models for a scene of SH degree `degree`: (group, value within it).
-    fn channels(degree: u8) -> Vec<(Group, usize)> {
+    pub(crate) fn channels(degree: u8) -> Vec<(Group, usize)> {
         LEARNED_GROUPS
             .into_iter()
             .filter(|g| g.sh_band() <= degree)
             .flat_map(|g| (0..group::layout(g, degree).1.len()).map(move |c| (g, c)))
+            .collect()
+    }
+
+    /// The starting density of every channel of [`Self::channels`], fitted to `params`.
+    pub(crate) fn fit_models(params: &Splats) -> Vec<LearnedChannel> {
+        let degree = params.sh_degree;
+        Self::channels(degree)
+            .into_iter()
+            .map(|(g, c)| {
+                let vals = group::values(params, g);
+                LearnedChannel::fit_init(&(0..params.len()).map(|i| vals[group::index(g, degree, i, c)]).collect::<Vec<_>>())
+            })
             .collect()
     }
 
@@ -172,10 +190,7 @@ impl RateTerm {
         let nc = channels.len();
         let at = |i: usize, (g, c): (Group, usize)| group::index(g, degree, i, c);
         if self.models.len() != nc {
-            self.models = channels
-                .iter()
-                .map(|&(g, c)| LearnedChannel::fit_init(&(0..n).map(|i| group::values(params, g)[at(i, (g, c))]).collect::<Vec<_>>()))
-                .collect();
+            self.models = Self::fit_models(params);
         }
         // ∂D/∂ln s from the distortion gradient w.r.t. the rendered (quantised) values, which
         // `grad` holds before the rate gradient is added.

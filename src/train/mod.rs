@@ -315,9 +315,45 @@ impl Default for RunOptions {
 pub const LIVE_REPORT_SECONDS: f64 = 10.0;
 
 /// The run's identity for checkpoints: its settings and its dataset's frames.
-fn fingerprint(cfg: &TrainConfig, dataset: &Dataset, loss: &str) -> String {
+pub(crate) fn fingerprint(cfg: &TrainConfig, dataset: &Dataset, loss: &str) -> String {
     let names: Vec<&str> = dataset.frames.iter().map(|f| f.name.as_str()).collect();
     serde_json::json!({ "config": cfg, "loss": loss, "frames": names }).to_string()
+}
+
+/// The checkpoint in `dir`, checked to be of this run: its fingerprint `print`, consistent sizes,
+/// an iteration inside a run of `iters` and a view order over `train_views` views (both trainers).
+pub(crate) fn resume_state(dir: &std::path::Path, print: &str, iters: usize, train_views: usize) -> Result<checkpoint::State> {
+    let path = checkpoint::file(dir);
+    let st = checkpoint::load(dir)?;
+    if st.fingerprint != print {
+        return Err(Error::input(&path, "the checkpoint is of another run (settings, loss or dataset differ)"));
+    }
+    st.check(&path)?;
+    if st.iteration as usize >= iters || st.order.iter().any(|&o| o as usize >= train_views) {
+        return Err(Error::input(&path, format!("iteration {} is not inside this {iters}-iteration run", st.iteration)));
+    }
+    Ok(st)
+}
+
+/// After iteration `it` of `iters`: `(write a checkpoint, stop the run)` — periodic (every
+/// `checkpoint_every` iterations, else `checkpoint_seconds` since `last`) or stopping (`stop_after`,
+/// Ctrl-C); never after the last iteration.
+pub(crate) fn checkpoint_now(run: &RunOptions, it: usize, iters: usize, last: Instant) -> (bool, bool) {
+    let stop = it < iters && (run.stop_after == Some(it) || (run.catch_interrupt && checkpoint::interrupted()));
+    let due = match run.checkpoint_every {
+        Some(n) => n > 0 && it % n == 0,
+        None => last.elapsed().as_secs_f64() >= run.checkpoint_seconds,
+    };
+    ((due || stop) && it < iters, stop)
+}
+
+/// The error of a run stopped after iteration `it` (naming the checkpoint to resume from).
+pub(crate) fn interrupted_error(run: &RunOptions, it: usize, iters: usize) -> Error {
+    let resume = match &run.checkpoint {
+        Some(dir) => format!("; resume with --resume {}", dir.display()),
+        None => String::new(),
+    };
+    Error::Failure(format!("interrupted after iteration {it} of {iters}{resume}"))
 }
 
 /// [`train`] with checkpoints, resume and a live report.
@@ -370,15 +406,7 @@ pub fn train_with(
     let print = fingerprint(cfg, dataset, loss.name());
     let mut first = 1;
     if let Some(dir) = &run.resume {
-        let path = checkpoint::file(dir);
-        let st = checkpoint::load(dir)?;
-        if st.fingerprint != print {
-            return Err(Error::input(&path, "the checkpoint is of another run (settings, loss or dataset differ)"));
-        }
-        st.check(&path)?;
-        if st.iteration as usize >= cfg.iters || st.order.iter().any(|&o| o as usize >= train_frames.len()) {
-            return Err(Error::input(&path, format!("iteration {} is not inside this {}-iteration run", st.iteration, cfg.iters)));
-        }
+        let st = resume_state(dir, &print, cfg.iters, train_frames.len())?;
         first = st.iteration as usize + 1;
         params = st.params.into_splats();
         adam.m = st.adam_m.into_splats();
@@ -510,13 +538,9 @@ pub fn train_with(
         progress(&Progress { iteration: it, iters: cfg.iters, loss: l, gaussians: params.len(), test_psnr, rate_bits });
 
         // Checkpoint (periodic, or stopping), then the live report.
-        let stop = it < cfg.iters && (run.stop_after == Some(it) || (run.catch_interrupt && checkpoint::interrupted()));
-        let due = match run.checkpoint_every {
-            Some(n) => n > 0 && it % n == 0,
-            None => last_checkpoint.elapsed().as_secs_f64() >= run.checkpoint_seconds,
-        };
+        let (write, stop) = checkpoint_now(run, it, cfg.iters, last_checkpoint);
         let mut wrote = false;
-        if let Some(dir) = run.checkpoint.as_ref().filter(|_| (due || stop) && it < cfg.iters) {
+        if let Some(dir) = run.checkpoint.as_ref().filter(|_| write) {
             let st = checkpoint::State {
                 fingerprint: print.clone(),
                 iteration: it as u64,
@@ -548,11 +572,7 @@ pub fn train_with(
             }
         }
         if stop {
-            let resume = match &run.checkpoint {
-                Some(dir) => format!("; resume with --resume {}", dir.display()),
-                None => String::new(),
-            };
-            return Err(Error::Failure(format!("interrupted after iteration {it} of {}{resume}", cfg.iters)));
+            return Err(interrupted_error(run, it, cfg.iters));
         }
     }
     let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);

@@ -276,32 +276,59 @@ impl GpuRenderer {
         }
     }
 
-    /// Records a stable sort of `pairs` (tile, depth, id) triples in `a` by (tile, depth), using
-    /// `b` as scratch; the result ends up in `a`.
+    /// Records a stable sort of (tile, depth, id) triples in `a` by (tile, depth), using `b` as
+    /// scratch; the result ends up in `a`. The buffers hold `cap` keys; the number sorted is
+    /// `min(cap, count)` where `count` is the u32 at byte `count.1` of buffer `count.0` on the
+    /// GPU. With `indirect`, the sort's workgroup counts come from that buffer (bytes 0..12: the
+    /// 1024-key blocks as `(x, y, 1)`, written on the GPU) instead of covering `cap`.
     #[doc(hidden)]
+    #[allow(clippy::too_many_arguments)]
     pub fn record_radix_sort(
         &self,
         enc: &mut wgpu::CommandEncoder,
         a: &mut [wgpu::Buffer; 3],
         b: &mut [wgpu::Buffer; 3],
-        pairs: u32,
+        cap: u32,
         tile_bits: u32,
+        count: (&wgpu::Buffer, u64),
+        indirect: Option<&wgpu::Buffer>,
     ) {
-        let blocks = pairs.div_ceil(SORT_BLOCK);
-        let hist = self.storage("radix counts", blocks as u64 * 16 * 4);
+        let blocks = cap.div_ceil(SORT_BLOCK);
+        let hist_bytes = blocks as u64 * 16 * 4;
+        // The histograms, then the key count (radix_sort.wgsl reads it at counts[16 · blocks]).
+        let hist = self.storage("radix counts", hist_bytes + 4);
+        enc.copy_buffer_to_buffer(count.0, count.1, &hist, hist_bytes, 4);
         let passes = (0..8).map(|p| (0u32, 4 * p)).chain((0..tile_bits.div_ceil(4)).map(|p| (1u32, 4 * p)));
         for (word, shift) in passes {
-            let params = self.uniform(&[pairs, shift, word, blocks]);
+            let params = self.uniform(&[cap, shift, word, blocks]);
             let count_bg = self.bind(&self.radix_count, &[(0, &params), (1, &a[0]), (2, &a[1]), (4, &hist)]);
-            Self::dispatch(enc, &self.radix_count, &count_bg, dims(blocks));
-            self.record_scan(enc, &hist, blocks * 16);
             let scatter_bg = self.bind(
                 &self.radix_scatter,
                 &[(0, &params), (1, &a[0]), (2, &a[1]), (3, &a[2]), (4, &hist), (5, &b[0]), (6, &b[1]), (7, &b[2])],
             );
-            Self::dispatch(enc, &self.radix_scatter, &scatter_bg, dims(blocks));
+            match indirect {
+                Some(args) => {
+                    // Blocks past the count are not run: their histogram entries must read 0.
+                    enc.clear_buffer(&hist, 0, Some(hist_bytes));
+                    Self::dispatch_indirect(enc, &self.radix_count, &count_bg, args);
+                    self.record_scan(enc, &hist, blocks * 16);
+                    Self::dispatch_indirect(enc, &self.radix_scatter, &scatter_bg, args);
+                }
+                None => {
+                    Self::dispatch(enc, &self.radix_count, &count_bg, dims(blocks));
+                    self.record_scan(enc, &hist, blocks * 16);
+                    Self::dispatch(enc, &self.radix_scatter, &scatter_bg, dims(blocks));
+                }
+            }
             std::mem::swap(a, b);
         }
+    }
+
+    fn dispatch_indirect(enc: &mut wgpu::CommandEncoder, pipeline: &wgpu::ComputePipeline, bg: &wgpu::BindGroup, args: &wgpu::Buffer) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: None });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, bg, &[]);
+        pass.dispatch_workgroups_indirect(args, 0);
     }
 
     fn upload_u32(&self, data: &[u32]) -> wgpu::Buffer {
@@ -331,8 +358,9 @@ impl GpuRenderer {
         let ids: Vec<u32> = (0..n as u32).collect();
         let mut a = [self.upload_u32(tiles), self.upload_u32(depths), self.upload_u32(&ids)];
         let mut b = [self.storage("b0", n as u64 * 4), self.storage("b1", n as u64 * 4), self.storage("b2", n as u64 * 4)];
+        let count = self.upload_u32(&[n as u32]);
         let mut enc = self.device.create_command_encoder(&Default::default());
-        self.record_radix_sort(&mut enc, &mut a, &mut b, n as u32, tile_bits);
+        self.record_radix_sort(&mut enc, &mut a, &mut b, n as u32, tile_bits, (&count, 0), None);
         self.queue.submit([enc.finish()]);
         self.download_u32(&a[2], n)
     }
@@ -552,15 +580,15 @@ impl GpuRenderer {
 
         // 4. stable radix sort: depth word first, then the tile word
         let tile_bits = 32 - (tiles_x * tiles_y - 1).leading_zeros();
-        self.record_radix_sort(&mut enc, &mut a, &mut b, pairs, tile_bits);
+        self.record_radix_sort(&mut enc, &mut a, &mut b, pairs, tile_bits, (&counts, n as u64 * 4), None);
         self.mark(&mut enc, &mut timing, &mut host, 3)?;
 
         // 5. tile ranges and rasterization
         let ranges = self.storage("tile ranges", tiles_x as u64 * tiles_y as u64 * 8);
         let image = self.storage("image", w as u64 * h as u64 * 12);
         enc.clear_buffer(&ranges, 0, None);
-        let rp = self.uniform(&[pairs, 0u32, 0, 0]);
-        let bg = self.bind(&self.tile_ranges, &[(1, &rp), (2, &a[0]), (4, &ranges)]);
+        let rp = self.uniform(&[pairs, n, 0, 0]);
+        let bg = self.bind(&self.tile_ranges, &[(1, &rp), (2, &a[0]), (4, &ranges), (7, &counts)]);
         Self::dispatch(&mut enc, &self.tile_ranges, &bg, dims(pairs.div_ceil(256)));
         let bg = self.bind(&self.rasterize, &[(0, &frame_buf), (3, &a[2]), (4, &ranges), (5, &projected), (6, &image)]);
         {

@@ -17,6 +17,8 @@ const TRAIN_RASTER: &str = include_str!("../../../shaders/train_raster.wgsl");
 const TRAIN_PROJECT: &str = include_str!("../../../shaders/train_project.wgsl");
 const TRAIN_LOSS: &str = include_str!("../../../shaders/train_loss.wgsl");
 const TRAIN_ADAM: &str = include_str!("../../../shaders/train_adam.wgsl");
+const TRAIN_RATE: &str = include_str!("../../../shaders/train_rate.wgsl");
+const TRAIN_COUNT: &str = include_str!("../../../shaders/train_count.wgsl");
 
 /// Floats per projected Gaussian (`Projected` in common.wgsl).
 const PROJECTED_BYTES: u64 = 48;
@@ -109,6 +111,8 @@ pub struct Gpu {
     pub max_binding: u64,
     pub renderer: GpuRenderer,
     errors: Arc<Mutex<Option<String>>>,
+    /// Read-backs so far (every wait for data from the GPU: [`Gpu::map_wait`]).
+    readbacks: std::sync::atomic::AtomicUsize,
     pub project: wgpu::ComputePipeline,
     pub emit: wgpu::ComputePipeline,
     pub tile_ranges: wgpu::ComputePipeline,
@@ -121,6 +125,11 @@ pub struct Gpu {
     pub ssim_bv: wgpu::ComputePipeline,
     pub adam: wgpu::ComputePipeline,
     pub reset_opacity: wgpu::ComputePipeline,
+    pub count_pairs: wgpu::ComputePipeline,
+    pub rate_quantise: wgpu::ComputePipeline,
+    pub rate_reduce: wgpu::ComputePipeline,
+    pub rate_grads: wgpu::ComputePipeline,
+    pub rate_update: wgpu::ComputePipeline,
 }
 
 fn adapter() -> Option<wgpu::Adapter> {
@@ -233,6 +242,8 @@ impl Gpu {
         let train_project_m = module("train_project", TRAIN_PROJECT);
         let train_loss_m = module("train_loss", &format!("{}{TRAIN_LOSS}", taps_wgsl()));
         let train_adam_m = module("train_adam", TRAIN_ADAM);
+        let train_rate_m = module("train_rate", TRAIN_RATE);
+        let train_count_m = module("train_count", TRAIN_COUNT);
         let gpu = Gpu {
             project: pipeline(&project_m, "project"),
             emit: pipeline(&emit_m, "emit"),
@@ -246,6 +257,11 @@ impl Gpu {
             ssim_bv: pipeline(&train_loss_m, "ssim_bv"),
             adam: pipeline(&train_adam_m, "adam"),
             reset_opacity: pipeline(&train_adam_m, "reset_opacity"),
+            count_pairs: pipeline(&train_count_m, "count_pairs"),
+            rate_quantise: pipeline(&train_rate_m, "quantise"),
+            rate_reduce: pipeline(&train_rate_m, "rate_reduce"),
+            rate_grads: pipeline(&train_rate_m, "rate_grads"),
+            rate_update: pipeline(&train_rate_m, "rate_update"),
             device,
             queue,
             info,
@@ -254,6 +270,7 @@ impl Gpu {
             max_binding,
             renderer,
             errors,
+            readbacks: Default::default(),
         };
         gpu.check()?;
         Ok(gpu)
@@ -346,8 +363,14 @@ impl Gpu {
         self.map_wait(&staging)
     }
 
+    /// Read-backs so far (each one a wait for the GPU).
+    pub fn readbacks(&self) -> usize {
+        self.readbacks.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
     /// Maps a MAP_READ buffer (after its copy was submitted) and returns its bytes.
     pub fn map_wait(&self, staging: &wgpu::Buffer) -> Result<Vec<u8>> {
+        self.readbacks.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let result: Arc<Mutex<Option<std::result::Result<(), wgpu::BufferAsyncError>>>> = Arc::new(Mutex::new(None));
         let slot = result.clone();
         staging.slice(..).map_async(wgpu::MapMode::Read, move |r| *slot.lock().unwrap() = Some(r));

@@ -1,34 +1,41 @@
 //! GPU trainer (wgpu): the whole training iteration on the GPU, with the CPU trainer
 //! ([`crate::train::train`]) as its oracle: same renderer conventions, schedule, learning rates,
-//! Adam, densification rules and report.
+//! Adam, densification rules, rate term and report.
 //!
-//! Per iteration: projection + SH colour, tile-count scan (the decoder's kernels), then one
-//! read-back of a few scalars (the number of tile/Gaussian pairs, which sizes the sort; the
-//! previous iteration's loss, non-finite flags and stage timestamps); keys, radix sort, tile
-//! ranges (decoder), the rasterizer saving final transmittance and list end per pixel, L1 + SSIM
-//! loss forward and backward, rasterizer backward, projection / covariance / SH backward with the
-//! densification statistics, and Adam (shaders/train_*.wgsl). Training images are uploaded once.
-//! Densification reads the scene, moments and statistics back once per densify step and runs the
-//! CPU trainer's [`densify::densify_and_prune`] on them (the same rules, the same random numbers).
+//! Per iteration, recorded into one submission that nothing waits for: (with the rate term: the
+//! quantised render records,) projection + SH colour, tile-count scan (the decoder's kernels), the
+//! pair count for the sort (kept on the GPU: `train_count.wgsl`), keys, radix sort and tile ranges
+//! (decoder; sized by indirect dispatch), the rasterizer saving final transmittance and list end
+//! per pixel, L1 + SSIM loss forward and backward, rasterizer backward, projection / covariance /
+//! SH backward with the densification statistics, (the rate term's sums, gradient and updates,
+//! [`rate`],) and Adam (shaders/train_*.wgsl). Each iteration's scalars (loss, pair count, bits,
+//! stage timestamps) stay in a ring on the GPU that the host reads every [`READ_EVERY`]
+//! iterations. Training images are uploaded once. Densification reads the scene, moments and
+//! statistics back once per densify step and runs the CPU trainer's [`densify::densify_and_prune`]
+//! on them (the same rules, the same random numbers).
 //!
 //! Not bit-exact with the CPU trainer: gradients are summed with float atomics in whatever order
-//! the GPU runs them. Not supported yet (refused with an input error): the WD / WD-R losses and
-//! the rate term.
+//! the GPU runs them. Not supported yet (refused with an input error): the WD / WD-R losses.
 
 mod context;
+pub mod rate;
 pub mod session;
 
 pub use context::{hardware_adapter_available, Gpu};
+pub use rate::RateState;
 pub use session::Session;
 
 use super::adam::Adam;
 use super::densify::DensifyStats;
-use super::{init, learning_rate, non_finite_error, Progress, ReportPoint, Schedule, StageTimes, TrainConfig, TrainReport};
+use super::{
+    checkpoint, init, learning_rate, non_finite_error, Progress, ReportPoint, RunOptions, Schedule, StageTimes, TrainConfig, TrainReport,
+};
 use crate::io::{Dataset, Frame, Split};
 use crate::loss::LossKind;
 use crate::metrics::view::mean_psnr_ssim;
 use crate::optim::AdamRule;
 use crate::rate::group::Group;
+use crate::rate::term::{RateTerm, RdTerm};
 use crate::rng::Rng;
 use crate::{Error, Result};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
@@ -67,13 +74,8 @@ impl GpuLoss {
     }
 }
 
-/// The input error for a rate term (λ·R, learned quantisation steps), which the GPU trainer does
-/// not have yet: `encode` with a rate objective must use the CPU backend.
-pub fn rate_unsupported() -> Error {
-    Error::Input("GPU training does not support the rate term (λ·R, learned quantisation steps) yet; use --backend cpu".into())
-}
-
-fn gpu_or_error() -> Result<Gpu> {
+/// The default adapter's device, or the input error saying there is none.
+pub fn gpu_or_error() -> Result<Gpu> {
     Gpu::new()?.ok_or_else(|| Error::Input("GPU training: no GPU adapter available (install a Vulkan driver, or use --backend cpu)".into()))
 }
 
@@ -89,9 +91,9 @@ pub fn render_backward(
     dl_dimg: &[f32],
 ) -> Result<(Image, Splats, Vec<f32>)> {
     let mut s = Session::new(gpu, splats)?;
-    let sc = s.project(cam, opts.background, opts.max_sh_degree)?;
     let mut enc = gpu.device.create_command_encoder(&Default::default());
-    s.rasterize(&mut enc, cam, sc.pairs)?;
+    s.project(&mut enc, cam, opts.background, opts.max_sh_degree)?;
+    s.rasterize(&mut enc, cam)?;
     gpu.queue.submit([enc.finish()]);
     let img = s.read_image()?;
     s.write_dl(dl_dimg);
@@ -114,10 +116,7 @@ pub fn loss_and_grad(gpu: &Gpu, rendered: &Image, target: &Image, ssim_weight: f
     let mut one = Splats::new(0);
     one.push([0.0; 3], [0.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[]);
     let mut s = Session::new(gpu, &one)?;
-    let cam = Camera::new(w, h, w as f32, w as f32, glam::Mat3::IDENTITY, glam::Vec3::new(0.0, 0.0, -1e6));
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    s.rasterize(&mut enc, &cam, 0)?;
-    gpu.queue.submit([enc.finish()]);
+    s.ensure_image(w, h)?;
     let img = s.img.as_ref().unwrap();
     gpu.queue.write_buffer(&img.image, 0, bytemuck::cast_slice(&rendered.data));
     let tgt = gpu.storage_init("target", bytemuck::cast_slice(&target.data));
@@ -125,9 +124,45 @@ pub fn loss_and_grad(gpu: &Gpu, rendered: &Image, target: &Image, ssim_weight: f
     s.loss(&mut enc, &tgt, ssim_weight);
     gpu.queue.submit([enc.finish()]);
     let dl = s.read_dl()?;
-    let l = s.read_loss(0)?;
+    let l = s.read_loss()?;
     gpu.check()?;
     Ok((l as f64, dl))
+}
+
+/// The GPU rate term on `params` with the distortion gradient `dist_grad` (w.r.t. the rendered
+/// values), for `calls` iterations of the term (the term starting at the first): returns, after
+/// the last, `w·R`, the gradient (distortion + rate), the term's state and the quantised scene the
+/// iteration rendered, like `calls` calls of [`RateTerm::rate_and_grad`] and
+/// [`RateTerm::render_params`] (the test oracle).
+#[doc(hidden)]
+pub fn rate_and_grad(
+    gpu: &Gpu,
+    params: &Splats,
+    dist_grad: &Splats,
+    term: RateTerm,
+    calls: usize,
+) -> Result<(f64, Splats, RateState, Splats)> {
+    let mut s = Session::new(gpu, params)?;
+    let mut term = term;
+    term.start_iter = 0;
+    s.set_rate(term);
+    let mut out = None;
+    for it in 0..calls {
+        s.begin_rate(it)?;
+        gpu.queue.write_buffer(&s.scene.grads, 0, bytemuck::cast_slice(&session::to_records(dist_grad)));
+        gpu.queue.write_buffer(&s.ring, 0, &[0; 256]);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        s.record_rate(&mut enc);
+        gpu.queue.submit([enc.finish()]);
+        let (grads, _) = s.read_grads()?;
+        let value = f64::from(s.read_loss()?);
+        let r = s.rate.as_mut().expect("rate term");
+        let rendered = session::from_records(&gpu.read_f32(&r.render, params.len() * s.scene.stride)?, params.sh_degree);
+        let state = r.read(gpu)?;
+        out = Some((value, grads, state, rendered));
+    }
+    gpu.check()?;
+    out.ok_or_else(|| Error::Input("rate_and_grad: no call".into()))
 }
 
 /// The parameter group of offset `k` in a parameter record.
@@ -174,7 +209,33 @@ pub fn train_on(
     loss: &GpuLoss,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<(Splats, TrainReport)> {
+    train_with(gpu, dataset, init, cfg, loss, None, progress, &RunOptions::default())
+}
+
+/// [`train_on`] under `D + λ·R` when `rate` is given — the GPU twin of the CPU trainer with a
+/// [`RateTerm`] (straight-through quantised renders, `w·R` and its gradient, learned steps from
+/// the term's start iteration on; the report's `rate` says what it learned) — and with `run`'s
+/// checkpoints, resume and live report ([`crate::train::train_with`]'s, in the same checkpoint
+/// format; a GPU resume continues the run but is not bit-exact, as GPU training is not).
+///
+/// # Errors
+/// As [`train`]; also a checkpoint that does not match the run, checkpoints with a rate term
+/// (input errors), and an interrupted run (failure naming the checkpoint to resume from).
+#[allow(clippy::too_many_arguments)]
+pub fn train_with(
+    gpu: &Gpu,
+    dataset: &Dataset,
+    init: Option<Splats>,
+    cfg: &TrainConfig,
+    loss: &GpuLoss,
+    rate: Option<RateTerm>,
+    progress: &mut dyn FnMut(&Progress),
+    run: &RunOptions,
+) -> Result<(Splats, TrainReport)> {
     loss.check()?;
+    if rate.is_some() && (run.checkpoint.is_some() || run.resume.is_some()) {
+        return Err(Error::Input("checkpoints do not cover the rate term yet: train without --checkpoint/--resume".into()));
+    }
     let train_frames = dataset.split(Split::Train);
     let test_frames = dataset.split(Split::Test);
     if train_frames.is_empty() {
@@ -183,7 +244,7 @@ pub fn train_on(
     let mut rng = Rng::new(cfg.seed);
     let extent = init::camera_extent(dataset);
     let max_degree = cfg.sh_degree_max.min(3);
-    let (params, mut degree) = match init {
+    let (mut params, mut degree) = match init {
         Some(s) => {
             let d = s.sh_degree.min(max_degree);
             (if s.sh_degree < max_degree { s.with_sh_degree(max_degree) } else { s }, d)
@@ -195,45 +256,64 @@ pub fn train_on(
         return Err(Error::Input("initial scene has no Gaussians".into()));
     }
     let sched = Schedule::for_iters(cfg.iters);
+    let print = super::fingerprint(cfg, dataset, "l1ssim");
+    let mut order: Vec<usize> = Vec::new();
+    let mut first = 1;
+    let mut train_seconds = 0.0;
+    let mut resumed = None;
+    if let Some(dir) = &run.resume {
+        let st = super::resume_state(dir, &print, cfg.iters, train_frames.len())?;
+        first = st.iteration as usize + 1;
+        params = st.params.clone().into_splats();
+        rng = Rng::from_state(st.rng);
+        order = st.order.iter().map(|&o| o as usize).collect();
+        degree = st.degree.min(max_degree);
+        train_seconds = st.train_seconds;
+        resumed = Some(st);
+    }
     let mut session = Session::new(gpu, &params)?;
+    if let Some(term) = rate {
+        session.set_rate(term);
+    }
+    let mut tally = Tally::new(session.scene.stride, first);
+    let mut peak = params.len();
+    if let Some(st) = resumed {
+        session.replace_scene(&params, &st.adam_m.into_splats(), &st.adam_v.into_splats())?;
+        session.step = st.adam_step;
+        let stats: Vec<f32> = (0..params.len()).flat_map(|i| [st.grad_accum[i], st.count[i] as f32, st.max_radius[i]]).collect();
+        session.upload_stats(&stats);
+        peak = st.peak as usize;
+        tally.points = st.points.into_iter().map(ReportPoint::from).collect();
+        tally.stages = st.stages;
+        (tally.loss_sum, tally.loss_n) = (st.loss_sum, st.loss_n as usize);
+    }
     drop(params);
+    if run.catch_interrupt && run.checkpoint.is_some() {
+        checkpoint::catch_interrupt();
+    }
+    let (mut last_checkpoint, mut last_report) = (Instant::now(), Instant::now());
     // Training images, uploaded once.
     let targets: Vec<wgpu::Buffer> =
         train_frames.iter().map(|f: &&Frame| gpu.storage_init("target", bytemuck::cast_slice(&f.image.data))).collect();
-    let mut order: Vec<usize> = Vec::new();
-    let mut points = Vec::new();
-    let mut stages = StageTimes::default();
-    let (mut loss_sum, mut loss_n) = (0.0f64, 0usize);
-    let mut train_seconds = 0.0;
     let log_every = (cfg.iters / 500).max(1);
-    let mut last_loss = f64::NAN;
-    let mut pending: Option<ReportPoint> = None;
     let mut n = session.scene.n;
-    let mut peak = n;
-    let stride = session.scene.stride;
-
-    // Scalars of iteration `it - 1` arrive with iteration `it`'s projection.
-    let account = |sc: &session::Scalars, it: usize, stages: &mut StageTimes| -> Result<f64> {
-        if sc.bad_grad != u32::MAX || sc.bad_value != u32::MAX {
-            let (what, idx) = if sc.bad_grad != u32::MAX { ("gradient", sc.bad_grad) } else { ("value", sc.bad_value) };
-            return Err(non_finite_error(what, it, idx as usize / stride, group_of_offset(idx as usize % stride)));
-        }
-        if let Some(t) = sc.stage_seconds {
-            stages.project += t[0];
-            stages.sort += t[1];
-            stages.rasterize += t[2];
-            stages.loss += t[3];
-            stages.backward += t[4];
-            stages.optimiser += t[5];
-        }
-        let l = sc.loss as f64;
-        if !l.is_finite() {
-            return Err(Error::Failure(format!("training diverged at iteration {it}: loss is {l}")));
-        }
-        Ok(l)
+    let report = |points: Vec<ReportPoint>, n: usize, train_seconds: f64, stages: StageTimes| TrainReport {
+        backend: "gpu",
+        loss: "l1ssim".to_string(),
+        config: cfg.clone(),
+        schedule: sched,
+        extent,
+        points,
+        gaussians: n,
+        train_seconds,
+        test_views: test_frames.len(),
+        test_psnr: None,
+        test_ssim: None,
+        stages,
+        rate: None,
     };
 
-    for it in 1..=cfg.iters {
+    for it in first..=cfg.iters {
         let t_iter = Instant::now();
         if it % sched.sh_up_every == 0 && degree < max_degree {
             degree += 1;
@@ -244,22 +324,11 @@ pub fn train_on(
         }
         let fi = order.pop().unwrap();
         let frame = train_frames[fi];
-        let t0 = Instant::now();
-        let sc = session.project(&frame.camera, dataset.background, degree)?;
-        let t_a = t0.elapsed().as_secs_f64();
-        if it > 1 {
-            last_loss = account(&sc, it - 1, &mut stages)?;
-            loss_sum += last_loss;
-            loss_n += 1;
-            if let Some(mut p) = pending.take() {
-                p.loss = loss_sum / loss_n as f64;
-                points.push(p);
-                (loss_sum, loss_n) = (0.0, 0);
-            }
-        }
-        let t1 = Instant::now();
+        // The whole iteration is one submission; nothing waits for the GPU.
+        session.begin_rate(it)?;
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        session.rasterize(&mut enc, &frame.camera, sc.pairs)?;
+        session.project(&mut enc, &frame.camera, dataset.background, degree)?;
+        session.rasterize(&mut enc, &frame.camera)?;
         session.loss(&mut enc, &targets[fi], loss.ssim_weight);
         let stats_on = cfg.densify && it < sched.densify_until;
         session.backward(&mut enc, &frame.camera, stats_on);
@@ -268,25 +337,34 @@ pub fn train_on(
             .map(|g| learning_rate(g, it, cfg, extent));
         session.adam(&mut enc, lr);
         session.submit(enc);
-        if sc.stage_seconds.is_none() && !gpu.timestamps {
-            // No timestamps: wall time around the submissions (the second includes the wait).
-            gpu.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| Error::Failure(format!("GPU error: {e}")))?;
-            stages.project += t_a;
-            stages.rasterize += t1.elapsed().as_secs_f64();
-        }
         let t_dens = Instant::now();
 
-        // Held-out evaluation before densification (as the CPU trainer); not training time.
+        // The scalars (loss, pair counts, non-finite flags, stage times) every READ_EVERY
+        // iterations, and before an evaluation or a densification step (which read the scene
+        // back anyway). The wait is for the GPU's queued iterations: training time (in their
+        // stage timestamps), neither evaluation nor densification time.
         let eval_now = cfg.eval_interval > 0 && it % cfg.eval_interval == 0 && it != cfg.iters;
+        let densify_now = cfg.densify && sched.densifies(it);
+        let t_read = Instant::now();
+        if eval_now || densify_now || it % READ_EVERY == 0 {
+            tally.absorb(session.read_scalars()?)?;
+        }
+        let read_seconds = t_read.elapsed().as_secs_f64();
+        // Held-out evaluation before densification (as the CPU trainer); not training time.
         let t_eval = Instant::now();
         let test_psnr = if eval_now && !test_frames.is_empty() {
             mean_psnr_ssim(&session.download_params()?, &test_frames, dataset.background).map(|e| e.0)
         } else {
             None
         };
+        // The rate term's estimate is read with the evaluations (the encoder's series).
+        let rate_bits = match session.rate.as_mut() {
+            Some(r) if eval_now && r.on_at(it) => Some(r.read(gpu)?.bits),
+            _ => None,
+        };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
         if cfg.densify {
-            if sched.densifies(it) {
+            if densify_now {
                 let (mut p, m, v) = session.download()?;
                 let raw = session.download_stats()?;
                 let stats = DensifyStats {
@@ -304,44 +382,179 @@ pub fn train_on(
             }
         }
         peak = peak.max(n);
-        stages.densify += t_dens.elapsed().as_secs_f64() - eval_seconds;
+        tally.stages.densify += t_dens.elapsed().as_secs_f64() - eval_seconds - read_seconds;
         train_seconds += t_iter.elapsed().as_secs_f64() - eval_seconds;
 
-        // The point's mean loss is completed when this iteration's loss arrives (next iteration).
+        // The point's mean loss is filled in when its iteration's scalars arrive.
         if it % log_every == 0 || eval_now || it == cfg.iters {
-            pending = Some(ReportPoint { iteration: it, seconds: train_seconds, loss: f64::NAN, gaussians: n, test_psnr });
+            tally.waiting.push_back(ReportPoint { iteration: it, seconds: train_seconds, loss: f64::NAN, gaussians: n, test_psnr });
+            tally.settle();
         }
-        progress(&Progress { iteration: it, iters: cfg.iters, loss: last_loss, gaussians: n, test_psnr, rate_bits: None });
+        let rate_bits = rate_bits.or(tally.last_bits);
+        progress(&Progress { iteration: it, iters: cfg.iters, loss: tally.last_loss, gaussians: n, test_psnr, rate_bits });
+
+        // Checkpoint (periodic, or stopping), then the live report: both after reading the
+        // scalars, so that the record is complete up to this iteration.
+        let (write, stop) = super::checkpoint_now(run, it, cfg.iters, last_checkpoint);
+        let write = write && run.checkpoint.is_some();
+        let report_due = run.report.is_some()
+            && (write || stop || test_psnr.is_some() || last_report.elapsed().as_secs_f64() >= super::LIVE_REPORT_SECONDS);
+        if write || report_due {
+            tally.absorb(session.read_scalars()?)?;
+        }
+        if let Some(dir) = run.checkpoint.as_ref().filter(|_| write) {
+            let (p, m, v) = session.download()?;
+            let raw = session.download_stats()?;
+            let st = checkpoint::State {
+                fingerprint: print.clone(),
+                iteration: it as u64,
+                params: (&p).into(),
+                adam_m: (&m).into(),
+                adam_v: (&v).into(),
+                adam_step: session.step,
+                rng: rng.state(),
+                order: order.iter().map(|&o| o as u64).collect(),
+                degree,
+                peak: peak as u64,
+                grad_accum: raw.chunks_exact(3).map(|s| s[0]).collect(),
+                count: raw.chunks_exact(3).map(|s| s[1] as u32).collect(),
+                max_radius: raw.chunks_exact(3).map(|s| s[2]).collect(),
+                points: tally.points.iter().map(checkpoint::PointData::from).collect(),
+                stages: tally.stages,
+                loss_sum: tally.loss_sum + tally.arrived.iter().map(|a| a.1).sum::<f64>(),
+                loss_n: (tally.loss_n + tally.arrived.len()) as u64,
+                train_seconds,
+            };
+            checkpoint::save(dir, &st)?;
+            last_checkpoint = Instant::now();
+        }
+        if let Some(r) = run.report.as_ref().filter(|_| report_due) {
+            super::write_report(r, &report(tally.points.clone(), n, train_seconds, tally.stages))?;
+            last_report = Instant::now();
+        }
+        if stop {
+            return Err(super::interrupted_error(run, it, cfg.iters));
+        }
     }
-    // The last iteration's scalars.
+    // The last iterations' scalars.
     let t_end = Instant::now();
-    let sc = session.project(&train_frames[0].camera, dataset.background, degree)?;
-    let l = account(&sc, cfg.iters, &mut stages)?;
-    if let Some(mut p) = pending.take() {
-        p.loss = (loss_sum + l) / (loss_n + 1) as f64;
-        points.push(p);
-    }
+    tally.absorb(session.read_scalars()?)?;
+    tally.settle();
     let params = session.download_params()?;
+    let rate = match session.rate.as_mut() {
+        Some(r) if r.started => {
+            r.read(gpu)?;
+            r.term.outcome()
+        }
+        Some(r) => r.term.outcome(),
+        None => None,
+    };
     train_seconds += t_end.elapsed().as_secs_f64();
     gpu.check()?;
+    let mut points = tally.points;
     let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background);
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
         last.test_psnr = Some(p);
     }
     let report = TrainReport {
-        backend: "gpu",
-        loss: "l1ssim".to_string(),
-        config: cfg.clone(),
-        schedule: sched,
-        extent,
-        points,
-        gaussians: params.len(),
-        train_seconds,
-        test_views: test_frames.len(),
         test_psnr: final_eval.map(|e| e.0),
         test_ssim: final_eval.map(|e| e.1),
-        stages,
-        rate: None,
+        rate,
+        ..report(points, params.len(), train_seconds, tally.stages)
     };
     Ok((params, report))
+}
+
+/// Iterations between two reads of the per-iteration scalars (at most [`session::RING`]).
+pub const READ_EVERY: usize = 32;
+
+/// The host's account of the scalars that arrive every few iterations: the losses not yet
+/// assigned to a report point, the points waiting for their losses, stage times.
+struct Tally {
+    stride: usize,
+    /// The iteration the next arriving scalars belong to.
+    next: usize,
+    /// Losses of iterations since the last completed point.
+    loss_sum: f64,
+    loss_n: usize,
+    /// Points whose iteration's scalars have not arrived yet (loss NaN).
+    waiting: std::collections::VecDeque<ReportPoint>,
+    /// Arrived (iteration, loss) not yet summed into a point.
+    arrived: std::collections::VecDeque<(usize, f64)>,
+    points: Vec<ReportPoint>,
+    last_loss: f64,
+    last_bits: Option<f64>,
+    stages: StageTimes,
+}
+
+impl Tally {
+    fn new(stride: usize, first: usize) -> Self {
+        Tally {
+            stride,
+            next: first,
+            loss_sum: 0.0,
+            loss_n: 0,
+            waiting: Default::default(),
+            arrived: Default::default(),
+            points: Vec::new(),
+            last_loss: f64::NAN,
+            last_bits: None,
+            stages: StageTimes::default(),
+        }
+    }
+
+    /// Takes the scalars of the next iterations: the first non-finite loss or flag is the
+    /// divergence error of the CPU trainer (named at the iteration whose loss shows it, else at
+    /// the last one read: the flags are read every [`READ_EVERY`] iterations).
+    fn absorb(&mut self, sc: session::Scalars) -> Result<()> {
+        let last = self.next + sc.iters.len().saturating_sub(1);
+        let first_bad_loss = sc.iters.iter().position(|s| !s.loss.is_finite()).map(|j| self.next + j);
+        if sc.bad_grad != u32::MAX || sc.bad_value != u32::MAX {
+            let (what, idx) = if sc.bad_grad != u32::MAX { ("gradient", sc.bad_grad) } else { ("value", sc.bad_value) };
+            let it = first_bad_loss.unwrap_or(last);
+            return Err(non_finite_error(what, it, idx as usize / self.stride, group_of_offset(idx as usize % self.stride)));
+        }
+        if let Some(it) = first_bad_loss {
+            let l = sc.iters[it - self.next].loss;
+            return Err(Error::Failure(format!("training diverged at iteration {it}: loss is {l}")));
+        }
+        for s in sc.iters {
+            if let Some(t) = s.stage_seconds {
+                let st = &mut self.stages;
+                st.project += t[0];
+                st.sort += t[1];
+                st.rasterize += t[2];
+                st.loss += t[3];
+                st.backward += t[4];
+                st.optimiser += t[5];
+            }
+            self.last_loss = s.loss as f64;
+            self.last_bits = s.bits.map(f64::from);
+            self.arrived.push_back((self.next, s.loss as f64));
+            self.next += 1;
+        }
+        self.settle();
+        Ok(())
+    }
+
+    /// Completes the waiting points whose losses have all arrived.
+    fn settle(&mut self) {
+        while let Some(p) = self.waiting.front() {
+            if self.next <= p.iteration {
+                break;
+            }
+            while let Some(&(i, l)) = self.arrived.front() {
+                if i > p.iteration {
+                    break;
+                }
+                self.loss_sum += l;
+                self.loss_n += 1;
+                self.arrived.pop_front();
+            }
+            let mut p = self.waiting.pop_front().expect("a waiting point");
+            p.loss = self.loss_sum / self.loss_n.max(1) as f64;
+            (self.loss_sum, self.loss_n) = (0.0, 0);
+            self.points.push(p);
+        }
+    }
 }

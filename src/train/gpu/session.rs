@@ -2,6 +2,9 @@
 //! per-view images) and the recording of one iteration.
 
 use super::context::{dims, projected_bytes, stride_for, AdamUniform, FrameUniform, Gpu, G2};
+use super::rate::{GpuRate, Pass};
+use crate::rate::group::{self, Group};
+use crate::rate::term::RateTerm;
 use crate::{Error, Result};
 use gscodec_decoder::math::TILE;
 use gscodec_decoder::{Camera, Image, Splats};
@@ -19,6 +22,19 @@ pub fn to_records(s: &Splats) -> Vec<f32> {
         r.extend_from_slice(s.rest_of(i));
     }
     r
+}
+
+/// Offset in a parameter record (SH degree `degree`) of value `c` of group `g`.
+pub fn record_offset(g: Group, degree: u8, c: usize) -> usize {
+    let field = match g {
+        Group::Position => 0,
+        Group::Scale => 3,
+        Group::Rotation => 6,
+        Group::Opacity => 10,
+        Group::ShDc => 11,
+        Group::Sh1 | Group::Sh2 | Group::Sh3 => 14,
+    };
+    field + group::layout(g, degree).1.start + c
 }
 
 /// Inverse of [`to_records`].
@@ -67,22 +83,41 @@ pub struct ImageBufs {
     pub ranges: wgpu::Buffer,
 }
 
-/// Bytes of the per-iteration read-back: pair count, first bad gradient / value index, previous
-/// iteration's loss, then 2 × 7 stage timestamps.
-const SCALARS: u64 = 16;
-pub const READBACK: u64 = SCALARS + 12 * 8;
+/// Iterations whose scalars the GPU keeps (a ring of slots); the host reads them at least this
+/// often ([`Session::read_scalars`]).
+pub const RING: u64 = 64;
+/// Bytes per slot: the 12 stage timestamps (u64) at 0, then the words below (the slot size is the
+/// query-resolve alignment).
+const SLOT: u64 = 256;
+const SLOT_WORDS: u32 = (SLOT / 4) as u32;
+/// f32: the iteration's loss (image loss, plus `w·R` with the rate term).
+const LOSS_WORD: u32 = 24;
+/// u32: the iteration's (tile, Gaussian) pairs, before clamping to the key capacity.
+const PAIRS_WORD: u32 = 25;
+/// f32: the rate term's `R` in bits (0 when it is off).
+const BITS_WORD: u32 = 26;
+const TIMESTAMPS: u32 = 12;
 
-/// What the per-iteration read-back says.
+/// What one iteration left in its slot.
 #[derive(Debug, Clone, Copy)]
-pub struct Scalars {
+pub struct IterScalars {
+    pub loss: f32,
     pub pairs: u32,
+    /// The rate term's bit estimate (None when it was off).
+    pub bits: Option<f32>,
+    /// GPU seconds per stage (project, sort, rasterize, loss, backward, optimiser), from
+    /// timestamp queries when the adapter has them.
+    pub stage_seconds: Option<[f64; 6]>,
+}
+
+/// The scalars of the iterations recorded since the last read.
+#[derive(Debug, Clone)]
+pub struct Scalars {
+    /// One per iteration, oldest first.
+    pub iters: Vec<IterScalars>,
+    /// First non-finite gradient / value (flat record index; u32::MAX: none) so far.
     pub bad_grad: u32,
     pub bad_value: u32,
-    /// Loss of the previous iteration.
-    pub loss: f32,
-    /// GPU seconds per stage of the previous iteration (project, sort, rasterize, loss, backward,
-    /// optimiser), from timestamp queries when the adapter has them.
-    pub stage_seconds: Option<[f64; 6]>,
 }
 
 /// GPU training state.
@@ -95,34 +130,48 @@ pub struct Session<'g> {
     adam_u: wgpu::Buffer,
     keys_a: [wgpu::Buffer; 3],
     keys_b: [wgpu::Buffer; 3],
+    /// Keys the key buffers hold (a multiple of the sort's 1024-key block).
     key_cap: u32,
-    /// Loss accumulators (2 slots, alternating by iteration).
-    pub loss_acc: wgpu::Buffer,
+    /// Pairs to sort (the count clamped to `key_cap`), written on the GPU.
+    sort_n: wgpu::Buffer,
+    /// Indirect dispatch sizes of the sort and of the tile ranges, written on the GPU.
+    sort_args: wgpu::Buffer,
+    count_u: wgpu::Buffer,
+    ranges_u: wgpu::Buffer,
+    /// The next projection reads its pair count back to size the key buffers (at the start and
+    /// after the scene changed).
+    need_count: bool,
+    /// Per-iteration scalars, [`RING`] slots of [`SLOT`] bytes.
+    pub ring: wgpu::Buffer,
+    ring_staging: wgpu::Buffer,
+    /// Iterations submitted ([`Session::submit`]); the current one writes slot `recorded % RING`.
+    recorded: u64,
+    /// The first iteration whose scalars were not read yet.
+    unread: u64,
+    /// Iterations whose pairs exceeded the key capacity (they rendered the pairs that fit).
+    pub truncated: usize,
     /// First non-finite gradient / value index (u32::MAX = none).
     bad: wgpu::Buffer,
     query: Option<wgpu::QuerySet>,
-    resolve: Option<wgpu::Buffer>,
-    staging: wgpu::Buffer,
     period_ns: f64,
     pub step: u64,
-    /// Whether the previous iteration wrote timestamps.
-    timed: bool,
+    /// The rate term, when training under `D + λ·R`.
+    pub rate: Option<GpuRate>,
+    /// Whether the rate term is on in the iteration being recorded (render from the quantised
+    /// records, add `w·R`, update steps).
+    rate_on: bool,
 }
 
 impl<'g> Session<'g> {
     /// Uploads `splats` (parameters; zero moments).
     pub fn new(gpu: &'g Gpu, splats: &Splats) -> Result<Self> {
         let scene = scene_bufs(gpu, splats, None)?;
-        let key = |name| gpu.storage(name, 1024);
+        let key = |name| gpu.storage(name, 1024 * 4);
         let query = gpu.timestamps.then(|| {
-            gpu.device.create_query_set(&wgpu::QuerySetDescriptor { label: Some("stages"), ty: wgpu::QueryType::Timestamp, count: 14 })
-        });
-        let resolve = gpu.timestamps.then(|| {
-            gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("timestamps"),
-                size: 16 * 8,
-                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
+            gpu.device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("stages"),
+                ty: wgpu::QueryType::Timestamp,
+                count: TIMESTAMPS,
             })
         });
         let s = Session {
@@ -133,29 +182,120 @@ impl<'g> Session<'g> {
             adam_u: gpu.uniform_buffer(std::mem::size_of::<AdamUniform>() as u64),
             keys_a: [key("tile A"), key("depth A"), key("id A")],
             keys_b: [key("tile B"), key("depth B"), key("id B")],
-            key_cap: 256,
-            loss_acc: gpu.storage("loss", 16),
-            bad: gpu.storage_init("bad", bytemuck::cast_slice(&[u32::MAX; 4])),
-            query,
-            resolve,
-            staging: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            key_cap: 1024,
+            sort_n: gpu.storage("sort count", 16),
+            sort_args: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("sort dispatch"),
+                size: 32,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT,
+                mapped_at_creation: false,
+            }),
+            count_u: gpu.uniform_buffer(16),
+            ranges_u: gpu.uniform_buffer(16),
+            need_count: true,
+            ring: gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("scalars"),
-                size: READBACK,
+                size: RING * SLOT,
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST
+                    | wgpu::BufferUsages::QUERY_RESOLVE,
+                mapped_at_creation: false,
+            }),
+            ring_staging: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("scalars read-back"),
+                size: RING * SLOT + 16,
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),
+            recorded: 0,
+            unread: 0,
+            truncated: 0,
+            bad: gpu.storage_init("bad", bytemuck::cast_slice(&[u32::MAX; 4])),
+            query,
             period_ns: gpu.queue.get_timestamp_period() as f64,
             step: 0,
-            timed: false,
+            rate: None,
+            rate_on: false,
             gpu,
         };
+        gpu.queue.write_buffer(&s.ranges_u, 0, bytemuck::cast_slice(&[s.key_cap, 0, 0, 0]));
         gpu.check()?;
         Ok(s)
+    }
+
+    /// The slot of the iteration being recorded, as a word index into [`Self::ring`].
+    fn slot_word(&self) -> u32 {
+        (self.recorded % RING) as u32 * SLOT_WORDS
+    }
+
+    /// Makes the key buffers hold at least `pairs` keys (with room to grow).
+    fn ensure_keys(&mut self, pairs: u32) -> Result<()> {
+        if pairs <= self.key_cap {
+            return Ok(());
+        }
+        let g = self.gpu;
+        let cap = pairs.saturating_add(pairs / 2).next_multiple_of(1024);
+        g.fits("the sort keys", cap as u64 * 4)?;
+        let key = |name| g.storage(name, cap as u64 * 4);
+        self.keys_a = [key("tile A"), key("depth A"), key("id A")];
+        self.keys_b = [key("tile B"), key("depth B"), key("id B")];
+        self.key_cap = cap;
+        g.queue.write_buffer(&self.ranges_u, 0, bytemuck::cast_slice(&[cap, 0, 0, 0]));
+        Ok(())
+    }
+
+    /// Trains under `D + λ·R` with `term` from its start iteration on.
+    pub fn set_rate(&mut self, term: RateTerm) {
+        self.rate = Some(GpuRate::new(self.gpu, term, self.scene.degree, self.scene.stride));
+    }
+
+    /// Turns the rate term on for the iteration about to be recorded when `it` is at or after its
+    /// start (the first time, its densities are fitted to the parameters: one read-back).
+    pub fn begin_rate(&mut self, it: usize) -> Result<()> {
+        self.rate_on = self.rate.as_ref().is_some_and(|r| r.on_at(it));
+        if !self.rate_on {
+            return Ok(());
+        }
+        if !self.rate.as_ref().unwrap().started {
+            let p = self.download_params()?;
+            self.rate.as_mut().unwrap().start(self.gpu, &p);
+        }
+        let (n, stride, word) = (self.scene.n, self.scene.stride, self.slot_word());
+        self.rate.as_mut().unwrap().prepare(self.gpu, n, stride, word + LOSS_WORD, word + BITS_WORD);
+        Ok(())
+    }
+
+    /// The records the iteration renders from: the quantised ones while the rate term is on.
+    fn render_records(&self) -> &wgpu::Buffer {
+        match (&self.rate, self.rate_on) {
+            (Some(r), true) => &r.render,
+            _ => &self.scene.params,
+        }
+    }
+
+    /// Records the rate term's passes alone (quantised records; gradient into the gradient buffer
+    /// as it is; the updates): for tests of the term.
+    #[doc(hidden)]
+    pub fn record_rate(&self, enc: &mut wgpu::CommandEncoder) {
+        let (g, sc) = (self.gpu, &self.scene);
+        if let (Some(r), true) = (&self.rate, self.rate_on) {
+            self.run(enc, &r.quantise(g, &sc.params, sc.n * sc.stride), (None, None));
+            for p in r.grads(g, &sc.params, &sc.grads, sc.n) {
+                self.run(enc, &p, (None, None));
+            }
+            self.run(enc, &r.update(g, &self.ring), (None, None));
+        }
+    }
+
+    fn run(&self, enc: &mut wgpu::CommandEncoder, p: &Pass, ts: (Option<u32>, Option<u32>)) {
+        self.pass(enc, p.0, &p.1, p.2, ts);
     }
 
     /// Replaces the scene (after densification): parameters and moments given.
     pub fn replace_scene(&mut self, splats: &Splats, m: &Splats, v: &Splats) -> Result<()> {
         self.scene = scene_bufs(self.gpu, splats, Some((m, v)))?;
+        self.need_count = true;
         Ok(())
     }
 
@@ -179,13 +319,19 @@ impl<'g> Session<'g> {
         self.gpu.read_f32(&self.scene.stats, self.scene.n * 3)
     }
 
+    /// Sets the densification statistics (`(Σ|dL/dmean2d|, count, max radius)` per Gaussian).
+    pub fn upload_stats(&self, stats: &[f32]) {
+        self.gpu.queue.write_buffer(&self.scene.stats, 0, bytemuck::cast_slice(stats));
+    }
+
     pub fn clear_stats(&self) {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&self.scene.stats, 0, None);
         self.gpu.queue.submit([enc.finish()]);
     }
 
-    fn ensure_image(&mut self, w: u32, h: u32) -> Result<()> {
+    /// Sizes the image buffers for `w × h`.
+    pub fn ensure_image(&mut self, w: u32, h: u32) -> Result<()> {
         if self.img.as_ref().is_some_and(|b| b.width == w && b.height == h) {
             return Ok(());
         }
@@ -208,14 +354,15 @@ impl<'g> Session<'g> {
         Ok(())
     }
 
-    fn pass(
+    fn pass<'a>(
         &self,
         enc: &mut wgpu::CommandEncoder,
         p: &wgpu::ComputePipeline,
         bg: &wgpu::BindGroup,
-        groups: (u32, u32),
+        groups: impl Into<Dispatch<'a>>,
         ts: (Option<u32>, Option<u32>),
     ) {
+        let groups = groups.into();
         let timestamp_writes = match (&self.query, ts) {
             (Some(q), (b, e)) if b.is_some() || e.is_some() => {
                 Some(wgpu::ComputePassTimestampWrites { query_set: q, beginning_of_pass_write_index: b, end_of_pass_write_index: e })
@@ -225,67 +372,79 @@ impl<'g> Session<'g> {
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes });
         pass.set_pipeline(p);
         pass.set_bind_group(0, bg, &[]);
-        pass.dispatch_workgroups(groups.0, groups.1, 1);
+        match groups {
+            Dispatch::Direct(x, y) => pass.dispatch_workgroups(x, y, 1),
+            Dispatch::Indirect(args, offset) => pass.dispatch_workgroups_indirect(args, offset),
+        }
     }
 
-    /// Step 1 of an iteration: projection (+ SH colour) and the tile-count scan, then one
-    /// read-back of the pair count together with the previous iteration's scalars.
-    pub fn project(&mut self, cam: &Camera, background: [f32; 3], degree: u8) -> Result<Scalars> {
+    /// Step 1 of an iteration: (the rate term's quantised records,) projection + SH colour, the
+    /// tile-count scan and the pair count for the sort, recorded into `enc`. Nothing is read back,
+    /// except the pair count at the first frame and after the scene changed (to size the key
+    /// buffers; `enc` is then submitted up to here).
+    pub fn project(&mut self, enc: &mut wgpu::CommandEncoder, cam: &Camera, background: [f32; 3], degree: u8) -> Result<()> {
         let g = self.gpu;
         let sc = &self.scene;
         let frame = FrameUniform::new(cam, background, degree.min(sc.degree), sc.stride, sc.n);
         g.queue.write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
         g.queue.write_buffer(&self.chunk, 0, bytemuck::cast_slice(&[0u32, sc.n as u32, 0, 0]));
-        let mut enc = g.device.create_command_encoder(&Default::default());
+        let word = self.slot_word();
         enc.clear_buffer(&sc.counts, 0, None);
-        let bg = g.bind(&g.project, &[(0, &self.frame), (1, &self.chunk), (2, &sc.params), (3, &sc.projected), (4, &sc.counts)]);
-        self.pass(&mut enc, &g.project, &bg, dims((sc.n as u32).div_ceil(256)), (Some(0), Some(1)));
-        g.renderer.record_scan(&mut enc, &sc.counts, sc.n as u32 + 1);
-        enc.copy_buffer_to_buffer(&sc.counts, sc.n as u64 * 4, &self.staging, 0, 4);
-        enc.copy_buffer_to_buffer(&self.bad, 0, &self.staging, 4, 8);
-        enc.copy_buffer_to_buffer(&self.loss_acc, ((self.step + 1) % 2) * 4, &self.staging, 12, 4);
-        if let (Some(r), true) = (&self.resolve, self.timed) {
-            enc.copy_buffer_to_buffer(r, 0, &self.staging, SCALARS, 12 * 8);
+        enc.clear_buffer(&self.ring, (word + LOSS_WORD) as u64 * 4, Some(16));
+        let mut first = Some(0);
+        if let (Some(r), true) = (&self.rate, self.rate_on) {
+            self.run(enc, &r.quantise(g, &sc.params, sc.n * sc.stride), (first.take(), None));
         }
-        g.queue.submit([enc.finish()]);
-        let bytes = g.map_wait(&self.staging)?;
-        let u = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
-        let stage_seconds = (self.timed && self.resolve.is_some()).then(|| {
-            let t = |k: usize| u64::from_le_bytes(bytes[SCALARS as usize + 8 * k..SCALARS as usize + 8 * k + 8].try_into().unwrap());
-            std::array::from_fn(|s| t(2 * s + 1).saturating_sub(t(2 * s)) as f64 * self.period_ns * 1e-9)
-        });
-        Ok(Scalars { pairs: u(0), bad_grad: u(4), bad_value: u(8), loss: f32::from_bits(u(12)), stage_seconds })
+        let bg = g.bind(&g.project, &[(0, &self.frame), (1, &self.chunk), (2, self.render_records()), (3, &sc.projected), (4, &sc.counts)]);
+        self.pass(enc, &g.project, &bg, dims((sc.n as u32).div_ceil(256)), (first, None));
+        g.renderer.record_scan(enc, &sc.counts, sc.n as u32 + 1);
+        self.record_count(enc);
+        if self.need_count {
+            let done = std::mem::replace(enc, g.device.create_command_encoder(&Default::default()));
+            g.queue.submit([done.finish()]);
+            let pairs = u32::from_le_bytes(g.read_back(&self.ring, (word + PAIRS_WORD) as u64 * 4, 4)?[..4].try_into().expect("4 bytes"));
+            if pairs > self.key_cap {
+                self.ensure_keys(pairs)?;
+                self.record_count(enc);
+            }
+            self.need_count = false;
+        }
+        Ok(())
     }
 
-    /// Step 2: keys, sort, tile ranges and the saving rasterizer (into the image buffers), recorded
-    /// into `enc`.
-    pub fn rasterize(&mut self, enc: &mut wgpu::CommandEncoder, cam: &Camera, pairs: u32) -> Result<()> {
+    /// Records the pair count (clamped to the key capacity) and the sort's dispatch sizes.
+    fn record_count(&self, enc: &mut wgpu::CommandEncoder) {
+        let g = self.gpu;
+        let u = [self.scene.n as u32, self.key_cap, self.slot_word() + PAIRS_WORD, 0];
+        g.queue.write_buffer(&self.count_u, 0, bytemuck::cast_slice(&u));
+        let bg = g
+            .bind(&g.count_pairs, &[(0, &self.count_u), (1, &self.scene.counts), (2, &self.sort_n), (3, &self.sort_args), (4, &self.ring)]);
+        self.pass(enc, &g.count_pairs, &bg, (1, 1), (None, Some(1)));
+    }
+
+    /// Step 2: keys, sort and tile ranges (sized on the GPU by the pair count), and the saving
+    /// rasterizer (into the image buffers), recorded into `enc`.
+    pub fn rasterize(&mut self, enc: &mut wgpu::CommandEncoder, cam: &Camera) -> Result<()> {
         let g = self.gpu;
         self.ensure_image(cam.width, cam.height)?;
-        if pairs > self.key_cap {
-            let cap = pairs.saturating_add(pairs / 2);
-            g.fits("the sort keys", cap as u64 * 4)?;
-            let key = |name| g.storage(name, cap as u64 * 4);
-            self.keys_a = [key("tile A"), key("depth A"), key("id A")];
-            self.keys_b = [key("tile B"), key("depth B"), key("id B")];
-            self.key_cap = cap;
-        }
         let sc = &self.scene;
         let img = self.img.as_ref().unwrap();
         let (tiles_x, tiles_y) = (cam.width.div_ceil(TILE), cam.height.div_ceil(TILE));
         enc.clear_buffer(&img.ranges, 0, None);
-        if pairs > 0 {
-            let bg = g.bind(
-                &g.emit,
-                &[(0, &self.frame), (1, &sc.projected), (2, &sc.counts), (3, &self.keys_a[0]), (4, &self.keys_a[1]), (5, &self.keys_a[2])],
-            );
-            self.pass(enc, &g.emit, &bg, dims((sc.n as u32).div_ceil(256)), (Some(2), None));
-            let tile_bits = 32 - (tiles_x * tiles_y - 1).leading_zeros();
-            g.renderer.record_radix_sort(enc, &mut self.keys_a, &mut self.keys_b, pairs, tile_bits);
-            let rp = g.uniform(&[pairs, 0u32, 0, 0]);
-            let bg = g.bind(&g.tile_ranges, &[(1, &rp), (2, &self.keys_a[0]), (4, &img.ranges)]);
-            self.pass(enc, &g.tile_ranges, &bg, dims(pairs.div_ceil(256)), (None, Some(3)));
-        }
+        let bg = g.bind(
+            &g.emit,
+            &[(0, &self.frame), (1, &sc.projected), (2, &sc.counts), (3, &self.keys_a[0]), (4, &self.keys_a[1]), (5, &self.keys_a[2])],
+        );
+        self.pass(enc, &g.emit, &bg, dims((sc.n as u32).div_ceil(256)), (Some(2), None));
+        let tile_bits = 32 - (tiles_x * tiles_y - 1).leading_zeros();
+        // (`self.keys_*` are swapped by the sort: take them out for the call.)
+        let (mut a, mut b) = (self.keys_a.clone(), self.keys_b.clone());
+        g.renderer.record_radix_sort(enc, &mut a, &mut b, self.key_cap, tile_bits, (&self.sort_n, 0), Some(&self.sort_args));
+        (self.keys_a, self.keys_b) = (a, b);
+        let sc = &self.scene;
+        let img = self.img.as_ref().unwrap();
+        let bg = g.bind(&g.tile_ranges, &[(1, &self.ranges_u), (2, &self.keys_a[0]), (4, &img.ranges), (7, &self.sort_n)]);
+        self.pass(enc, &g.tile_ranges, &bg, Dispatch::Indirect(&self.sort_args, 12), (None, Some(3)));
         let bg = g.bind(
             &g.raster_forward,
             &[
@@ -303,18 +462,18 @@ impl<'g> Session<'g> {
     }
 
     /// Step 3: the L1+SSIM loss of the rendered image against `target` (same size), its value
-    /// into loss slot `step % 2`, its gradient into the image-gradient buffer.
+    /// into the iteration's slot, its gradient into the image-gradient buffer.
     pub fn loss(&self, enc: &mut wgpu::CommandEncoder, target: &wgpu::Buffer, ssim_weight: f32) {
         let g = self.gpu;
-        let slot = (self.step % 2) as u32;
+        let slot = self.slot_word() + LOSS_WORD;
         let img = self.img.as_ref().expect("rasterize before the loss");
         let n = img.width * img.height;
         let lp = g.uniform(&[img.width, img.height, ssim_weight.to_bits(), slot]);
         let groups = dims(n.div_ceil(256));
-        enc.clear_buffer(&self.loss_acc, slot as u64 * 4, Some(4));
+        enc.clear_buffer(&self.ring, slot as u64 * 4, Some(4));
         let bg = g.bind(&g.ssim_h, &[(0, &lp), (1, &img.image), (2, target), (3, &img.planes)]);
         self.pass(enc, &g.ssim_h, &bg, groups, (Some(6), None));
-        let bg = g.bind(&g.ssim_v, &[(0, &lp), (1, &img.image), (2, target), (3, &img.planes), (4, &img.gplanes), (7, &self.loss_acc)]);
+        let bg = g.bind(&g.ssim_v, &[(0, &lp), (1, &img.image), (2, target), (3, &img.planes), (4, &img.gplanes), (7, &self.ring)]);
         self.pass(enc, &g.ssim_v, &bg, groups, (None, None));
         let bg = g.bind(&g.ssim_bh, &[(0, &lp), (4, &img.gplanes), (5, &img.gblur)]);
         self.pass(enc, &g.ssim_bh, &bg, groups, (None, None));
@@ -347,9 +506,14 @@ impl<'g> Session<'g> {
         let bw = g.uniform(&[sc.n as u32, stats as u32, r_scale.to_bits(), 0]);
         let bg = g.bind(
             &g.project_backward,
-            &[(0, &self.frame), (1, &bw), (2, &sc.params), (3, &sc.projected), (4, &sc.grad2d), (5, &sc.grads), (6, &sc.stats)],
+            &[(0, &self.frame), (1, &bw), (2, self.render_records()), (3, &sc.projected), (4, &sc.grad2d), (5, &sc.grads), (6, &sc.stats)],
         );
-        self.pass(enc, &g.project_backward, &bg, dims((sc.n as u32).div_ceil(256)), (None, Some(9)));
+        let rate = self.rate.as_ref().filter(|_| self.rate_on).map(|r| r.grads(g, &sc.params, &sc.grads, sc.n));
+        self.pass(enc, &g.project_backward, &bg, dims((sc.n as u32).div_ceil(256)), (None, rate.is_none().then_some(9)));
+        if let Some([reduce, add]) = rate {
+            self.run(enc, &reduce, (None, None));
+            self.run(enc, &add, (None, Some(9)));
+        }
     }
 
     /// Step 5: one Adam step with per-group learning rates `lr` (position, scale, rotation,
@@ -357,6 +521,10 @@ impl<'g> Session<'g> {
     pub fn adam(&mut self, enc: &mut wgpu::CommandEncoder, lr: [f32; 6]) {
         let g = self.gpu;
         let sc = &self.scene;
+        let mut first = Some(10);
+        if let (Some(r), true) = (&self.rate, self.rate_on) {
+            self.run(enc, &r.update(g, &self.ring), (first.take(), None));
+        }
         self.step += 1;
         let crate::optim::AdamRule { beta1, beta2, eps, .. } = crate::optim::AdamRule::default();
         let bc1 = 1.0 - (beta1 as f64).powf(self.step as f64);
@@ -375,16 +543,62 @@ impl<'g> Session<'g> {
         };
         g.queue.write_buffer(&self.adam_u, 0, bytemuck::bytes_of(&u));
         let bg = g.bind(&g.adam, &[(0, &self.adam_u), (1, &sc.params), (2, &sc.grads), (3, &sc.m), (4, &sc.v), (5, &self.bad)]);
-        self.pass(enc, &g.adam, &bg, dims(total.div_ceil(256)), (Some(10), Some(11)));
+        self.pass(enc, &g.adam, &bg, dims(total.div_ceil(256)), (first, Some(11)));
     }
 
-    /// Ends an iteration's recording: resolves the timestamps and submits.
+    /// Ends an iteration's recording: resolves its timestamps into its slot and submits.
     pub fn submit(&mut self, mut enc: wgpu::CommandEncoder) {
-        if let (Some(q), Some(r)) = (&self.query, &self.resolve) {
-            enc.resolve_query_set(q, 0..12, r, 0);
-            self.timed = true;
+        if let Some(q) = &self.query {
+            enc.resolve_query_set(q, 0..TIMESTAMPS, &self.ring, (self.recorded % RING) * SLOT);
         }
         self.gpu.queue.submit([enc.finish()]);
+        self.recorded += 1;
+    }
+
+    /// Reads the scalars of the iterations submitted since the last read (one read-back; at most
+    /// [`RING`] iterations may pass between two reads) and grows the key buffers when a count
+    /// came near their capacity.
+    ///
+    /// # Errors
+    /// A GPU error, or more than [`RING`] iterations unread (a bug of the caller).
+    pub fn read_scalars(&mut self) -> Result<Scalars> {
+        let g = self.gpu;
+        let k = self.recorded - self.unread;
+        if k > RING {
+            return Err(Error::Failure(format!("GPU trainer: {k} iterations unread, the ring holds {RING}")));
+        }
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        for (j, it) in (self.unread..self.recorded).enumerate() {
+            enc.copy_buffer_to_buffer(&self.ring, (it % RING) * SLOT, &self.ring_staging, j as u64 * SLOT, SLOT);
+        }
+        enc.copy_buffer_to_buffer(&self.bad, 0, &self.ring_staging, RING * SLOT, 8);
+        g.queue.submit([enc.finish()]);
+        let bytes = g.map_wait(&self.ring_staging)?;
+        let word = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
+        let iters: Vec<IterScalars> = (0..k as usize)
+            .map(|j| {
+                let o = j * SLOT as usize;
+                let t = |i: usize| u64::from_le_bytes(bytes[o + 8 * i..o + 8 * i + 8].try_into().expect("8 bytes"));
+                let bits = f32::from_bits(word(o + 4 * BITS_WORD as usize));
+                IterScalars {
+                    loss: f32::from_bits(word(o + 4 * LOSS_WORD as usize)),
+                    pairs: word(o + 4 * PAIRS_WORD as usize),
+                    bits: (bits != 0.0).then_some(bits),
+                    stage_seconds: self
+                        .query
+                        .is_some()
+                        .then(|| std::array::from_fn(|s| t(2 * s + 1).saturating_sub(t(2 * s)) as f64 * self.period_ns * 1e-9)),
+                }
+            })
+            .collect();
+        self.unread = self.recorded;
+        let most = iters.iter().map(|s| s.pairs).max().unwrap_or(0);
+        self.truncated += iters.iter().filter(|s| s.pairs > self.key_cap).count();
+        if most as u64 * 5 > self.key_cap as u64 * 4 {
+            self.ensure_keys(most.saturating_add(most / 4).max(self.key_cap + 1))?;
+        }
+        let r = RING as usize * SLOT as usize;
+        Ok(Scalars { iters, bad_grad: word(r), bad_value: word(r + 4) })
     }
 
     /// Caps every opacity logit at `logit(max_opacity)` and zeroes its moments.
@@ -423,9 +637,23 @@ impl<'g> Session<'g> {
         Ok((grads, g2))
     }
 
-    /// Sum of the loss slot `slot`.
-    pub fn read_loss(&self, slot: u32) -> Result<f32> {
-        Ok(self.gpu.read_f32(&self.loss_acc, 2)?[slot as usize])
+    /// The loss of the iteration being recorded (for tests of the loss kernels).
+    pub fn read_loss(&self) -> Result<f32> {
+        let b = self.gpu.read_back(&self.ring, (self.slot_word() + LOSS_WORD) as u64 * 4, 4)?;
+        Ok(f32::from_le_bytes(b[..4].try_into().expect("4 bytes")))
+    }
+}
+
+/// How a pass's workgroup count is given.
+pub enum Dispatch<'a> {
+    Direct(u32, u32),
+    /// `(x, y, z)` u32 at a byte offset of a buffer written on the GPU.
+    Indirect(&'a wgpu::Buffer, u64),
+}
+
+impl From<(u32, u32)> for Dispatch<'_> {
+    fn from((x, y): (u32, u32)) -> Self {
+        Dispatch::Direct(x, y)
     }
 }
 
