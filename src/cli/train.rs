@@ -107,7 +107,9 @@ pub fn run(args: Args) -> Result<()> {
             pb.set_position(p.iteration as u64);
             if p.iteration % 10 == 0 || p.test_psnr.is_some() {
                 let psnr = last_psnr.map(|v| format!(" test {v:.2} dB")).unwrap_or_default();
-                pb.set_message(format!("loss {:.4} n {}{psnr}", p.loss, p.gaussians));
+                // The GPU trainer reads its loss back every few iterations: NaN until the first read.
+                let loss = if p.loss.is_finite() { format!("loss {:.4} ", p.loss) } else { String::new() };
+                pb.set_message(format!("{loss}n {}{psnr}", p.gaussians));
             }
         })
         .map_err(|e| match e {

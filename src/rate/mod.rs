@@ -30,9 +30,14 @@ pub struct EncodeConfig {
     pub steps: Steps,
     /// Gaussians with opacity below this are pruned (1/255 is lossless: they never draw).
     pub min_opacity: f32,
-    /// Gaussians whose footprint (opacity × area, [`quantise::footprint`]) is below this are
-    /// pruned too (0 = off; the RD search sets it).
-    pub min_footprint: f32,
+    /// Gaussians whose significance (how much of the standard views they cover after
+    /// occlusion, [`importance::significance`] of the input scene) is below this are pruned too
+    /// (0 = off; the RD search sets it).
+    pub min_significance: f32,
+    /// Per SH band 1..=3: Gaussians whose band contribution ([`quantise::band_contribution`],
+    /// weighted by their significance) is below this have that band's coefficients zeroed
+    /// (0 = keep all; the RD search sets it).
+    pub sh_drop: [f32; 3],
     /// SH bands above this degree are left out.
     pub max_sh_degree: u8,
     /// Also fit the learned density per channel and store it where it is cheaper than the
@@ -49,7 +54,8 @@ impl Default for EncodeConfig {
         EncodeConfig {
             steps: Steps::default(),
             min_opacity: 1.0 / 255.0,
-            min_footprint: 0.0,
+            min_significance: 0.0,
+            sh_drop: [0.0; 3],
             max_sh_degree: 3,
             learned_tables: true,
             progressive: false,
@@ -68,13 +74,59 @@ impl EncodeConfig {
             ..EncodeConfig::default()
         }
     }
+
+    /// Whether coding with this config needs the input's significance (significance pruning or
+    /// SH band dropping).
+    pub fn needs_significance(&self) -> bool {
+        self.min_significance > 0.0 || self.sh_drop.iter().any(|&t| t > 0.0)
+    }
+}
+
+/// The Gaussians of `splats` that `config`'s pruning keeps (opacity, then significance: each a
+/// per-Gaussian test on the input), and their significance when it is given. Without
+/// `significance` the significance test is skipped ([`encode`] computes it when needed).
+///
+/// # Panics
+/// If `significance` is not one value per Gaussian of `splats`.
+pub fn pruned(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> (Splats, Option<Vec<f32>>) {
+    assert!(significance.is_none_or(|s| s.len() == splats.len()), "one significance per Gaussian");
+    let keep: Vec<bool> = (0..splats.len())
+        .map(|i| {
+            gscodec_decoder::math::sigmoid(splats.opacity_logits[i]) >= config.min_opacity
+                && (config.min_significance <= 0.0 || significance.is_none_or(|s| s[i] >= config.min_significance))
+        })
+        .collect();
+    let mut out = splats.clone();
+    out.retain_indices(|i| keep[i]);
+    (out, significance.map(|s| s.iter().zip(&keep).filter(|x| *x.1).map(|x| *x.0).collect()))
 }
 
 /// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
 pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
+    encode_with(splats, config, None)
+}
+
+/// [`encode`] with the input's significance already computed ([`importance::significance`] of
+/// `splats`; computed here when `config` needs it and it is `None`).
+pub fn encode_with(
+    splats: &Splats,
+    config: &EncodeConfig,
+    significance: Option<&[f32]>,
+) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let mut s = quantise::prune_footprint(&quantise::prune(splats, config.min_opacity), config.min_footprint);
+    let own;
+    let significance = match significance {
+        None if config.needs_significance() => {
+            own = importance::significance(splats);
+            Some(&own[..])
+        }
+        s => s,
+    };
+    let (mut s, sig) = pruned(splats, config, significance);
+    if let Some(w) = sig.filter(|_| config.sh_drop.iter().any(|&t| t > 0.0)) {
+        quantise::drop_sh_bands(&mut s, &w, config.sh_drop);
+    }
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);
     }
@@ -82,4 +134,45 @@ pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, Encode
     let q = quantise::quantise(&s, &config.steps, &level);
     let (bytes, report) = encode::write(&q, input, config.learned_tables);
     Ok((bytes, report, q))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Significance pruning keeps exactly the Gaussians at or above the threshold: it never
+    /// drops a Gaussian more significant than one it keeps.
+    #[test]
+    fn significance_pruning_keeps_the_most_significant() {
+        let s = crate::sample::scene(400, 7);
+        let sig = importance::significance(&s);
+        let mut sorted = sig.clone();
+        sorted.sort_by(f32::total_cmp);
+        let t = sorted[sorted.len() / 3];
+        let config = EncodeConfig { min_opacity: 0.0, min_significance: t, ..EncodeConfig::default() };
+        let (kept, kept_sig) = pruned(&s, &config, Some(&sig));
+        let kept_sig = kept_sig.unwrap();
+        assert_eq!(kept.len(), sig.iter().filter(|&&v| v >= t).count());
+        assert!(kept.len() < s.len() && !kept.is_empty());
+        let dropped_max = sig.iter().filter(|&&v| v < t).fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+        let kept_min = kept_sig.iter().fold(f32::INFINITY, |a, &b| a.min(b));
+        assert!(dropped_max < kept_min, "dropped {dropped_max} ≥ kept {kept_min}");
+        // The kept significances are those of the kept Gaussians, in order.
+        let order: Vec<usize> = (0..s.len()).filter(|&i| sig[i] >= t).collect();
+        assert_eq!(kept.positions, order.iter().map(|&i| s.positions[i]).collect::<Vec<_>>());
+        assert_eq!(kept_sig, order.iter().map(|&i| sig[i]).collect::<Vec<_>>());
+    }
+
+    /// `encode` computes the significance a config needs; given precomputed, the same bytes.
+    #[test]
+    fn encode_computes_the_significance_it_needs() {
+        let s = crate::sample::scene(300, 8);
+        let sig = importance::significance(&s);
+        let config = EncodeConfig { min_significance: 0.5, sh_drop: [0.1, 0.1, 0.1], ..EncodeConfig::default() };
+        assert!(config.needs_significance() && !EncodeConfig::default().needs_significance());
+        let (a, ra, _) = encode(&s, &config).unwrap();
+        let (b, _, _) = encode_with(&s, &config, Some(&sig)).unwrap();
+        assert_eq!(a, b);
+        assert!(ra.gaussians < encode(&s, &EncodeConfig::default()).unwrap().1.gaussians);
+    }
 }

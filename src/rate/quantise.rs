@@ -8,6 +8,8 @@ use gscodec_decoder::bitstream::positions::{morton_encode, position_of};
 use gscodec_decoder::math::sigmoid;
 use gscodec_decoder::Splats;
 
+use super::group::{layout, values, values_mut};
+
 /// Step sizes (quantisation bins) of every stored attribute.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Steps {
@@ -231,21 +233,36 @@ pub fn prune(splats: &Splats, min_opacity: f32) -> Splats {
     out
 }
 
-/// How much a Gaussian can show: opacity × the area of its two largest axes (world units²).
-/// Small faint Gaussians score low; large faint ones (which still tint many pixels) do not.
-pub fn footprint(splats: &Splats, i: usize) -> f32 {
-    let mut l = splats.log_scales[i];
-    l.sort_by(f32::total_cmp);
-    sigmoid(splats.opacity_logits[i]) * (l[1] + l[2]).exp()
+/// How much colour band `b` (1..=3) of Gaussian `i` adds to the views: `weight · ‖c_{i,b}‖₂`,
+/// where `c_{i,b}` are the band's rest coefficients (all three colour channels). For the real
+/// orthonormal SH basis, `‖c_{i,b}‖₂² / 4π` is the mean over view directions of the squared
+/// colour the band adds, so the norm is its RMS colour up to one constant for every band;
+/// `weight` says how much of the views the Gaussian covers (its significance).
+pub fn band_contribution(splats: &Splats, i: usize, b: u8, weight: f32) -> f32 {
+    let (stride, r) = layout(Group::for_band(b), splats.sh_degree);
+    weight * values(splats, Group::for_band(b))[i * stride..][r].iter().map(|x| x * x).sum::<f32>().sqrt()
 }
 
-/// Drops Gaussians whose [`footprint`] is below `min_footprint` (0 keeps all).
-pub fn prune_footprint(splats: &Splats, min_footprint: f32) -> Splats {
-    let mut out = splats.clone();
-    if min_footprint > 0.0 {
-        out.retain_indices(|i| footprint(splats, i) >= min_footprint);
+/// Per-Gaussian SH band dropping: zeroes the rest coefficients of band `b` of every Gaussian
+/// whose [`band_contribution`] (with `weights[i]`) is below `thresholds[b − 1]` (0 keeps all).
+/// Zeros are cheap under the context tables, and a band that ends up all zero is left out.
+///
+/// # Panics
+/// If `weights` is not one value per Gaussian.
+pub fn drop_sh_bands(splats: &mut Splats, weights: &[f32], thresholds: [f32; 3]) {
+    assert_eq!(weights.len(), splats.len(), "one weight per Gaussian");
+    for b in 1..=splats.sh_degree.min(3) {
+        let t = thresholds[usize::from(b) - 1];
+        if t <= 0.0 {
+            continue;
+        }
+        let g = Group::for_band(b);
+        let (stride, r) = layout(g, splats.sh_degree);
+        let drop: Vec<bool> = (0..splats.len()).map(|i| band_contribution(splats, i, b, weights[i]) < t).collect();
+        for (v, _) in values_mut(splats, g).chunks_exact_mut(stride).zip(&drop).filter(|x| *x.1) {
+            v[r.clone()].fill(0.0);
+        }
     }
-    out
 }
 
 /// The scene a decoder will restore from `q`: the decoder's dequantisation and assembler.
@@ -284,16 +301,33 @@ mod tests {
     }
 
     #[test]
-    fn footprint_pruning_drops_small_faint_gaussians_only() {
-        let mut s = Splats::new(0);
-        // small faint, large faint, small opaque
-        s.push([0.0; 3], [-5.0; 3], [1.0, 0.0, 0.0, 0.0], -3.0, [0.0; 3], &[]);
-        s.push([1.0; 3], [-1.0, -1.0, -6.0], [1.0, 0.0, 0.0, 0.0], -3.0, [0.0; 3], &[]);
-        s.push([2.0; 3], [-5.0; 3], [1.0, 0.0, 0.0, 0.0], 4.0, [0.0; 3], &[]);
-        let f: Vec<f32> = (0..3).map(|i| footprint(&s, i)).collect();
-        assert!(f[0] < f[2] && f[2] < f[1], "{f:?}");
-        let kept = prune_footprint(&s, f[0] * 1.01);
-        assert_eq!(kept.positions, vec![[1.0; 3], [2.0; 3]]);
-        assert_eq!(prune_footprint(&s, 0.0).len(), 3);
+    fn sh_band_dropping_zeroes_only_weak_bands_and_threshold_zero_is_the_identity() {
+        let s = gscodec_decoder::testkit::random_splats(200, 3, 5);
+        let w: Vec<f32> = (0..s.len()).map(|i| 1.0 + (i % 7) as f32).collect();
+        let mut same = s.clone();
+        drop_sh_bands(&mut same, &w, [0.0; 3]);
+        assert_eq!(same, s, "threshold 0 changes nothing");
+        // Band 2 only, at its median contribution: about half its rows zeroed, nothing else touched.
+        let mut c: Vec<f32> = (0..s.len()).map(|i| band_contribution(&s, i, 2, w[i])).collect();
+        c.sort_by(f32::total_cmp);
+        let t = c[c.len() / 2];
+        let mut d = s.clone();
+        drop_sh_bands(&mut d, &w, [0.0, t, 0.0]);
+        let k = s.rest_coeffs();
+        let mut zeroed = 0;
+        for i in 0..s.len() {
+            for j in 0..k {
+                let (a, b) = (&s.sh_rest[(i * k + j) * 3..][..3], &d.sh_rest[(i * k + j) * 3..][..3]);
+                let band2 = (3..8).contains(&j);
+                if band2 && band_contribution(&s, i, 2, w[i]) < t {
+                    assert_eq!(b, [0.0; 3]);
+                } else {
+                    assert_eq!(a, b, "Gaussian {i} coefficient {j} changed");
+                }
+            }
+            zeroed += usize::from(band_contribution(&s, i, 2, w[i]) < t);
+        }
+        assert_eq!(zeroed, s.len() / 2);
+        assert_eq!((d.positions.clone(), d.sh_dc.clone()), (s.positions.clone(), s.sh_dc.clone()));
     }
 }
