@@ -1,11 +1,15 @@
-//! Importance of each Gaussian: how much of the scene's standard views it covers.
+//! Importance of each Gaussian: how much of the scene, seen from around it, it covers.
 //!
-//! [`significance`] renders the scene's standard orbit views — the cameras of the RD search
-//! ([`super::rd::Evaluator`]): [`crate::views::orbit_cameras`] with up −y, [`VIEWS`] views of
-//! [`SIZE`]×[`SIZE`] pixels — and sums, per Gaussian, its blending weight `α·T` over every pixel
-//! ([`gscodec_decoder::render::contributions`]). The unit is pixels of those views: a Gaussian
-//! that alone covers one pixel fully in one view scores 1; one that no view sees (culled,
-//! off-screen, always under 1/255 alpha or behind opaque Gaussians) scores 0.
+//! [`significance`] renders [`views`] — the RD search's evaluation views
+//! ([`super::rd::Evaluator`]: [`crate::views::orbit_cameras`], up −y, [`VIEWS`] views) **and** the
+//! 24 views of [`crate::views::training_cameras`] (three rings of 8 at 10°, 25° and 40°
+//! elevation, azimuths between the evaluation views), all at [`SIZE`]×[`SIZE`] pixels — and sums,
+//! per Gaussian, its blending weight `α·T` over every pixel
+//! ([`gscodec_decoder::render::contributions`]). The extra rings keep the measure from being the
+//! evaluation's own: a Gaussian that the 8 evaluation views miss but a view a little higher,
+//! lower or to the side sees still scores. The unit is pixels of those views: a Gaussian that
+//! alone covers one pixel fully in one view scores 1; one that no view sees (culled, off-screen,
+//! always under 1/255 alpha or behind opaque Gaussians) scores 0.
 //!
 //! [`levels`] cuts the Gaussians, most significant first, into the importance levels of a
 //! progressive file (SPEC §3.1): sizes doubling, 1/16, 1/16, 1/8, 1/4, 1/2 of them.
@@ -14,12 +18,20 @@ use gscodec_decoder::render::contributions;
 use gscodec_decoder::{RenderOptions, Splats};
 
 use super::rd::{SIZE, VIEWS};
-use crate::views::{orbit_cameras, UpAxis};
+use crate::views::{orbit_cameras, training_cameras, UpAxis};
 
-/// Per Gaussian, the sum over the standard views of its blending weight `α·T` over all pixels
-/// (see the module docs). Deterministic; the views are summed in order, in f64.
+/// The cameras [`significance`] sums over (see the module docs).
+pub fn views(scene: &Splats) -> Vec<gscodec_decoder::Camera> {
+    let up = UpAxis::NegY.vector();
+    let mut cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, up);
+    cams.extend(training_cameras(scene, VIEWS, SIZE, SIZE, up));
+    cams
+}
+
+/// Per Gaussian, the sum over [`views`] of its blending weight `α·T` over all pixels (see the
+/// module docs). Deterministic; the views are summed in order, in f64.
 pub fn significance(scene: &Splats) -> Vec<f32> {
-    let cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector());
+    let cams = views(scene);
     // The weights do not depend on colour: skip the SH bands.
     let opts = RenderOptions { max_sh_degree: 0, ..RenderOptions::default() };
     let mut sum = vec![0.0f64; scene.len()];
@@ -61,7 +73,7 @@ mod tests {
     #[test]
     fn significance_sums_the_views_and_ignores_what_no_view_sees() {
         let mut s = random_splats(300, 1, 4);
-        // Far along the up axis (−y): every orbit camera looks 25° down, so none sees it.
+        // Far along the up axis (−y): every camera looks 10–40° down, so none sees it.
         s.push([0.0, -1000.0, 0.0], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 4.0, [0.0; 3], &[0.0; 9]);
         let sig = significance(&s);
         assert_eq!(sig.len(), s.len());
@@ -71,7 +83,7 @@ mod tests {
         let mut black = s.clone();
         black.sh_dc.iter_mut().for_each(|c| *c = [-10.0; 3]);
         let opts = RenderOptions { background: [1.0; 3], max_sh_degree: 0 };
-        let covered: f64 = orbit_cameras(&s, VIEWS, SIZE, SIZE, UpAxis::NegY.vector())
+        let covered: f64 = views(&s)
             .iter()
             .map(|c| gscodec_decoder::render::render(&black, c, &opts).data.iter().step_by(3).map(|&t| 1.0 - t as f64).sum::<f64>())
             .sum();
