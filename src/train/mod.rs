@@ -361,6 +361,47 @@ pub(crate) fn interrupted_error(run: &RunOptions, it: usize, iters: usize) -> Er
 /// # Errors
 /// As [`train`]; also a checkpoint that does not match the run (input error), and an interrupted
 /// run (failure: the message names the checkpoint to resume from).
+/// What both trainers set up before their first iteration: the splits, the RNG, the scene extent,
+/// the initial scene (given, or from the dataset's points / random points) with the SH degree
+/// it starts at, and the schedule. Refuses what neither trainer can run.
+pub(crate) struct RunStart<'a> {
+    pub train_frames: Vec<&'a Frame>,
+    pub test_frames: Vec<&'a Frame>,
+    pub rng: Rng,
+    pub extent: f32,
+    pub params: Splats,
+    pub degree: u8,
+    pub sched: Schedule,
+}
+
+impl<'a> RunStart<'a> {
+    pub(crate) fn new(dataset: &'a Dataset, init: Option<Splats>, cfg: &TrainConfig, rate: bool, run: &RunOptions) -> Result<Self> {
+        if rate && (run.checkpoint.is_some() || run.resume.is_some()) {
+            return Err(Error::Input("checkpoints do not cover the rate term yet: train without --checkpoint/--resume".into()));
+        }
+        let train_frames = dataset.split(Split::Train);
+        let test_frames = dataset.split(Split::Test);
+        if train_frames.is_empty() {
+            return Err(Error::Input("dataset has no training views".into()));
+        }
+        let mut rng = Rng::new(cfg.seed);
+        let extent = init::camera_extent(dataset);
+        let max_degree = cfg.sh_degree_max.min(3);
+        let (params, degree) = match init {
+            Some(s) => {
+                let d = s.sh_degree.min(max_degree);
+                (if s.sh_degree < max_degree { s.with_sh_degree(max_degree) } else { s }, d)
+            }
+            None => (init::initial_splats(dataset, cfg.init_points, max_degree, &mut rng), 0),
+        };
+        params.validate().map_err(|e| Error::Input(format!("initial scene: {e}")))?;
+        if params.is_empty() {
+            return Err(Error::Input("initial scene has no Gaussians".into()));
+        }
+        Ok(RunStart { train_frames, test_frames, rng, extent, params, degree, sched: Schedule::for_iters(cfg.iters) })
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 pub fn train_with(
     dataset: &Dataset,
@@ -371,30 +412,10 @@ pub fn train_with(
     progress: &mut dyn FnMut(&Progress),
     run: &RunOptions,
 ) -> Result<(Splats, TrainReport)> {
-    if rd.is_some() && (run.checkpoint.is_some() || run.resume.is_some()) {
-        return Err(Error::Input("checkpoints do not cover the rate term yet: train without --checkpoint/--resume".into()));
-    }
-    let train_frames = dataset.split(Split::Train);
-    let test_frames = dataset.split(Split::Test);
-    if train_frames.is_empty() {
-        return Err(Error::Input("dataset has no training views".into()));
-    }
-    let view_of = |f: &Frame| dataset.frames.iter().position(|g| std::ptr::eq(g, f)).unwrap_or(f.index);
-    let mut rng = Rng::new(cfg.seed);
-    let extent = init::camera_extent(dataset);
+    let RunStart { train_frames, test_frames, mut rng, extent, mut params, mut degree, sched } =
+        RunStart::new(dataset, init, cfg, rd.is_some(), run)?;
     let max_degree = cfg.sh_degree_max.min(3);
-    let (mut params, mut degree) = match init {
-        Some(s) => {
-            let d = s.sh_degree.min(max_degree);
-            (if s.sh_degree < max_degree { s.with_sh_degree(max_degree) } else { s }, d)
-        }
-        None => (init::initial_splats(dataset, cfg.init_points, max_degree, &mut rng), 0),
-    };
-    params.validate().map_err(|e| Error::Input(format!("initial scene: {e}")))?;
-    if params.is_empty() {
-        return Err(Error::Input("initial scene has no Gaussians".into()));
-    }
-    let sched = Schedule::for_iters(cfg.iters);
+    let view_of = |f: &Frame| dataset.frames.iter().position(|g| std::ptr::eq(g, f)).unwrap_or(f.index);
     let mut adam = Adam::new(&params);
     let mut stats = DensifyStats::new(params.len());
     let mut peak = params.len();

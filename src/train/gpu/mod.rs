@@ -31,10 +31,8 @@ pub use session::Session;
 
 use super::adam::Adam;
 use super::densify::DensifyStats;
-use super::{
-    checkpoint, init, learning_rate, non_finite_error, Progress, ReportPoint, RunOptions, Schedule, StageTimes, TrainConfig, TrainReport,
-};
-use crate::io::{Dataset, Frame, Split};
+use super::{checkpoint, learning_rate, non_finite_error, Progress, ReportPoint, RunOptions, StageTimes, TrainConfig, TrainReport};
+use crate::io::{Dataset, Frame};
 use crate::loss::{FeatureSpec, LossKind};
 use crate::metrics::view::mean_psnr_ssim;
 use crate::optim::AdamRule;
@@ -284,29 +282,9 @@ pub fn train_with(
     run: &RunOptions,
 ) -> Result<(Splats, TrainReport)> {
     loss.check()?;
-    if rate.is_some() && (run.checkpoint.is_some() || run.resume.is_some()) {
-        return Err(Error::Input("checkpoints do not cover the rate term yet: train without --checkpoint/--resume".into()));
-    }
-    let train_frames = dataset.split(Split::Train);
-    let test_frames = dataset.split(Split::Test);
-    if train_frames.is_empty() {
-        return Err(Error::Input("dataset has no training views".into()));
-    }
-    let mut rng = Rng::new(cfg.seed);
-    let extent = init::camera_extent(dataset);
+    let super::RunStart { train_frames, test_frames, mut rng, extent, mut params, mut degree, sched } =
+        super::RunStart::new(dataset, init, cfg, rate.is_some(), run)?;
     let max_degree = cfg.sh_degree_max.min(3);
-    let (mut params, mut degree) = match init {
-        Some(s) => {
-            let d = s.sh_degree.min(max_degree);
-            (if s.sh_degree < max_degree { s.with_sh_degree(max_degree) } else { s }, d)
-        }
-        None => (init::initial_splats(dataset, cfg.init_points, max_degree, &mut rng), 0),
-    };
-    params.validate().map_err(|e| Error::Input(format!("initial scene: {e}")))?;
-    if params.is_empty() {
-        return Err(Error::Input("initial scene has no Gaussians".into()));
-    }
-    let sched = Schedule::for_iters(cfg.iters);
     let print = super::fingerprint(cfg, dataset, "l1ssim");
     let mut order: Vec<usize> = Vec::new();
     let mut first = 1;
