@@ -58,10 +58,14 @@ impl<'a> Evaluator<'a> {
     /// (bytes, D, encoder report) of `config`.
     pub fn eval_report(&self, config: &EncodeConfig) -> Result<(usize, f64, super::EncodeReport), SceneError> {
         let (bytes, report, q) = encode_with(self.scene, config, Some(&self.significance))?;
-        let dec = dequantise(&q);
-        let mse = self.cams.iter().zip(&self.refs).map(|(c, r)| crate::metrics::mse(r, &render(&dec, c, &self.opts))).sum::<f64>()
+        Ok((bytes.len(), self.distortion(&dequantise(&q)), report))
+    }
+
+    /// `D` of a decoded scene: 255² × the mean squared error of its views against the input's.
+    pub fn distortion(&self, dec: &Splats) -> f64 {
+        let mse = self.cams.iter().zip(&self.refs).map(|(c, r)| crate::metrics::mse(r, &render(dec, c, &self.opts))).sum::<f64>()
             / self.cams.len() as f64;
-        Ok((bytes.len(), mse * 255.0 * 255.0, report))
+        mse * 255.0 * 255.0
     }
 }
 
