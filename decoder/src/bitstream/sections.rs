@@ -350,6 +350,27 @@ mod tests {
         assert!(!is_known(&v4(0), 0x01, 0));
     }
 
+    /// Codebooks (kind 0x02, SPEC §3.2): known in 5.0 for bands 1..=3 when N > 0, unknown in
+    /// 4.0 and 3.0; one of a band above D is corrupt.
+    #[test]
+    fn codebook_sections_are_known_in_5_only() {
+        let v = |major, gaussians| Header { version_major: major, ..header(gaussians) };
+        for (major, n, chunk, known) in
+            [(5, 3, 1, true), (5, 3, 3, true), (5, 3, 0, false), (5, 3, 4, false), (5, 0, 1, false), (4, 3, 1, false), (3, 3, 1, false)]
+        {
+            assert_eq!(is_known(&v(major, n), CODEBOOK_KIND, chunk), known, "{major}.0 N={n} chunk {chunk}");
+        }
+        // header(): D = 1, so a codebook of band 2 is corrupt, one of band 1 is not.
+        let h = v(VERSION_MAJOR, 3);
+        let c = |chunk| {
+            let bytes = write(&h, &[Section { kind: CODEBOOK_KIND, chunk, flags: 0, data: b"" }]);
+            let c = parse(&bytes).unwrap();
+            c.codebook(Group::Sh1).map(|r| r.is_some()).map_err(|e| e.class())
+        };
+        assert_eq!(c(1), Ok(true));
+        assert_eq!(c(2), Err("format"));
+    }
+
     #[test]
     fn data_sections_beyond_the_levels_are_corrupt() {
         let h = Header { version_major: VERSION_MAJOR, ..header(5) };
