@@ -109,7 +109,11 @@ impl Encoder {
         stages.rd_search_s = start.elapsed().as_secs_f64();
         let mut trained = None;
         let mut train_report = None;
-        if iters > 0 {
+        // Fine-tune what the search chose to code (pruned, SH bands dropped), so that the
+        // Gaussians left learn to cover for those pruned; coding the result applies the same
+        // pruning again to the Gaussians the rate term pushed under it.
+        let init = if iters > 0 { rate::prepared(scene, &config, None) } else { Splats::default() };
+        if !init.is_empty() {
             // Training views avoid the orbit views `orbit_psnr` evaluates on (held out).
             let cams = training_cameras(scene, 8, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
             let dataset = crate::train::targets::render_targets(scene, &cams, [0.0; 3]);
@@ -117,12 +121,12 @@ impl Encoder {
                 iters,
                 seed: self.config.seed,
                 densify: false,
-                sh_degree_max: scene.sh_degree,
+                sh_degree_max: init.sh_degree,
                 eval_interval: (iters / 10).max(1),
                 ..Default::default()
             };
             // A .ply already has its structure: the term runs from the start.
-            let (s, r) = self.train(&dataset, Some(scene.clone()), &cfg, &config, 0, start, &mut series, progress)?;
+            let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
             stages.train_s = r.train_seconds;
             trained = Some(s);
@@ -254,7 +258,7 @@ impl Encoder {
             file_bytes: bytes.len(),
             estimated_bytes: r.estimated_bits() / 8.0,
             gaussians: r.gaussians,
-            input_gaussians: coded.len(),
+            input_gaussians: reference.len(),
             sh_degree: r.sh_degree,
             position_bits: r.position_bits,
             groups: r.groups,
