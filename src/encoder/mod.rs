@@ -292,3 +292,28 @@ pub fn orbit_psnr(a: &Splats, b: &Splats) -> f64 {
     let cams = orbit_cameras(a, ORBIT_VIEWS, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
     cams.iter().map(|c| crate::metrics::psnr(&render(a, c, &opts), &render(b, c, &opts))).sum::<f64>() / cams.len() as f64
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Fine-tuning a `.ply` trains what the RD search chose to code (pruned, SH bands dropped),
+    /// not the whole input, so the Gaussians left can cover for those pruned.
+    #[test]
+    fn fine_tuning_starts_from_what_the_search_codes() {
+        let scene = crate::sample::scene(300, 5);
+        let lambda = Lambda::new(200.0).unwrap();
+        let (config, _) = rate::rd::search(&scene, lambda, |_| {}).unwrap();
+        let searched = rate::prepared(&scene, &config, None).len();
+        assert!(0 < searched && searched < scene.len(), "the search prunes at this λ: {searched} of {}", scene.len());
+        let encoder = Encoder::new(EncoderConfig { lambda, iters: Some(2), backend: Backend::Cpu, ..EncoderConfig::default() }).unwrap();
+        let e = encoder.encode_scene(&scene, &mut |_| {}).unwrap();
+        let trained = e.report.train.as_ref().expect("fine-tuned").gaussians;
+        assert_eq!(trained, searched);
+        assert!(
+            e.report.gaussians <= trained && e.report.input_gaussians == scene.len(),
+            "{:?}",
+            (e.report.gaussians, e.report.input_gaussians)
+        );
+    }
+}
