@@ -106,20 +106,10 @@ pub fn pruned(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32
     (out, significance.map(|s| s.iter().zip(&keep).filter(|x| *x.1).map(|x| *x.0).collect()))
 }
 
-/// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
-pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
-    encode_with(splats, config, None)
-}
-
-/// [`encode`] with the input's significance already computed ([`importance::significance`] of
-/// `splats`; computed here when `config` needs it and it is `None`).
-pub fn encode_with(
-    splats: &Splats,
-    config: &EncodeConfig,
-    significance: Option<&[f32]>,
-) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
-    splats.validate()?;
-    let input = (splats.len(), splats.sh_degree);
+/// What `config` codes of `splats`, before quantisation: [`pruned`], SH bands dropped
+/// ([`quantise::drop_sh_bands`]) and the degree cut. `significance` is that of `splats`
+/// ([`importance::significance`]; computed here when `config` needs it and it is `None`).
+pub fn prepared(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> Splats {
     let own;
     let significance = match significance {
         None if config.needs_significance() => {
@@ -135,6 +125,24 @@ pub fn encode_with(
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);
     }
+    s
+}
+
+/// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
+pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
+    encode_with(splats, config, None)
+}
+
+/// [`encode`] with the input's significance already computed ([`importance::significance`] of
+/// `splats`; computed here when `config` needs it and it is `None`).
+pub fn encode_with(
+    splats: &Splats,
+    config: &EncodeConfig,
+    significance: Option<&[f32]>,
+) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
+    splats.validate()?;
+    let input = (splats.len(), splats.sh_degree);
+    let s = prepared(splats, config, significance);
     let level = if config.progressive { importance::levels(&importance::significance(&s)) } else { Vec::new() };
     let (mut q, order) = quantise::quantise_ordered(&s, &config.steps, &level);
     if config.sh_vq.iter().any(|&k| k > 0) {
