@@ -110,6 +110,11 @@ pub fn pruned(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32
 /// ([`quantise::drop_sh_bands`]) and the degree cut. `significance` is that of `splats`
 /// ([`importance::significance`]; computed here when `config` needs it and it is `None`).
 pub fn prepared(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> Splats {
+    prepared_with_significance(splats, config, significance).0
+}
+
+/// [`prepared`], and the significance of the Gaussians it keeps when there is one.
+fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> (Splats, Option<Vec<f32>>) {
     let own;
     let significance = match significance {
         None if config.needs_significance() => {
@@ -125,7 +130,7 @@ pub fn prepared(splats: &Splats, config: &EncodeConfig, significance: Option<&[f
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);
     }
-    s
+    (s, sig)
 }
 
 /// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
@@ -142,7 +147,7 @@ pub fn encode_with(
 ) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let s = prepared(splats, config, significance);
+    let (s, sig) = prepared_with_significance(splats, config, significance);
     let level = if config.progressive { importance::levels(&importance::significance(&s)) } else { Vec::new() };
     let (mut q, order) = quantise::quantise_ordered(&s, &config.steps, &level);
     if config.sh_vq.iter().any(|&k| k > 0) {
