@@ -110,9 +110,15 @@ impl Encoder {
         let mut trained = None;
         let mut train_report = None;
         // Fine-tune what the search chose to code (pruned, SH bands dropped), so that the
-        // Gaussians left learn to cover for those pruned; coding the result applies the same
-        // pruning again to the Gaussians the rate term pushed under it.
+        // Gaussians left learn to cover for those pruned. The rate term charges the Gaussians
+        // above the opacity where pruning pays at this λ, and coding the result prunes at it
+        // (and again by significance), so training decides which low-opacity Gaussians earn
+        // their bits.
         let init = if iters > 0 { rate::prepared(scene, &config, None) } else { Splats::default() };
+        if !init.is_empty() {
+            let m = rate::rd::pruning_opacity(scene, self.config.lambda, &config).map_err(|e| Error::Input(e.to_string()))?;
+            config.min_opacity = config.min_opacity.max(m);
+        }
         if !init.is_empty() {
             // Training views avoid the orbit views `orbit_psnr` evaluates on (held out).
             let cams = training_cameras(scene, 8, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
@@ -263,6 +269,8 @@ impl Encoder {
             position_bits: r.position_bits,
             groups: r.groups,
             steps: config.steps.map(),
+            min_opacity: config.min_opacity,
+            min_significance: config.min_significance,
             orbit_psnr,
             stages,
             train,
