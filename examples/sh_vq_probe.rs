@@ -34,8 +34,7 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let scene = read_scene(args[1].as_ref()).expect("scene");
     let lambda: Lambda = args[2].parse().expect("λ");
-    let ks: Vec<usize> =
-        args.get(3).map_or(vec![64, 256, 1024, 4096], |s| s.split(',').map(|x| x.parse().expect("K")).collect());
+    let ks: Vec<usize> = args.get(3).map_or(vec![64, 256, 1024, 4096], |s| s.split(',').map(|x| x.parse().expect("K")).collect());
     let t0 = std::time::Instant::now();
     let (chosen, _) = rate::rd::search(&scene, lambda, |_| {}).expect("search");
     let (bytes, report, q) = rate::encode(&scene, &chosen).expect("encode");
@@ -69,8 +68,8 @@ fn main() {
             let t = std::time::Instant::now();
             let cb = vq::kmeans(chans, &sig, k.min(distinct), 1);
             let secs = t.elapsed().as_secs_f64();
-            let book: f64 = (0..cb.channels).map(|j| tables::choose(&cb.column(j)).total_bits()).sum::<f64>()
-                + 8.0 * (4.0 * steps.len() as f64 + 3.0);
+            let book: f64 =
+                (0..cb.channels).map(|j| tables::choose(&cb.column(j)).total_bits()).sum::<f64>() + 8.0 * (4.0 * steps.len() as f64 + 3.0);
             let idx = index_bits(&cb.index, cb.len());
             let vq_bytes = ((book + idx) / 8.0).ceil() as usize;
             let mut q2 = q.clone();

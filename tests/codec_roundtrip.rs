@@ -289,7 +289,8 @@ fn codebook_bands_round_trip_bit_exactly() {
     assert_eq!(info.codebooks, vec![(1, 16), (3, 300)]);
     // Band 1 of every Gaussian is one of 16 rows.
     let k = decoded.rest_coeffs();
-    let mut band1: Vec<Vec<u32>> = (0..decoded.len()).map(|i| decoded.sh_rest[i * k * 3..][..9].iter().map(|v| v.to_bits()).collect()).collect();
+    let mut band1: Vec<Vec<u32>> =
+        (0..decoded.len()).map(|i| decoded.sh_rest[i * k * 3..][..9].iter().map(|v| v.to_bits()).collect()).collect();
     band1.sort();
     band1.dedup();
     assert!(band1.len() <= 16, "{} distinct band-1 rows", band1.len());

@@ -164,7 +164,9 @@ impl<'a> Container<'a> {
     pub fn codebook(&self, g: Group) -> Result<Option<ByteReader<'a>>, DecodeError> {
         let band = u16::from(g.sh_band());
         let d = u16::from(self.header.sh_degree);
-        if let Some(i) = self.sections.iter().position(|s| s.kind == CODEBOOK_KIND && s.chunk > d && is_known(&self.header, s.kind, s.chunk)) {
+        if let Some(i) =
+            self.sections.iter().position(|s| s.kind == CODEBOOK_KIND && s.chunk > d && is_known(&self.header, s.kind, s.chunk))
+        {
             let s = &self.sections[i];
             return Err(Place { section: Some(s.id()), offset: self.offsets[i] }.corrupt("codebook of an SH band the file does not have"));
         }
