@@ -44,11 +44,15 @@ fn project_one(splats: &Splats, i: usize, cam: &Camera, center: Vec3, degree: u8
     if r[2] <= r[0] || r[3] <= r[1] {
         return Projected::default();
     }
+    Projected { mean, conic, depth: t.z, radius, opacity: math::sigmoid(splats.opacity_logits[i]), color: color_of(splats, i, center, degree) }
+}
+
+/// The colour of Gaussian `i` seen from a camera at `center` (SH up to `degree`).
+fn color_of(splats: &Splats, i: usize, center: Vec3, degree: u8) -> [f32; 3] {
     let k = math::sh_rest_coeffs(degree);
     let k_all = splats.rest_coeffs();
     let rest = &splats.sh_rest[i * k_all * 3..(i * k_all + k) * 3];
-    let color = math::sh_color(degree, splats.sh_dc[i], rest, math::view_dir(center, pos));
-    Projected { mean, conic, depth: t.z, radius, opacity: math::sigmoid(splats.opacity_logits[i]), color }
+    math::sh_color(degree, splats.sh_dc[i], rest, math::view_dir(center, Vec3::from_array(splats.positions[i])))
 }
 
 /// Projects all Gaussians (in parallel).
@@ -192,14 +196,14 @@ pub fn gather_tile(proj: &[Projected], cull: &[f32], ids: &[u32], out: &mut Vec<
 /// entries visited (what a backward pass needs to walk the list back).
 #[inline]
 pub fn composite(list: &[TileGaussian], px: f32, py: f32) -> ([f32; 3], f32, u32) {
-    composite_with(list, px, py, |_, _| ())
+    composite_with(list, px, py, |_, _, _| ())
 }
 
-/// [`composite`], also calling `blend(j, α·T)` for every list entry `j` that is blended in, with
-/// its blending weight (the share of the pixel it covers). The weights of a pixel sum to
-/// `1 − T_final` up to rounding.
+/// [`composite`], also calling `blend(j, α, T)` for every list entry `j` that is blended in, with
+/// its alpha and the transmittance in front of it: its blending weight `α·T` is the share of the
+/// pixel it covers. The weights of a pixel sum to `1 − T_final` up to rounding.
 #[inline]
-pub fn composite_with(list: &[TileGaussian], px: f32, py: f32, mut blend: impl FnMut(usize, f32)) -> ([f32; 3], f32, u32) {
+pub fn composite_with(list: &[TileGaussian], px: f32, py: f32, mut blend: impl FnMut(usize, f32, f32)) -> ([f32; 3], f32, u32) {
     let mut c = [0.0f32; 3];
     let mut t = 1.0f32;
     for (j, p) in list.iter().enumerate() {
@@ -219,7 +223,7 @@ pub fn composite_with(list: &[TileGaussian], px: f32, py: f32, mut blend: impl F
         for k in 0..3 {
             c[k] += p.color[k] * alpha * t;
         }
-        blend(j, alpha * t);
+        blend(j, alpha, t);
         t = next_t;
     }
     (c, t, list.len() as u32)
@@ -280,9 +284,9 @@ fn shade<const RECORD: bool>(proj: &[Projected], bins: &TileBins, cam: &Camera, 
             for (ly, row) in band.chunks_mut(row_len).enumerate() {
                 let py = (ty * TILE + ly as u32) as f32;
                 for x in tx * TILE..x1 {
-                    let (c, t, _) = composite_with(&local, x as f32, py, |j, a| {
+                    let (c, t, _) = composite_with(&local, x as f32, py, |j, a, t| {
                         if RECORD {
-                            band_w[offset + j] += a;
+                            band_w[offset + j] += a * t;
                         }
                     });
                     for k in 0..3 {
@@ -293,4 +297,142 @@ fn shade<const RECORD: bool>(proj: &[Projected], bins: &TileBins, cam: &Camera, 
         }
     });
     img
+}
+
+/// What compositing a frame blended at every pixel, in order: enough to composite the frame
+/// again with other colours while no Gaussian moves ([`replay`]). Made by [`record`].
+#[derive(Debug, Clone)]
+pub struct Recording {
+    width: u32,
+    height: u32,
+    /// Per row of tiles (the bands [`render`] shades in parallel), per pixel in the band's order:
+    /// the end of its entries in `entries` and its final transmittance.
+    bands: Vec<(Vec<(u32, f32)>, Vec<Blend>)>,
+}
+
+/// One Gaussian blended into a pixel: its index, its alpha and the transmittance in front of it.
+#[derive(Debug, Clone, Copy)]
+struct Blend {
+    id: u32,
+    alpha: f32,
+    t: f32,
+}
+
+impl Recording {
+    /// Bytes held (for callers that bound their memory).
+    pub fn bytes(&self) -> usize {
+        self.bands.iter().map(|(p, e)| p.len() * 8 + e.len() * 12).sum()
+    }
+}
+
+/// [`render`], also recording what every pixel blended ([`Recording`]).
+pub fn record(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Recording) {
+    let proj = preprocess(splats, cam, opts.max_sh_degree);
+    let bins = bin_tiles(&proj, cam.width, cam.height);
+    let w = cam.width;
+    let cull = cull_thresholds(&proj);
+    let mut img = Image::filled(w, cam.height, [0.0; 3]);
+    let row_len = (w * 3) as usize;
+    let bands = img
+        .data
+        .par_chunks_mut(row_len * TILE as usize)
+        .enumerate()
+        .map(|(ty, band)| {
+            let ty = ty as u32;
+            let (mut pixels, mut entries) = (Vec::new(), Vec::new());
+            let mut local = Vec::new();
+            for tx in 0..bins.tiles_x {
+                let t = (ty * bins.tiles_x + tx) as usize;
+                gather_tile(&proj, &cull, bins.tile(t), &mut local);
+                let ids = bins.tile(t);
+                let x1 = ((tx + 1) * TILE).min(w);
+                for (ly, row) in band.chunks_mut(row_len).enumerate() {
+                    let py = (ty * TILE + ly as u32) as f32;
+                    for x in tx * TILE..x1 {
+                        let (c, t, _) = composite_with(&local, x as f32, py, |j, alpha, t| entries.push(Blend { id: ids[j], alpha, t }));
+                        pixels.push((entries.len() as u32, t));
+                        for k in 0..3 {
+                            row[x as usize * 3 + k] = c[k] + t * opts.background[k];
+                        }
+                    }
+                }
+            }
+            (pixels, entries)
+        })
+        .collect();
+    (img, Recording { width: w, height: cam.height, bands })
+}
+
+/// The frame [`render`] draws of `splats` from `cam`, given the [`Recording`] of a frame of a
+/// scene with the same geometry (positions, scales, rotations, opacities: only colours, i.e. SH
+/// coefficients or degree, may differ) from the same camera: bit-identical to [`render`], without
+/// projecting, binning or evaluating a Gaussian again.
+///
+/// # Panics
+/// If the recording is not of `cam`'s size.
+pub fn replay(rec: &Recording, splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Image {
+    assert_eq!((rec.width, rec.height), (cam.width, cam.height), "a recording of this camera");
+    let degree = opts.max_sh_degree.min(splats.sh_degree);
+    let center = cam.center();
+    let colors: Vec<[f32; 3]> = (0..splats.len()).into_par_iter().map(|i| color_of(splats, i, center, degree)).collect();
+    let w = cam.width;
+    let row_len = (w * 3) as usize;
+    let mut img = Image::filled(w, cam.height, [0.0; 3]);
+    img.data.par_chunks_mut(row_len * TILE as usize).zip(&rec.bands).for_each(|(band, (pixels, entries))| {
+        let mut next = pixels.iter();
+        let mut start = 0usize;
+        // The pixels in the order `record` visited them: tile by tile, row by row within a tile.
+        for tx in 0..w.div_ceil(TILE) {
+            let x1 = ((tx + 1) * TILE).min(w);
+            for row in band.chunks_mut(row_len) {
+                for x in tx * TILE..x1 {
+                    let &(end, t) = next.next().expect("one entry per pixel");
+                    let mut c = [0.0f32; 3];
+                    for b in &entries[start..end as usize] {
+                        let color = colors[b.id as usize];
+                        for k in 0..3 {
+                            c[k] += color[k] * b.alpha * b.t;
+                        }
+                    }
+                    start = end as usize;
+                    for k in 0..3 {
+                        row[x as usize * 3 + k] = c[k] + t * opts.background[k];
+                    }
+                }
+            }
+        }
+    });
+    img
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testkit::{extreme_splats, random_splats, rig_cameras};
+
+    /// A recording's frame is `render`'s, and replaying it with other colours (SH coefficients
+    /// and degree changed, geometry kept) gives exactly the frame `render` draws of that scene,
+    /// at a size that is not a whole number of tiles.
+    #[test]
+    fn replay_is_render_with_new_colours() {
+        let mut s = random_splats(400, 3, 11);
+        let extreme = extreme_splats(3);
+        for i in 0..extreme.len() {
+            s.push(extreme.positions[i], extreme.log_scales[i], extreme.rotations[i], extreme.opacity_logits[i], extreme.sh_dc[i], extreme.rest_of(i));
+        }
+        let opts = RenderOptions { background: [0.2, 0.4, 0.1], ..RenderOptions::default() };
+        for cam in rig_cameras(3, 3.8, 45, 37) {
+            let (img, rec) = record(&s, &cam, &opts);
+            assert_eq!(img.data, render(&s, &cam, &opts).data);
+            assert!(rec.bytes() > 45 * 37 * 8);
+            let mut recoloured = s.clone();
+            recoloured.sh_dc.iter_mut().enumerate().for_each(|(i, c)| c[i % 3] = -c[i % 3] * 0.7 + 0.1);
+            recoloured.sh_rest.iter_mut().step_by(5).for_each(|v| *v *= -1.5);
+            let again = replay(&rec, &recoloured, &cam, &opts);
+            assert_ne!(again.data, img.data);
+            assert_eq!(again.data, render(&recoloured, &cam, &opts).data);
+            let sh1 = recoloured.with_sh_degree(1);
+            assert_eq!(replay(&rec, &sh1, &cam, &opts).data, render(&sh1, &cam, &opts).data);
+        }
+    }
 }
