@@ -7,6 +7,9 @@
 //! shifted by the scene's extent along that axis, so e.g. playbot-lod3 (31,000 Gaussians) gives a
 //! 124,000-Gaussian scene whose attributes have the input's distributions.
 
+#[path = "../benches/common/proxy.rs"]
+mod proxy;
+
 use gscodec::io::ply::{read_ply, write_ply};
 use std::path::Path;
 
@@ -19,24 +22,7 @@ fn main() {
     let count = |i: usize| args.get(i).map_or(2, |v| v.parse::<usize>().expect("a tile count"));
     let (nx, nz) = (count(3), count(4));
     let scene = read_ply(Path::new(&args[1])).expect("read the input");
-    let (lo, hi) = scene.bounds().expect("a non-empty scene");
-    let mut out = gscodec::decoder::Splats::new(scene.sh_degree);
-    for ix in 0..nx {
-        for iz in 0..nz {
-            let shift = [ix as f32 * (hi[0] - lo[0]), 0.0, iz as f32 * (hi[2] - lo[2])];
-            for i in 0..scene.len() {
-                let p = scene.positions[i];
-                out.push(
-                    [p[0] + shift[0], p[1], p[2] + shift[2]],
-                    scene.log_scales[i],
-                    scene.rotations[i],
-                    scene.opacity_logits[i],
-                    scene.sh_dc[i],
-                    scene.rest_of(i),
-                );
-            }
-        }
-    }
+    let out = proxy::tiled(&scene, nx, nz);
     write_ply(Path::new(&args[2]), &out).expect("write the output");
     eprintln!("{}: {} Gaussians ({nx} × {nz} copies of {})", args[2], out.len(), args[1]);
 }

@@ -191,6 +191,79 @@ pub fn gather_tile(proj: &[Projected], cull: &[f32], ids: &[u32], out: &mut Vec<
     }));
 }
 
+/// Side, in pixels, of the blocks that [`shade`] and [`record`] cut a tile into.
+const BLOCK: u32 = 4;
+
+/// A tile's gathered list cut per [`BLOCK`]×[`BLOCK`] block of pixels: each block keeps the
+/// entries whose reach overlaps it, in the tile's order. An entry's reach is the bounding box of
+/// the ellipse where `opacity·exp(power) ≥ 1/255` (`q ≤ 2·ln(255·opacity)`, half-widths
+/// `√(2 ln(255·opacity)·Σ_xx)` and `√(… Σ_yy)` with `Σ` the inverse of the conic), widened
+/// (level +2 % and +1e-5 of its terms' magnitude, half-widths +1 % and +0.01 px) far beyond what
+/// f32 rounding in [`composite_with`] can move a blended pixel. An entry left out of a block is thus one that every pixel of the block skips anyway, so
+/// compositing a pixel over its block's list blends exactly what compositing it over the tile's
+/// list blends, in the same order: the same colour and weights, bit for bit, with fewer entries
+/// to visit.
+#[derive(Default)]
+struct TileBlocks {
+    /// Per block (row-major within the tile): the entries and their indices in the tile's list.
+    lists: Vec<(Vec<TileGaussian>, Vec<u32>)>,
+    /// Blocks per row of the tile.
+    per_row: u32,
+}
+
+impl TileBlocks {
+    /// Cuts `local`, the gathered list of tile (`tx`, `ty`) of a `width`×`height` frame.
+    fn cut(&mut self, local: &[TileGaussian], (tx, ty): (u32, u32), (width, height): (u32, u32)) {
+        let (x0, y0) = (tx * TILE, ty * TILE);
+        let (x1, y1) = ((x0 + TILE).min(width), (y0 + TILE).min(height));
+        let (nx, ny) = ((x1 - x0).div_ceil(BLOCK), (y1 - y0).div_ceil(BLOCK));
+        self.per_row = nx;
+        self.lists.resize_with((nx * ny) as usize, Default::default);
+        for (list, index) in &mut self.lists {
+            list.clear();
+            index.clear();
+        }
+        // The blocks (first, last) along one axis that [centre − half, centre + half] overlaps.
+        let span = |centre: f64, half: f64, origin: u32, n: u32| -> Option<(u32, u32)> {
+            let (lo, hi) = ((centre - half - f64::from(origin)) / f64::from(BLOCK), (centre + half - f64::from(origin)) / f64::from(BLOCK));
+            if !(hi >= 0.0 && lo < f64::from(n)) {
+                return if lo.is_nan() || hi.is_nan() { Some((0, n - 1)) } else { None };
+            }
+            Some((lo.max(0.0).floor() as u32, hi.min(f64::from(n - 1)).floor() as u32))
+        };
+        for (j, g) in local.iter().enumerate() {
+            let level = 2.0 * (f64::from(g.opacity) / f64::from(MIN_ALPHA)).ln();
+            if !(level > 0.0) {
+                continue; // below 1/255 everywhere: never blended
+            }
+            let [a, b, c] = g.conic.map(f64::from);
+            let det = a * c - b * b;
+            // The f32 rounding of `power` is below 1e-7 of the magnitude of its terms, which
+            // within the ellipse's box are at most `terms`: the level is raised by 1e-5 of that.
+            let (hx, hy) = ((level * c / det).sqrt(), (level * a / det).sqrt());
+            let terms = a * hx * hx + c * hy * hy + 2.0 * b.abs() * hx * hy;
+            let level = level * 1.02 + 1e-5 * terms;
+            let half = |s: f64| if det > 0.0 && s > 0.0 && level.is_finite() { (level * s / det).sqrt() * 1.01 + 0.01 } else { f64::INFINITY };
+            let (Some(bx), Some(by)) = (span(f64::from(g.mx), half(c), x0, nx), span(f64::from(g.my), half(a), y0, ny)) else {
+                continue;
+            };
+            for yb in by.0..=by.1 {
+                for xb in bx.0..=bx.1 {
+                    let (list, index) = &mut self.lists[(yb * nx + xb) as usize];
+                    list.push(*g);
+                    index.push(j as u32);
+                }
+            }
+        }
+    }
+
+    /// The list and tile-list indices of the block holding pixel (`lx`, `ly`) of the tile.
+    fn at(&self, lx: u32, ly: u32) -> (&[TileGaussian], &[u32]) {
+        let (list, index) = &self.lists[((ly / BLOCK) * self.per_row + lx / BLOCK) as usize];
+        (list, index)
+    }
+}
+
 /// Composites one pixel (pixel-index coordinates `px, py`) front to back over a gathered,
 /// depth-sorted tile list. Returns the colour, the final transmittance and the number of list
 /// entries visited (what a backward pass needs to walk the list back).
@@ -276,17 +349,20 @@ fn shade<const RECORD: bool>(proj: &[Projected], bins: &TileBins, cam: &Camera, 
         let ty = ty as u32;
         let band_start = bins.ranges[(ty * bins.tiles_x) as usize];
         let mut local = Vec::new();
+        let mut blocks = TileBlocks::default();
         for tx in 0..bins.tiles_x {
             let t = (ty * bins.tiles_x + tx) as usize;
             gather_tile(proj, &cull, bins.tile(t), &mut local);
+            blocks.cut(&local, (tx, ty), (w, cam.height));
             let offset = (bins.ranges[t] - band_start) as usize;
             let x1 = ((tx + 1) * TILE).min(w);
             for (ly, row) in band.chunks_mut(row_len).enumerate() {
                 let py = (ty * TILE + ly as u32) as f32;
                 for x in tx * TILE..x1 {
-                    let (c, t, _) = composite_with(&local, x as f32, py, |j, a, t| {
+                    let (list, index) = blocks.at(x - tx * TILE, ly as u32);
+                    let (c, t, _) = composite_with(list, x as f32, py, |j, a, t| {
                         if RECORD {
-                            band_w[offset + j] += a * t;
+                            band_w[offset + index[j] as usize] += a * t;
                         }
                     });
                     for k in 0..3 {
@@ -341,15 +417,19 @@ pub fn record(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Re
             let ty = ty as u32;
             let (mut pixels, mut entries) = (Vec::new(), Vec::new());
             let mut local = Vec::new();
+            let mut blocks = TileBlocks::default();
             for tx in 0..bins.tiles_x {
                 let t = (ty * bins.tiles_x + tx) as usize;
-                gather_tile(&proj, &cull, bins.tile(t), &mut local);
                 let ids = bins.tile(t);
+                gather_tile(&proj, &cull, ids, &mut local);
+                blocks.cut(&local, (tx, ty), (w, cam.height));
                 let x1 = ((tx + 1) * TILE).min(w);
                 for (ly, row) in band.chunks_mut(row_len).enumerate() {
                     let py = (ty * TILE + ly as u32) as f32;
                     for x in tx * TILE..x1 {
-                        let (c, t, _) = composite_with(&local, x as f32, py, |j, alpha, t| entries.push(Blend { id: ids[j], alpha, t }));
+                        let (list, index) = blocks.at(x - tx * TILE, ly as u32);
+                        let (c, t, _) =
+                            composite_with(list, x as f32, py, |j, alpha, t| entries.push(Blend { id: ids[index[j] as usize], alpha, t }));
                         pixels.push((entries.len() as u32, t));
                         for k in 0..3 {
                             row[x as usize * 3 + k] = c[k] + t * opts.background[k];
@@ -409,6 +489,49 @@ pub fn replay(rec: &Recording, splats: &Splats, cam: &Camera, opts: &RenderOptio
 mod tests {
     use super::*;
     use crate::testkit::{extreme_splats, random_splats, rig_cameras};
+
+    /// Compositing over a tile's blocks ([`TileBlocks`]) gives, bit for bit, the image and the
+    /// contributions that compositing every pixel over its whole tile list gives.
+    #[test]
+    fn blocks_change_no_pixel_and_no_contribution() {
+        let mut s = random_splats(600, 2, 5);
+        let extreme = extreme_splats(2);
+        for i in 0..extreme.len() {
+            s.push(extreme.positions[i], extreme.log_scales[i], extreme.rotations[i], extreme.opacity_logits[i], extreme.sh_dc[i], extreme.rest_of(i));
+        }
+        let opts = RenderOptions { background: [0.3, 0.1, 0.6], ..RenderOptions::default() };
+        for cam in rig_cameras(4, 3.5, 53, 38) {
+            let proj = preprocess(&s, &cam, opts.max_sh_degree);
+            let bins = bin_tiles(&proj, cam.width, cam.height);
+            let cull = cull_thresholds(&proj);
+            let mut img = Image::filled(cam.width, cam.height, [0.0; 3]);
+            let mut sum = vec![0.0f64; s.len()];
+            let mut local = Vec::new();
+            for ty in 0..bins.tiles_y {
+                for tx in 0..bins.tiles_x {
+                    let t = (ty * bins.tiles_x + tx) as usize;
+                    gather_tile(&proj, &cull, bins.tile(t), &mut local);
+                    let mut w = vec![0.0f32; local.len()];
+                    for y in ty * TILE..((ty + 1) * TILE).min(cam.height) {
+                        for x in tx * TILE..((tx + 1) * TILE).min(cam.width) {
+                            let (c, t, _) = composite_with(&local, x as f32, y as f32, |j, a, t| w[j] += a * t);
+                            let i = ((y * cam.width + x) * 3) as usize;
+                            for k in 0..3 {
+                                img.data[i + k] = c[k] + t * opts.background[k];
+                            }
+                        }
+                    }
+                    for (&g, &v) in bins.tile(t).iter().zip(&w) {
+                        sum[g as usize] += v as f64;
+                    }
+                }
+            }
+            assert_eq!(render(&s, &cam, &opts).data, img.data);
+            let want: Vec<f32> = sum.into_iter().map(|v| v as f32).collect();
+            assert_eq!(contributions(&s, &cam, &opts), want);
+            assert!(want.iter().filter(|&&v| v > 0.0).count() > 100);
+        }
+    }
 
     /// A recording's frame is `render`'s, and replaying it with other colours (SH coefficients
     /// and degree changed, geometry kept) gives exactly the frame `render` draws of that scene,
