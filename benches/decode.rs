@@ -76,7 +76,7 @@ fn bench_decode_proxy(c: &mut Criterion) {
         let id = if threads == 1 { "gsc_1_thread" } else { "gsc_all_threads" };
         g.bench_with_input(BenchmarkId::new(id, "playbot_2x2"), &gsc, |b, bytes| {
             b.iter(|| {
-                let mut d = Decoder::new(bytes);
+                let mut d = Decoder::new(&bytes[..]);
                 d.set_threads(threads);
                 d.read_info().and_then(|r| r.decode()).unwrap()
             })

@@ -14,7 +14,8 @@ use serde::Serialize;
 use super::group::Group;
 use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
-use super::{encode_with, pruned, EncodeConfig};
+use super::encode::GroupCache;
+use super::{encode_cached, pruned, EncodeConfig};
 use crate::views::{orbit_cameras, UpAxis};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
@@ -50,6 +51,9 @@ pub struct Evaluator<'a> {
     /// whose decoded geometry is the same (it changes only SH coefficients or the SH degree) is
     /// drawn by replaying them with its colours ([`replay`], bit-identical to a render).
     base: Option<(Splats, Vec<Recording>)>,
+    /// The groups the trials have coded ([`GroupCache`]): a trial changing one group's step
+    /// codes only that group.
+    cache: GroupCache,
 }
 
 /// Whether `a` and `b` have the same geometry (positions, scales, rotations, opacities), bit for bit.
@@ -68,11 +72,11 @@ impl<'a> Evaluator<'a> {
         let sig_s = t.elapsed().as_secs_f64();
         let cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector());
         let opts = RenderOptions::default();
-        let refs = cams.iter().map(|c| render(scene, c, &opts)).collect();
+        let refs = cams.par_iter().map(|c| render(scene, c, &opts)).collect();
         if timing() {
             eprintln!("timing: significance ({} views) {sig_s:.3} s wall; reference renders {:.3} s wall", super::importance::views(scene).len(), t.elapsed().as_secs_f64() - sig_s);
         }
-        Evaluator { scene, cams, refs, opts, significance, encode_ns: AtomicU64::new(0), render_ns: AtomicU64::new(0), base: None }
+        Evaluator { scene, cams, refs, opts, significance, encode_ns: AtomicU64::new(0), render_ns: AtomicU64::new(0), base: None, cache: GroupCache::default() }
     }
 
     /// (bytes, D) of `config`.
@@ -83,7 +87,7 @@ impl<'a> Evaluator<'a> {
     /// (bytes, D, encoder report) of `config`.
     pub fn eval_report(&self, config: &EncodeConfig) -> Result<(usize, f64, super::EncodeReport), SceneError> {
         let t = Instant::now();
-        let (bytes, report, q) = encode_with(self.scene, config, Some(&self.significance))?;
+        let (bytes, report, q) = encode_cached(self.scene, config, Some(&self.significance), Some(&self.cache))?;
         let t1 = Instant::now();
         let dec = dequantise(&q);
         let base = self.base.as_ref().filter(|(b, _)| same_geometry(b, &dec));
@@ -91,7 +95,9 @@ impl<'a> Evaluator<'a> {
             Some((_, recordings)) => replay(&recordings[v], &dec, &self.cams[v], &self.opts),
             None => render(&dec, &self.cams[v], &self.opts),
         };
-        let mse = self.refs.iter().enumerate().map(|(v, r)| crate::metrics::mse(r, &frame(v))).sum::<f64>() / self.cams.len() as f64;
+        // Views in parallel (a frame at 96² has only 6 rows of tiles to share out), summed in order.
+        let per_view: Vec<f64> = self.refs.par_iter().enumerate().map(|(v, r)| crate::metrics::mse(r, &frame(v))).collect();
+        let mse = per_view.iter().sum::<f64>() / self.cams.len() as f64;
         self.encode_ns.fetch_add((t1 - t).as_nanos() as u64, Ordering::Relaxed);
         self.render_ns.fetch_add(t1.elapsed().as_nanos() as u64, Ordering::Relaxed);
         Ok((bytes.len(), mse * 255.0 * 255.0, report))
@@ -101,10 +107,10 @@ impl<'a> Evaluator<'a> {
     /// changing only colours replay (the same outcome: [`record`] draws what [`render`] draws).
     fn eval_as_base(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
         let t = Instant::now();
-        let (bytes, report, q) = encode_with(self.scene, config, Some(&self.significance))?;
+        let (bytes, report, q) = encode_cached(self.scene, config, Some(&self.significance), Some(&self.cache))?;
         let t1 = Instant::now();
         let dec = dequantise(&q);
-        let (frames, recordings): (Vec<Image>, Vec<Recording>) = self.cams.iter().map(|c| record(&dec, c, &self.opts)).unzip();
+        let (frames, recordings): (Vec<Image>, Vec<Recording>) = self.cams.par_iter().map(|c| record(&dec, c, &self.opts)).unzip();
         let mse = self.refs.iter().zip(&frames).map(|(r, f)| crate::metrics::mse(r, f)).sum::<f64>() / self.cams.len() as f64;
         self.base = Some((dec, recordings));
         self.encode_ns.fetch_add((t1 - t).as_nanos() as u64, Ordering::Relaxed);
@@ -409,6 +415,40 @@ mod tests {
             }
             last = Some((bytes, d));
         }
+    }
+
+    /// Trials coded through the search's [`GroupCache`] and drawn from a recorded base give the
+    /// bytes, reports and D of trials coded and drawn from scratch, and the cache serves the groups
+    /// a trial does not change.
+    #[test]
+    fn cached_and_replayed_trials_are_the_uncached_ones() {
+        let scene = crate::sample::scene(300, 3);
+        assert!(scene.sh_degree > 0);
+        let start = EncodeConfig { steps: Steps::default().scaled(0.7), learned_tables: false, ..EncodeConfig::default() };
+        let mut configs: Vec<(Option<Group>, EncodeConfig)> = Group::ALL.into_iter().map(|g| (Some(g), with_knob(&start, g, 2.0))).collect();
+        configs.push((None, EncodeConfig { max_sh_degree: 1, ..start }));
+        configs.push((None, EncodeConfig { steps: Steps { rest_deadzone: 0.3, ..start.steps }, ..start }));
+        let mut cached = Evaluator::new(&scene);
+        cached.eval_as_base(&start).unwrap();
+        assert!(cached.cache.len() >= 5, "{} groups", cached.cache.len());
+        let fresh = Evaluator::new(&scene); // no base: every trial rendered
+        let mut replayed = 0;
+        for (knob, c) in &configs {
+            let before = cached.cache.len();
+            let (b, d, r) = cached.eval_report(c).unwrap();
+            let (bytes, r0, _) = super::super::encode_with(&scene, c, Some(&cached.significance)).unwrap();
+            assert_eq!(b, bytes.len(), "{c:?}");
+            assert_eq!(format!("{r:?}"), format!("{r0:?}"));
+            assert_eq!(d.to_bits(), fresh.eval(c).unwrap().1.to_bits(), "{c:?}");
+            let (again, ..) = super::super::encode_cached(&scene, c, Some(&cached.significance), Some(&cached.cache)).unwrap();
+            assert_eq!(again, bytes);
+            if knob.is_some_and(|g| g != Group::Position) {
+                assert_eq!(cached.cache.len(), before + 1, "{knob:?} codes only its own group");
+            }
+            let dec = dequantise(&super::super::encode_with(&scene, c, Some(&cached.significance)).unwrap().2);
+            replayed += usize::from(same_geometry(&cached.base.as_ref().unwrap().0, &dec));
+        }
+        assert!(replayed >= 5, "{replayed} trials replayed"); // SH DC, 3 bands, degree, dead zone
     }
 
     /// The parallel search chooses the same configuration, records the same trials and writes
