@@ -109,7 +109,17 @@ impl Encoder {
         stages.rd_search_s = start.elapsed().as_secs_f64();
         let mut trained = None;
         let mut train_report = None;
-        if iters > 0 {
+        // Fine-tune what the search chose to code (pruned, SH bands dropped), so that the
+        // Gaussians left learn to cover for those pruned. The rate term charges the Gaussians
+        // above the opacity where pruning pays at this λ, and coding the result prunes at it
+        // (and again by significance), so training decides which low-opacity Gaussians earn
+        // their bits.
+        let init = if iters > 0 { rate::prepared(scene, &config, None) } else { Splats::default() };
+        if !init.is_empty() {
+            let m = rate::rd::pruning_opacity(scene, self.config.lambda, &config).map_err(|e| Error::Input(e.to_string()))?;
+            config.min_opacity = config.min_opacity.max(m);
+        }
+        if !init.is_empty() {
             // Training views avoid the orbit views `orbit_psnr` evaluates on (held out).
             let cams = training_cameras(scene, 8, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
             let dataset = crate::train::targets::render_targets(scene, &cams, [0.0; 3]);
@@ -117,12 +127,12 @@ impl Encoder {
                 iters,
                 seed: self.config.seed,
                 densify: false,
-                sh_degree_max: scene.sh_degree,
+                sh_degree_max: init.sh_degree,
                 eval_interval: (iters / 10).max(1),
                 ..Default::default()
             };
             // A .ply already has its structure: the term runs from the start.
-            let (s, r) = self.train(&dataset, Some(scene.clone()), &cfg, &config, 0, start, &mut series, progress)?;
+            let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
             stages.train_s = r.train_seconds;
             trained = Some(s);
@@ -254,11 +264,13 @@ impl Encoder {
             file_bytes: bytes.len(),
             estimated_bytes: r.estimated_bits() / 8.0,
             gaussians: r.gaussians,
-            input_gaussians: coded.len(),
+            input_gaussians: reference.len(),
             sh_degree: r.sh_degree,
             position_bits: r.position_bits,
             groups: r.groups,
             steps: config.steps.map(),
+            min_opacity: config.min_opacity,
+            min_significance: config.min_significance,
             orbit_psnr,
             stages,
             train,
@@ -287,4 +299,29 @@ pub fn orbit_psnr(a: &Splats, b: &Splats) -> f64 {
     let opts = RenderOptions::default();
     let cams = orbit_cameras(a, ORBIT_VIEWS, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
     cams.iter().map(|c| crate::metrics::psnr(&render(a, c, &opts), &render(b, c, &opts))).sum::<f64>() / cams.len() as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Fine-tuning a `.ply` trains what the RD search chose to code (pruned, SH bands dropped),
+    /// not the whole input, so the Gaussians left can cover for those pruned.
+    #[test]
+    fn fine_tuning_starts_from_what_the_search_codes() {
+        let scene = crate::sample::scene(300, 5);
+        let lambda = Lambda::new(200.0).unwrap();
+        let (config, _) = rate::rd::search(&scene, lambda, |_| {}).unwrap();
+        let searched = rate::prepared(&scene, &config, None).len();
+        assert!(0 < searched && searched < scene.len(), "the search prunes at this λ: {searched} of {}", scene.len());
+        let encoder = Encoder::new(EncoderConfig { lambda, iters: Some(2), backend: Backend::Cpu, ..EncoderConfig::default() }).unwrap();
+        let e = encoder.encode_scene(&scene, &mut |_| {}).unwrap();
+        let trained = e.report.train.as_ref().expect("fine-tuned").gaussians;
+        assert_eq!(trained, searched);
+        assert!(
+            e.report.gaussians <= trained && e.report.input_gaussians == scene.len(),
+            "{:?}",
+            (e.report.gaussians, e.report.input_gaussians)
+        );
+    }
 }

@@ -71,6 +71,9 @@ pub struct EncodeReport {
     pub groups: Vec<GroupReport>,
     /// Quantisation steps per group (Position: relative to the Gaussians' size).
     pub steps: GroupMap<f32>,
+    /// Pruning thresholds of the file: opacity, and significance (0: none).
+    pub min_opacity: f32,
+    pub min_significance: f32,
     /// Mean PSNR of the decoded scene against the input scene (for a dataset: against the trained
     /// scene before coding) over the 8 orbit views at 256×256, as `eval --reference --orbit 8`.
     pub orbit_psnr: f64,

@@ -101,6 +101,28 @@ pub fn pruned(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32
     (out, significance.map(|s| s.iter().zip(&keep).filter(|x| *x.1).map(|x| *x.0).collect()))
 }
 
+/// What `config` codes of `splats`, before quantisation: [`pruned`], SH bands dropped
+/// ([`quantise::drop_sh_bands`]) and the degree cut. `significance` is that of `splats`
+/// ([`importance::significance`]; computed here when `config` needs it and it is `None`).
+pub fn prepared(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> Splats {
+    let own;
+    let significance = match significance {
+        None if config.needs_significance() => {
+            own = importance::significance(splats);
+            Some(&own[..])
+        }
+        s => s,
+    };
+    let (mut s, sig) = pruned(splats, config, significance);
+    if let Some(w) = sig.filter(|_| config.sh_drop.iter().any(|&t| t > 0.0)) {
+        quantise::drop_sh_bands(&mut s, &w, config.sh_drop);
+    }
+    if s.sh_degree > config.max_sh_degree {
+        s = s.with_sh_degree(config.max_sh_degree);
+    }
+    s
+}
+
 /// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
 pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     encode_with(splats, config, None)
@@ -126,21 +148,7 @@ pub fn encode_cached(
 ) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let own;
-    let significance = match significance {
-        None if config.needs_significance() => {
-            own = importance::significance(splats);
-            Some(&own[..])
-        }
-        s => s,
-    };
-    let (mut s, sig) = pruned(splats, config, significance);
-    if let Some(w) = sig.filter(|_| config.sh_drop.iter().any(|&t| t > 0.0)) {
-        quantise::drop_sh_bands(&mut s, &w, config.sh_drop);
-    }
-    if s.sh_degree > config.max_sh_degree {
-        s = s.with_sh_degree(config.max_sh_degree);
-    }
+    let s = prepared(splats, config, significance);
     let level = if config.progressive { importance::levels(&importance::significance(&s)) } else { Vec::new() };
     let q = quantise::quantise(&s, &config.steps, &level);
     let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, cache);

@@ -202,6 +202,10 @@ impl Trials<'_> {
         Ok(configs.iter().map(|c| self.seen.iter().find(|(k, _)| k == c).expect("evaluated above").1.clone()).collect())
     }
 
+    fn one(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
+        Ok(self.run(std::slice::from_ref(config))?.remove(0))
+    }
+
     /// The outcome of `config`, the start of a stage, whose frames become the base that the
     /// stage's trials changing only colours replay ([`Evaluator::eval_as_base`]).
     fn base(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
@@ -394,6 +398,28 @@ pub fn search_from(
     Ok((EncodeConfig { learned_tables: true, ..chosen }, log.path))
 }
 
+/// Opacity thresholds (× 1/255) [`pruning_opacity`] tries.
+const PRUNE_OPACITIES: [f32; 11] = [2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0];
+
+/// The opacity below which pruning pays at `lambda` without retraining: of `config` (a
+/// search's choice) with its significance pruning replaced by an opacity threshold, the
+/// threshold of lowest `J` (1/255, lossless, when none is lower). Fine-tuning charges the rate
+/// of every Gaussian above it and prunes those it leaves below, so the rate term pushes
+/// Gaussians that do not pay for their bits under it while the others learn to cover for them
+/// (`encoder::Encoder::encode_scene`; docs/codec.md).
+///
+/// # Errors
+/// An invalid scene.
+pub fn pruning_opacity(scene: &Splats, lambda: Lambda, config: &EncodeConfig) -> Result<f32, SceneError> {
+    let mut trials = Trials { ev: Evaluator::new(scene), seen: Vec::new() };
+    let mut log = Log { path: Vec::new(), on_step: &mut |_: &Trial| {}, lambda };
+    let base = EncodeConfig { min_significance: 0.0, min_opacity: 1.0 / 255.0, learned_tables: false, ..*config };
+    let (b, d, _) = trials.one(&base)?;
+    let cands =
+        PRUNE_OPACITIES.iter().map(|&m| (format!("prune opacity<{m}/255"), EncodeConfig { min_opacity: m / 255.0, ..base })).collect();
+    Ok(log.stage(&mut trials, (log.j(b, d), base), cands)?.1.min_opacity)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -469,5 +495,30 @@ mod tests {
         assert_eq!(one.0, two.0);
         assert_eq!(one.1, two.1);
         assert_eq!(one.2, two.2, "the chosen file differs between 1 and 2 threads");
+    }
+
+    /// The fine-tuning's pruning opacity: lossless at λ = 0 (pruning never lowers D), higher
+    /// under a huge λ, and the file it gives never grows with λ (it minimises D + λ·R).
+    #[test]
+    fn pruning_opacity_follows_lambda() {
+        let mut scene = crate::sample::scene(300, 4);
+        // Opacities from 0.25/255 to 0.9, so every threshold tried prunes some.
+        let n = scene.len() as f32;
+        scene.opacity_logits.iter_mut().enumerate().for_each(|(i, o)| *o = -7.0 + 9.2 * i as f32 / n);
+        let (config, _) = search(&scene, Lambda::new(20.0).unwrap(), |_| {}).unwrap();
+        let ev = Evaluator::new(&scene);
+        let mut last = usize::MAX;
+        for l in [0.0, 20.0, 2000.0, 1e6] {
+            let m = pruning_opacity(&scene, Lambda::new(l).unwrap(), &config).unwrap();
+            if l == 0.0 {
+                assert_eq!(m, 1.0 / 255.0);
+            }
+            if l == 1e6 {
+                assert!(m > 1.0 / 255.0, "{m}");
+            }
+            let (bytes, _) = ev.eval(&EncodeConfig { min_significance: 0.0, min_opacity: m, learned_tables: false, ..config }).unwrap();
+            assert!(bytes <= last, "λ {l}: {bytes} bytes after {last}");
+            last = bytes;
+        }
     }
 }
