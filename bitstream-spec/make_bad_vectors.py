@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Writes the bad conformance vectors `vectors/bad/bad-*.gsc` and `vectors/bad/EXPECTED`
 (SPEC §9.2), and the good vector `vectors/quirks.gsc` with its `quirks.ply` (SPEC §9.3),
-deterministically from the good vectors `vectors/hand.gsc` and (for the levels section of
-format 4.0, SPEC §3.1) `vectors/levels.gsc`.
+deterministically from the good vectors `vectors/hand.gsc`, (for the levels section of
+format 4.0, SPEC §3.1) `vectors/levels.gsc` and (for the codebooks of format 5.0, SPEC §3.2)
+`vectors/vq.gsc`.
 
 Each bad vector breaks exactly one rule of SPEC.md; every other byte, including every CRC that
 is not the point of the vector, is kept valid, so that a decoder has to reach the broken rule
@@ -180,8 +181,8 @@ def make(good):
     add("truncated", good[: len(good) - 7], "format", "the file ends 7 bytes before the last payload does")
     add("magic", b"\x8aGSD" + good[4:], "format", "magic is 8A 47 53 44, not 8A 47 53 43")
     f = edit()
-    f.major = 5
-    add("version", f.write(), "unsupported", "version_major 5 (header CRC valid)")
+    f.major = 6
+    add("version", f.write(), "unsupported", "version_major 6 (header CRC valid)")
     add("header-crc", edit().write(header_crc_xor=1), "checksum", "header CRC off by one bit")
     f = edit()
     s = f.section(0x24)
@@ -356,6 +357,45 @@ def make_levels(good, hand):
     return out
 
 
+def make_codebooks(good):
+    """{name: (bytes, class, reason)}: the codebook sections (SPEC §3.2), from vq.gsc (5.0:
+    N Gaussians, D = 2, band 1 by a codebook, band 2 per coefficient)."""
+    out = {}
+
+    def add(name, data, cls, reason):
+        out[name] = (data, cls, reason)
+
+    f0 = File(good)
+    assert f0.major == 5 and f0.degree == 2
+    book = f0.section(0x02, 1)[3]
+    rd = specdec.Reader(book, "codebook")
+    k = rd.varint()
+    rest = book[rd.pos:]
+    f = File(good)
+    f.section(0x02, 1)[3] = varint(0) + rest
+    add("codebook-rows-zero", f.write(), "format", "a codebook of 0 rows")
+    f = File(good)
+    f.section(0x02, 1)[3] = varint(f.n + 1) + rest
+    add("codebook-rows-big", f.write(), "format", f"a codebook of N + 1 = {f.n + 1} rows (K <= N)")
+    f = File(good)
+    (table,) = [t for _, t in specdec.parse_group_params(5, f.section(0x15)[3], 1)]
+    assert table.mode != 0
+    (stream,) = streams_of(f.section(0x25)[3], 1)
+    index = decoded_values(stream, table, f.n)
+    f.section(0x25)[3] = section_of([ans_encode(value_intervals(table, [k] + index[1:]))])
+    add("codebook-index", f.write(), "format", f"the band-1 row index of Gaussian 0 is escaped to K = {k}, past the codebook's last row")
+    f = File(good)
+    f.remove(0x02, 1)
+    add("codebook-missing", f.write(), "format", "band 1's parameter section holds one index channel but its codebook section is absent")
+    f = File(good)
+    f.sections.append([0x02, 3, 0, book, None])
+    add("codebook-band", f.write(), "format", "a codebook for SH band 3 in a file of SH degree 2")
+    f = File(good)
+    f.major = 4
+    add("codebook-in-4", f.write(), "unsupported", "a 4.0 file with a codebook section (kind 0x02, unknown in 4.0) without the optional bit")
+    return out
+
+
 def make_quirks(good):
     """quirks.gsc: a valid file that uses what the SPEC allows and our encoder never writes, so
     a decoder MUST accept it and decode it to quirks.ply."""
@@ -400,11 +440,12 @@ def main(argv):
     good = open(os.path.join(VECTORS, "hand.gsc"), "rb").read()
     vectors = make(good)
     vectors.update(make_levels(open(os.path.join(VECTORS, "levels.gsc"), "rb").read(), good))
+    vectors.update(make_codebooks(open(os.path.join(VECTORS, "vq.gsc"), "rb").read()))
     os.makedirs(out_dir, exist_ok=True)
     for old in os.listdir(out_dir):
         if old.startswith("bad-") and old.endswith(".gsc"):
             os.remove(os.path.join(out_dir, old))
-    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc and levels.gsc"]
+    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc, levels.gsc and vq.gsc"]
     for name, (data, cls, reason) in sorted(vectors.items()):
         with open(os.path.join(out_dir, f"bad-{name}.gsc"), "wb") as fh:
             fh.write(data)

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Independent decoder for the gscodec `.gsc` bitstream, versions 3.x and 4.x, written
+"""Independent decoder for the gscodec `.gsc` bitstream, versions 3.x, 4.x and 5.x, written
 from bitstream-spec/SPEC.md alone (without reading the Rust decoder), as a check
 that the spec is complete.  Usage: python3 specdec.py IN.gsc OUT.ply
 
@@ -14,7 +14,7 @@ import zlib
 import numpy as np
 
 MAGIC = b"\x8aGSC"
-VERSION_MAJORS = (3, 4)  # §2, §11: 4.x adds the levels section (§3.1)
+VERSION_MAJORS = (3, 4, 5)  # §2, §11: 4.x adds the levels section (§3.1), 5.x codebooks (§3.2)
 MAX_SECTIONS = 4096
 MAX_N = 1 << 26
 MAX_TABLE_N = 4096
@@ -26,6 +26,8 @@ PROB_TOTAL = 1 << PROB_BITS
 # group index -> channel count (position: its length table only)
 GROUP_CHANNELS = [1, 3, 4, 1, 3, 9, 15, 21]
 KIND_LEVELS = 0x01
+KIND_CODEBOOK = 0x02
+MAX_CODEBOOK_ROWS = 65536
 KIND_INFO = 0x100
 KIND_PADDING = 0x101
 
@@ -331,7 +333,8 @@ def classify_sections(major, n, degree, sections):
     """Check known/unknown sections; return {(kind, chunk): payload} for known ones and
     the chunk sizes (§3, §3.1)."""
     groups = (5 + degree) if n > 0 else 0
-    levels = major == 4
+    levels = major >= 4
+    codebooks = major >= 5
     chunks = (n + CHUNK - 1) // CHUNK
     known = {}
     for (kind, chunk), (sflags, payload) in sections.items():
@@ -340,6 +343,7 @@ def classify_sections(major, n, degree, sections):
             or (0x20 <= kind < 0x20 + groups and (levels or chunk < chunks))
             or (kind in (KIND_INFO, KIND_PADDING) and chunk == 0)
             or (levels and n > 0 and kind == KIND_LEVELS and chunk == 0)
+            or (codebooks and n > 0 and kind == KIND_CODEBOOK and 1 <= chunk <= 3)
         )
         if is_known:
             known[(kind, chunk)] = payload
@@ -357,6 +361,9 @@ def classify_sections(major, n, degree, sections):
     for g in range(groups):
         if (0x10 + g, 0) not in known:
             raise DecodeError("missing section", f"parameters of group {g}")
+    for kind, chunk in known:
+        if kind == KIND_CODEBOOK and chunk > degree:
+            raise corrupt(f"codebook of SH band {chunk} in a file of degree {degree}")
     # The info section is informative (§3): its content is never a reason to reject a file.
     return known, groups, sizes
 
@@ -376,17 +383,34 @@ def parse_position_params(payload):
     return origin, step, bits, table
 
 
-def parse_group_params(g, payload):
-    rd = Reader(payload, f"parameters of group {g}")
+def read_group_channels(rd, g, expected):
     c = rd.u8()
-    if c != GROUP_CHANNELS[g]:
-        raise corrupt(f"group {g}: channel count {c}, expected {GROUP_CHANNELS[g]}")
+    if c != expected:
+        raise corrupt(f"group {g}: channel count {c}, expected {expected}")
     channels = []
     for _ in range(c):
         step = rd.f32()
         channels.append((step, read_channel_table(rd, allow_context=True)))
+    return channels
+
+
+def parse_group_params(g, payload, expected=None):
+    """§4; `expected` = 1 for an SH band with a codebook (§3.2: the index channel)."""
+    rd = Reader(payload, f"parameters of group {g}")
+    channels = read_group_channels(rd, g, GROUP_CHANNELS[g] if expected is None else expected)
     rd.expect_end()
     return channels
+
+
+def parse_codebook(g, payload, n):
+    """§3.2: (channels [(step, table)], K × C integer rows)."""
+    rd = Reader(payload, f"codebook of group {g}")
+    k = rd.varint()
+    if not 1 <= k <= min(n, MAX_CODEBOOK_ROWS):
+        raise corrupt(f"codebook of {k} rows (N = {n})")
+    channels = read_group_channels(rd, g, GROUP_CHANNELS[g])
+    rows = decode_channels(rd.take(rd.remaining()), k, channels, f"codebook of group {g}")
+    return channels, rows
 
 
 def split_streams(payload, count, what):
@@ -460,7 +484,8 @@ def decode(data):
     cols = {}
     if n > 0:
         origin, pstep, bits, ltable = parse_position_params(known[(0x10, 0)])
-        params = {g: parse_group_params(g, known[(0x10 + g, 0)]) for g in range(1, groups)}
+        books = {g: parse_codebook(g, known[(KIND_CODEBOOK, g - 4)], n) for g in range(5, groups) if (KIND_CODEBOOK, g - 4) in known}
+        params = {g: parse_group_params(g, known[(0x10 + g, 0)], 1 if g in books else None) for g in range(1, groups)}
         ints = {g: [] for g in range(groups)}
         for c, k in enumerate(sizes):
             for g in range(groups):
@@ -484,6 +509,15 @@ def decode(data):
                     if np.any((idx < 0) | (idx > 3)):
                         raise corrupt("rotation index out of 0..3")
                     deq[g] = dequant(ints[2][:, 1:], steps[1:])
+                elif g in books:
+                    # §3.2, §8: row index i of the band's codebook, dequantised with its steps.
+                    bchannels, rows = books[g]
+                    book = dequant(rows, [s for s, _ in bchannels])
+                    check_finite(book, f"codebook of group {g}")
+                    idx = ints[g][:, 0]
+                    if np.any((idx < 0) | (idx >= len(rows))):
+                        raise corrupt(f"group {g}: codebook index out of range")
+                    deq[g] = book[idx]
                 else:
                     deq[g] = dequant(ints[g], steps)
                 check_finite(deq[g], f"group {g}")

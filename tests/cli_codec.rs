@@ -27,6 +27,22 @@ fn decode_and_info_of_a_vector() {
     assert!(v["sections"].as_array().unwrap().len() >= 5);
 }
 
+/// `info` of the 5.0 vector names each SH band's mode and codebook rows (SPEC §3.2).
+#[test]
+fn info_shows_each_sh_band_mode() {
+    let gsc = vectors().join("vq.gsc");
+    let o = gscodec(&["info", gsc.to_str().unwrap(), "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["version"], "5.0");
+    let bands = v["sh_bands"].as_array().unwrap();
+    assert_eq!((bands.len(), &bands[0]["mode"], &bands[0]["codebook_rows"]), (2, &"codebook".into(), &16.into()));
+    assert_eq!((&bands[1]["mode"], &bands[1]["codebook_rows"]), (&"per-coefficient".into(), &serde_json::Value::Null));
+    assert!(v["group_bytes"]["sh_band1 codebook"].as_u64().unwrap() > 0);
+    let text = String::from_utf8_lossy(&gscodec(&["info", gsc.to_str().unwrap()]).stdout).into_owned();
+    assert!(text.contains("sh_band1    codebook of 16 rows") && text.contains("sh_band2    per coefficient"), "{text}");
+}
+
 #[test]
 fn progressive_encode_writes_levels_that_info_shows() {
     let dir = tempfile::tempdir().unwrap();
@@ -41,7 +57,10 @@ fn progressive_encode_writes_levels_that_info_shows() {
     let info =
         |gsc: &Path| serde_json::from_slice::<serde_json::Value>(&gscodec(&["info", gsc.to_str().unwrap(), "--json"]).stdout).unwrap();
     let (a, b) = (info(&one), info(&levels));
-    assert_eq!((a["version"].as_str(), b["version"].as_str()), (Some("3.0"), Some("4.0")));
+    // 3.0 for one level, 4.0 with levels; 5.0 (levels too) when the search coded a band by a codebook.
+    let codebooks = |v: &serde_json::Value| v["sh_bands"].as_array().unwrap().iter().any(|b| b["mode"] == "codebook");
+    let version = |v: &serde_json::Value, plain: &str| if codebooks(v) { "5.0".to_string() } else { plain.to_string() };
+    assert_eq!((a["version"].as_str().unwrap(), b["version"].as_str().unwrap()), (&version(&a, "3.0")[..], &version(&b, "4.0")[..]));
     assert_eq!(a["gaussians"], b["gaussians"]);
     let n = b["gaussians"].as_u64().unwrap();
     let sizes: Vec<u64> = b["levels"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();

@@ -271,3 +271,64 @@ fn progressive_file_is_the_same_scene_most_significant_first() {
         .collect();
     assert!(means.windows(2).all(|w| w[0] > w[1]), "mean significance per level {means:?}");
 }
+
+/// SH bands coded by vector quantisation (format 5.0, SPEC §3.2): decode is the encoder's scene
+/// bit-exactly — every band row one of its codebook's — whole, progressive, by prefix, and with
+/// fewer SH bands; a file without codebooks stays 3.0.
+#[test]
+fn codebook_bands_round_trip_bit_exactly() {
+    let s = scene(3000, 3, 1.0, 21);
+    let config = EncodeConfig { sh_vq: [16, 0, 300], ..EncodeConfig::default() };
+    let (bytes, report, q) = rate::encode(&s, &config).unwrap();
+    assert_eq!(bytes[4], 5, "codebooks make a 5.0 file");
+    let decoded = decode(&bytes).unwrap();
+    assert_eq!(decoded, quantise::dequantise(&q));
+    let rows = |g: &str| report.groups.iter().find(|r| r.group == g).unwrap().codebook_rows;
+    assert_eq!((rows("sh_band1"), rows("sh_band2"), rows("sh_band3")), (16, 0, 300));
+    let info = gscodec_decoder::inspect(&bytes).unwrap();
+    assert_eq!(info.codebooks, vec![(1, 16), (3, 300)]);
+    // Band 1 of every Gaussian is one of 16 rows.
+    let k = decoded.rest_coeffs();
+    let mut band1: Vec<Vec<u32>> = (0..decoded.len()).map(|i| decoded.sh_rest[i * k * 3..][..9].iter().map(|v| v.to_bits()).collect()).collect();
+    band1.sort();
+    band1.dedup();
+    assert!(band1.len() <= 16, "{} distinct band-1 rows", band1.len());
+    // Fewer SH bands: the same scene truncated.
+    let two = decode_with(&bytes, &Limits { max_sh_degree: 2, ..Limits::default() }).unwrap();
+    assert_eq!(two, decoded.with_sh_degree(2));
+    // Progressive with codebooks: 5.0 with levels; every prefix decodes to a prefix of the scene.
+    let (pb, _, pq) = rate::encode(&s, &EncodeConfig { progressive: true, ..config }).unwrap();
+    assert_eq!(pb[4], 5);
+    let full = decode(&pb).unwrap();
+    assert_eq!(full, quantise::dequantise(&pq));
+    let mut last = 0;
+    for arrived in (0..=pb.len()).step_by(997).chain([pb.len()]) {
+        if let Some(p) = gscodec_decoder::decode_prefix(&pb[..arrived], &Limits::default()).unwrap() {
+            assert!(p.len() >= last);
+            last = p.len();
+            assert_eq!(p.positions[..], full.positions[..p.len()]);
+            if p.sh_degree == 3 {
+                assert_eq!(p.sh_rest[..], full.sh_rest[..p.sh_rest.len()]);
+            }
+        }
+    }
+    assert_eq!(gscodec_decoder::decode_prefix(&pb, &Limits::default()).unwrap().unwrap(), full);
+    // No codebook: 3.0, as before.
+    assert_eq!(rate::encode(&s, &EncodeConfig::default()).unwrap().0[4], 3);
+}
+
+/// Random mutations of a 5.0 file with codebooks are refused (or decode), never panic.
+#[test]
+fn mutated_codebook_files_never_panic() {
+    let s = scene(400, 3, 1.0, 23);
+    let (bytes, _, _) = rate::encode(&s, &EncodeConfig { sh_vq: [8, 32, 64], ..EncodeConfig::default() }).unwrap();
+    let mut rng = Rng::new(7);
+    for _ in 0..2000 {
+        let mut b = bytes.clone();
+        for _ in 0..1 + rng.below(3) {
+            let i = rng.below(b.len());
+            b[i] ^= 1 << rng.below(8);
+        }
+        let _ = decode_threads(&b, 1);
+    }
+}

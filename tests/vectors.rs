@@ -13,7 +13,7 @@ use gscodec_decoder::bitstream::{self, Header, VERSION_MAJOR_UNIFORM, VERSION_MI
 use gscodec_decoder::{decode, Decoder, Limits, Splats};
 use sha2::{Digest, Sha256};
 
-const NAMES: [&str; 9] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels"];
+const NAMES: [&str; 10] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels", "vq"];
 /// Vectors made by `bitstream-spec/make_bad_vectors.py`, not by our encoder.
 const SCRIPTED: [&str; 1] = ["quirks"];
 /// Vectors whose expected `.ply` is given by its SHA-256 only.
@@ -125,7 +125,7 @@ fn vector_scene(name: &str) -> Splats {
         "one" => one_scene(),
         "hand" => hand_scene(),
         "edge" => edge_scene(),
-        "tiny" | "levels" => gscodec::io::read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap(),
+        "tiny" | "levels" | "vq" => gscodec::io::read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap(),
         "chunks" => chunks_scene(),
         _ => unreachable!("{name}"),
     }
@@ -142,8 +142,15 @@ fn regenerate() {
             let h = Header { version_major: VERSION_MAJOR_UNIFORM, version_minor: VERSION_MINOR, gaussians: 0, sh_degree: 3 };
             bitstream::write(&h, &[])
         } else {
-            // `levels`: the tiny scene in importance levels (format 4.0, SPEC §3.1).
-            rate::encode(&vector_scene(name), &EncodeConfig { progressive: name == "levels", ..EncodeConfig::default() }).unwrap().0
+            // `levels`: the tiny scene in importance levels (format 4.0, SPEC §3.1). `vq`: the tiny
+            // scene to SH degree 2, band 1 by a codebook of 16 rows, band 2 per coefficient
+            // (format 5.0, SPEC §3.2).
+            let config = match name {
+                "levels" => EncodeConfig { progressive: true, ..EncodeConfig::default() },
+                "vq" => EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], ..EncodeConfig::default() },
+                _ => EncodeConfig::default(),
+            };
+            rate::encode(&vector_scene(name), &config).unwrap().0
         };
         std::fs::write(dir().join(format!("{name}.gsc")), &bytes).unwrap();
         let ply = decode(&bytes).unwrap().to_ply();

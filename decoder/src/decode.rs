@@ -64,9 +64,9 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
     // One job per (group, chunk); SH bands are split further into channel ranges of about
     // JOB_CHANNELS so that the work balances over the threads even for a one-chunk scene.
     let mut jobs: Vec<(usize, usize, Range<usize>)> = Vec::new();
-    for (gi, (g, _)) in params.iter().enumerate() {
+    for (gi, (g, p)) in params.iter().enumerate() {
         let c = g.channels();
-        let pieces = if g.sh_band() > 0 { c.div_ceil(JOB_CHANNELS) } else { 1 };
+        let pieces = if g.sh_band() > 0 && p.codebook.is_none() { c.div_ceil(JOB_CHANNELS) } else { 1 };
         for ch in 0..chunks {
             jobs.extend((0..pieces).map(|i| (gi, ch, i * c / pieces..(i + 1) * c / pieces)));
         }

@@ -5,7 +5,7 @@ use std::io::Read;
 
 use crate::bitstream::header::{self, check_allocation_bound, Header, HEADER_BYTES};
 use crate::bitstream::info::{read_info, EncoderInfo};
-use crate::bitstream::layout::{Group, INFO_KIND, LEVELS_KIND};
+use crate::bitstream::layout::{Group, CODEBOOK_KIND, INFO_KIND, LEVELS_KIND};
 use crate::bitstream::levels::Layout;
 use crate::bitstream::params::read_all_params;
 use crate::bitstream::sections::{self, read_table, table_bytes, Table};
@@ -69,7 +69,7 @@ pub struct SectionInfo {
     pub optional: bool,
     /// Payload bytes.
     pub bytes: usize,
-    /// Group name, or `levels` / `info` / `padding` / `unknown`.
+    /// Group name, or `levels` / `sh_bandB codebook` / `info` / `padding` / `unknown`.
     pub name: &'static str,
 }
 
@@ -79,6 +79,12 @@ impl SectionInfo {
             INFO_KIND => "info",
             bitstream::layout::PADDING_KIND => "padding",
             LEVELS_KIND => "levels",
+            CODEBOOK_KIND => match id.chunk {
+                1 => "sh_band1 codebook",
+                2 => "sh_band2 codebook",
+                3 => "sh_band3 codebook",
+                _ => "unknown",
+            },
             _ => "unknown",
         });
         SectionInfo { kind: id.kind, chunk: id.chunk, optional: flags & SECTION_OPTIONAL != 0, bytes, name }
@@ -112,6 +118,8 @@ pub struct FileInfo {
     pub constant_channels: Vec<String>,
     /// Channels coded with one table per context, as `group/channel`.
     pub context_channels: Vec<String>,
+    /// SH bands coded by vector quantisation (SPEC §3.2): (band, codebook rows K).
+    pub codebooks: Vec<(u8, usize)>,
 }
 
 /// Configures a decode of a `.gsc` file from any [`Read`] (a file, a socket, a decompressor, a
@@ -350,6 +358,7 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
         chunks: layout.chunk_sizes.iter().map(|&k| k as usize).collect(),
         constant_channels: Vec::new(),
         context_channels: Vec::new(),
+        codebooks: Vec::new(),
     };
     for s in &c.sections {
         info.info.sections.push(SectionInfo::new(s.id(), s.flags, s.data.len()));
@@ -358,6 +367,9 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
         }
     }
     for (g, p) in &params {
+        if let Some(cb) = &p.codebook {
+            info.codebooks.push((g.sh_band(), cb.rows));
+        }
         for (i, t) in p.tables.iter().enumerate() {
             match t {
                 ChannelTable::Constant(_) => info.constant_channels.push(format!("{}/{}", g.name(), i)),
@@ -440,8 +452,12 @@ fn arrived_prefix<'a>(bytes: &'a [u8], limits: &Limits) -> Result<Option<Prefix<
         return Ok(None);
     }
     let layout = c.layout()?;
-    let arrived =
-        |g: Group, chunks: std::ops::Range<usize>| !pending(g.params_kind(), 0) && chunks.into_iter().all(|ch| !pending(g.data_kind(), ch));
+    // An SH band's codebook (SPEC §3.2) comes with its parameter section.
+    let arrived = |g: Group, chunks: std::ops::Range<usize>| {
+        !pending(g.params_kind(), 0)
+            && !pending(CODEBOOK_KIND, usize::from(g.sh_band()))
+            && chunks.into_iter().all(|ch| !pending(g.data_kind(), ch))
+    };
     let levels = layout.level_ranges();
     let complete = levels.iter().take_while(|r| Group::present(0).all(|g| arrived(g, (*r).clone()))).count();
     if complete == 0 && !levels.is_empty() {

@@ -59,6 +59,10 @@ pub fn run(args: Args) -> crate::Result<()> {
                 "constant_channels": info.constant_channels,
             },
             "context_channels": info.context_channels,
+            "sh_bands": (1..=h.sh_degree).map(|b| {
+                let k = info.codebooks.iter().find(|c| c.0 == b).map(|c| c.1);
+                json!({"band": b, "mode": if k.is_some() { "codebook" } else { "per-coefficient" }, "codebook_rows": k})
+            }).collect::<Vec<_>>(),
         });
         println!("{v}");
     } else {
@@ -78,6 +82,12 @@ pub fn run(args: Args) -> crate::Result<()> {
         }
         if let (Some(d), Some(n)) = (input_sh_degree, dropped_bands) {
             println!("left out: {n} SH band(s) (input degree {d})");
+        }
+        for b in 1..=h.sh_degree {
+            match info.codebooks.iter().find(|c| c.0 == b) {
+                Some((_, k)) => println!("sh_band{b}    codebook of {k} rows, one index per Gaussian"),
+                None => println!("sh_band{b}    per coefficient"),
+            }
         }
         if !info.context_channels.is_empty() {
             println!("context-coded: {}", info.context_channels.join(", "));

@@ -10,12 +10,14 @@ use std::sync::{Arc, Mutex};
 use gscodec_decoder::bitstream::info::{write_info, EncoderInfo};
 use std::ops::Range;
 
-use gscodec_decoder::bitstream::layout::{Group, INFO_KIND, LEVELS_KIND};
-use gscodec_decoder::bitstream::params::{write_channel_params, write_position_params};
+use gscodec_decoder::bitstream::layout::{Group, CODEBOOK_KIND, INFO_KIND, LEVELS_KIND};
+use gscodec_decoder::bitstream::params::{write_channel_params, write_codebook, write_position_params};
 use gscodec_decoder::bitstream::positions::{delta_length, delta_raw_bits, morton_deltas, write_position_stream};
 use gscodec_decoder::bitstream::sections::write_padded;
 use gscodec_decoder::bitstream::stream::write_channel_streams;
-use gscodec_decoder::bitstream::{Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MAJOR_UNIFORM, VERSION_MINOR};
+use gscodec_decoder::bitstream::{
+    Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MAJOR_LEVELS, VERSION_MAJOR_UNIFORM, VERSION_MINOR,
+};
 use gscodec_decoder::entropy::ChannelTable;
 
 use super::quantise::Quantised;
@@ -25,8 +27,11 @@ use super::tables::{self, ChosenTable};
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct GroupReport {
     pub group: String,
-    /// Parameter section bytes (steps + tables).
+    /// Parameter section bytes (steps + tables), and the codebook section's for an SH band
+    /// coded by vector quantisation.
     pub table_bytes: usize,
+    /// Rows of the band's codebook (SPEC §3.2); 0 = coded per coefficient.
+    pub codebook_rows: usize,
     /// Range-coded stream bytes, all chunks.
     pub stream_bytes: usize,
     /// Ideal code length of the streams under the stored tables (the rate estimate), bits.
@@ -64,53 +69,69 @@ impl EncodeReport {
 struct GroupPlan {
     group: Group,
     params: Vec<u8>,
+    /// The codebook section of an SH band coded by vector quantisation, and its rows.
+    codebook: Option<(Vec<u8>, usize)>,
     tables: Vec<ChosenTable>,
     histogram_bits: f64,
     learned_bits: f64,
     context_bits: f64,
 }
 
-/// Plans the groups `todo` of `q` (0 = position, `i` = `q.groups[i − 1]`), in that order.
+/// Plans the groups `todo` of `q` (0 = position, `i` = `q.groups[i − 1]`; ascending).
 fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool, todo: &[usize]) -> Vec<GroupPlan> {
-    let compare = |v: &[i32], contexts| if learned { tables::compare(v, contexts) } else { tables::histogram_only(v, contexts) };
-    // Every channel of every group in one parallel batch (groups have 1 to 21 channels; the
-    // position group's one channel is its delta lengths, never context-coded: SPEC §4).
-    let lens: Vec<i32> = if todo.contains(&0) { deltas.iter().map(|&d| delta_length(d) as i32).collect() } else { Vec::new() };
-    let all: Vec<(&[i32], bool)> = todo
-        .iter()
-        .flat_map(|&i| match i {
-            0 => vec![(&lens[..], false)],
-            i => q.groups[i - 1].2.iter().map(|c| (&c[..], true)).collect(),
-        })
-        .collect();
-    let mut all_cmps =
-        all.par_iter().map(|&(c, ctx)| compare(c, ctx.then_some(chunks))).collect::<Vec<tables::Compared>>().into_iter();
+    fn compare_with(learned: bool, v: &[i32], contexts: Option<&[Range<usize>]>) -> tables::Compared {
+        if learned {
+            tables::compare(v, contexts)
+        } else {
+            tables::histogram_only(v, contexts)
+        }
+    }
+    let compare = |v: &[i32], contexts| compare_with(learned, v, contexts);
     let mut plans = Vec::new();
-    for &i in todo {
-        if i == 0 {
-            let cmp = all_cmps.next().expect("one per channel");
-            let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
-            let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
-            let t = cmp.best;
-            plans.push(GroupPlan {
-                group: Group::Position,
-                params: write_position_params(&q.grid, &t.bytes),
-                tables: vec![t],
-                histogram_bits: hb,
-                learned_bits: lb,
-                context_bits: f64::NAN,
-            });
+    if todo.contains(&0) {
+    let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
+    let cmp = compare(&lens, None); // position lengths are never context-coded (SPEC §4)
+    let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
+    let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
+    let t = cmp.best;
+    plans.push(GroupPlan {
+        group: Group::Position,
+        params: write_position_params(&q.grid, &t.bytes),
+        codebook: None,
+        tables: vec![t],
+        histogram_bits: hb,
+        learned_bits: lb,
+        context_bits: f64::NAN,
+    });
+    }
+    for &i in todo.iter().filter(|&&i| i > 0) {
+        let (g, steps, chans) = &q.groups[i - 1];
+        if let Some((_, cb)) = q.codebooks.iter().find(|c| c.0 == *g) {
+            // Vector quantisation (SPEC §3.2): the codebook's rows coded like one chunk of K
+            // Gaussians, and the band's one channel, the row index.
+            let k = cb.len();
+            let cols: Vec<Vec<i32>> = (0..cb.channels).map(|j| cb.column(j)).collect();
+            let cts: Vec<ChosenTable> = cols.par_iter().map(|c| compare_with(learned, c, Some(&[0..k])).best).collect();
+            let book_params = write_channel_params(steps, cts.iter().map(|t| &t.bytes[..]));
+            let refs: Vec<&ChannelTable> = cts.iter().map(|t| &t.table).collect();
+            let values: Vec<&[i32]> = cols.iter().map(|c| &c[..]).collect();
+            let book = write_codebook(k, &book_params, &write_channel_streams(&refs, &values));
+            let index: Vec<i32> = cb.index.iter().map(|&i| i as i32).collect();
+            let c = compare(&index, Some(chunks));
+            let (histogram_bits, learned_bits, context_bits) = (c.histogram_bits, c.learned_bits, c.context_bits);
+            let params = write_channel_params(&[1.0], [&c.best.bytes[..]].into_iter());
+            let tables = vec![c.best];
+            plans.push(GroupPlan { group: *g, params, codebook: Some((book, k)), tables, histogram_bits, learned_bits, context_bits });
             continue;
         }
-        let (g, steps, chans) = &q.groups[i - 1];
-        let cmps: Vec<tables::Compared> = all_cmps.by_ref().take(chans.len()).collect();
+        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| compare(c, Some(chunks))).collect();
         let histogram_bits = cmps.iter().map(|c| c.histogram_bits).sum();
         let learned_bits = cmps.iter().map(|c| c.learned_bits).sum();
         // A channel where contexts were not tried (a constant) costs its histogram bits.
         let context_bits = cmps.iter().map(|c| if c.context_bits.is_nan() { c.histogram_bits } else { c.context_bits }).sum();
         let ts: Vec<ChosenTable> = cmps.into_iter().map(|c| c.best).collect();
         let params = write_channel_params(steps, ts.iter().map(|t| &t.bytes[..]));
-        plans.push(GroupPlan { group: *g, params, tables: ts, histogram_bits, learned_bits, context_bits });
+        plans.push(GroupPlan { group: *g, params, codebook: None, tables: ts, histogram_bits, learned_bits, context_bits });
     }
     plans
 }
@@ -124,7 +145,7 @@ struct CodedGroup {
 /// Coded groups by what determines them, shared by the trial encodes of an RD search: a trial
 /// that changes one group's step finds every other group (same values, steps, chunks and table
 /// choice) already coded. The key is a 128-bit hash (two SipHash-1-3 of the group's id, steps or
-/// grid, chunks, table choice and every value); entries are never evicted (a search codes about
+/// grid, chunks, table choice, every value and its codebook if any); entries are never evicted (a search codes about
 /// a thousand groups).
 #[derive(Default)]
 pub struct GroupCache(Mutex<HashMap<(u64, u64), Arc<CodedGroup>>>);
@@ -151,6 +172,9 @@ fn group_key(q: &Quantised, chunks: &[Range<usize>], learned: bool, i: usize) ->
         } else {
             let (g, steps, chans) = &q.groups[i - 1];
             (g.name(), steps.iter().map(|s| s.to_bits()).collect::<Vec<_>>(), chans).hash(&mut h);
+            if let Some((_, cb)) = q.codebooks.iter().find(|c| c.0 == *g) {
+                (cb.channels, &cb.rows, &cb.index).hash(&mut h);
+            }
         }
         h.finish()
     };
@@ -187,6 +211,9 @@ fn code_groups(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: 
 fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], range: Range<usize>) -> Vec<u8> {
     if p.group == Group::Position {
         write_position_stream(&p.tables[0].table, &deltas[range])
+    } else if let Some((_, cb)) = q.codebooks.iter().find(|c| c.0 == p.group) {
+        let index: Vec<i32> = cb.index[range].iter().map(|&i| i as i32).collect();
+        write_channel_streams(&[&p.tables[0].table], &[&index])
     } else {
         let chans = &q.groups.iter().find(|x| x.0 == p.group).expect("group").2;
         let tables: Vec<&ChannelTable> = p.tables.iter().map(|t| &t.table).collect();
@@ -200,7 +227,9 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], range: Range<usize
 /// A scene with levels ([`Quantised::levels`]) is written as format 4.0 with a levels section,
 /// in the payload order of SPEC §3 for progressive decoding: levels, parameters, then chunk by
 /// chunk the base groups (position, scale, rotation, opacity, DC colour), then each SH band chunk
-/// by chunk, then info. Without levels it is a 3.0 file (same order, one level).
+/// by chunk, then info. Without levels it is a 3.0 file (same order, one level). A scene with SH
+/// codebooks ([`Quantised::codebooks`]) is a 5.0 file (always with a levels section), its
+/// codebooks right after the parameter sections.
 pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8>, EncodeReport) {
     write_cached(q, input, learned_tables, None)
 }
@@ -210,7 +239,12 @@ pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8
 pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cache: Option<&GroupCache>) -> (Vec<u8>, EncodeReport) {
     let n = q.len();
     let progressive = !q.levels.is_empty();
-    let version_major = if progressive { VERSION_MAJOR } else { VERSION_MAJOR_UNIFORM };
+    let codebooks = n > 0 && !q.codebooks.is_empty();
+    let version_major = match (codebooks, progressive) {
+        (true, _) => VERSION_MAJOR,
+        (false, true) => VERSION_MAJOR_LEVELS,
+        (false, false) => VERSION_MAJOR_UNIFORM,
+    };
     let header = Header { version_major, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
     let info = write_info(&EncoderInfo { input_gaussians: input.0.min(u32::MAX as usize) as u32, input_sh_degree: input.1 });
     let mut report = EncodeReport { gaussians: n, sh_degree: q.sh_degree, position_bits: q.grid.2, file_bytes: 0, groups: Vec::new() };
@@ -220,7 +254,7 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
     if n > 0 {
         let layout = q.layout();
         levels = layout.write();
-        if progressive {
+        if progressive || codebooks {
             payloads.push((LEVELS_KIND, 0, 0, &levels));
         }
         let chunks = layout.chunk_ranges();
@@ -232,12 +266,12 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
             .flat_map(|c| (0..base).map(move |p| (p, c)))
             .chain((base..coded.len()).flat_map(|p| (0..chunks.len()).map(move |c| (p, c))))
             .collect();
-        for g in &coded {
-            let p = &g.plan;
+        for p in coded.iter().map(|g| &g.plan) {
             payloads.push((p.group.params_kind(), 0, 0, &p.params));
             report.groups.push(GroupReport {
                 group: p.group.name().into(),
-                table_bytes: p.params.len(),
+                table_bytes: p.params.len() + p.codebook.as_ref().map_or(0, |c| c.0.len()),
+                codebook_rows: p.codebook.as_ref().map_or(0, |c| c.1),
                 stream_bytes: 0,
                 estimated_bits: p.tables.iter().map(|t| t.bits).sum::<f64>()
                     + if p.group == Group::Position { deltas.iter().map(|&d| delta_raw_bits(d) as f64).sum() } else { 0.0 },
@@ -247,6 +281,11 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
                 context_bits: p.context_bits,
                 context_channels: p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Context { .. })).count(),
             });
+        }
+        for p in coded.iter().map(|g| &g.plan) {
+            if let Some((book, _)) = &p.codebook {
+                payloads.push((CODEBOOK_KIND, u16::from(p.group.sh_band()), 0, book));
+            }
         }
         for &(p, c) in &jobs {
             let s = &coded[p].streams[c];

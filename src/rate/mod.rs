@@ -17,6 +17,7 @@ pub mod quantise;
 pub mod rd;
 pub mod tables;
 pub mod term;
+pub mod vq;
 
 use gscodec_decoder::{SceneError, Splats};
 
@@ -38,6 +39,9 @@ pub struct EncodeConfig {
     /// weighted by their significance) is below this have that band's coefficients zeroed
     /// (0 = keep all; the RD search sets it).
     pub sh_drop: [f32; 3],
+    /// Per SH band 1..=3: 0 = coded per coefficient; K > 0 = coded by vector quantisation with a
+    /// codebook of at most K rows ([`vq`], SPEC §3.2, format 5.0; the RD search sets it).
+    pub sh_vq: [u32; 3],
     /// SH bands above this degree are left out.
     pub max_sh_degree: u8,
     /// Also fit the learned density per channel and store it where it is cheaper than the
@@ -56,6 +60,7 @@ impl Default for EncodeConfig {
             min_opacity: 1.0 / 255.0,
             min_significance: 0.0,
             sh_drop: [0.0; 3],
+            sh_vq: [0; 3],
             max_sh_degree: 3,
             learned_tables: true,
             progressive: false,
@@ -75,10 +80,10 @@ impl EncodeConfig {
         }
     }
 
-    /// Whether coding with this config needs the input's significance (significance pruning or
-    /// SH band dropping).
+    /// Whether coding with this config needs the input's significance (significance pruning, SH
+    /// band dropping, or SH vector quantisation, whose k-means weighs rows by it).
     pub fn needs_significance(&self) -> bool {
-        self.min_significance > 0.0 || self.sh_drop.iter().any(|&t| t > 0.0)
+        self.min_significance > 0.0 || self.sh_drop.iter().any(|&t| t > 0.0) || self.sh_vq.iter().any(|&k| k > 0)
     }
 }
 
@@ -105,6 +110,11 @@ pub fn pruned(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32
 /// ([`quantise::drop_sh_bands`]) and the degree cut. `significance` is that of `splats`
 /// ([`importance::significance`]; computed here when `config` needs it and it is `None`).
 pub fn prepared(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> Splats {
+    prepared_with_significance(splats, config, significance).0
+}
+
+/// [`prepared`], and the significance of the Gaussians it keeps when there is one.
+fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> (Splats, Option<Vec<f32>>) {
     let own;
     let significance = match significance {
         None if config.needs_significance() => {
@@ -114,13 +124,13 @@ pub fn prepared(splats: &Splats, config: &EncodeConfig, significance: Option<&[f
         s => s,
     };
     let (mut s, sig) = pruned(splats, config, significance);
-    if let Some(w) = sig.filter(|_| config.sh_drop.iter().any(|&t| t > 0.0)) {
-        quantise::drop_sh_bands(&mut s, &w, config.sh_drop);
+    if let Some(w) = sig.as_ref().filter(|_| config.sh_drop.iter().any(|&t| t > 0.0)) {
+        quantise::drop_sh_bands(&mut s, w, config.sh_drop);
     }
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);
     }
-    s
+    (s, sig)
 }
 
 /// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
@@ -148,9 +158,13 @@ pub fn encode_cached(
 ) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let s = prepared(splats, config, significance);
+    let (s, sig) = prepared_with_significance(splats, config, significance);
     let level = if config.progressive { importance::levels(&importance::significance(&s)) } else { Vec::new() };
-    let q = quantise::quantise(&s, &config.steps, &level);
+    let (mut q, order) = quantise::quantise_ordered(&s, &config.steps, &level);
+    if config.sh_vq.iter().any(|&k| k > 0) {
+        let w: Vec<f32> = order.iter().map(|&i| sig.as_ref().map_or(1.0, |w| w[i])).collect();
+        quantise::apply_codebooks(&mut q, &w, config.sh_vq);
+    }
     let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, cache);
     Ok((bytes, report, q))
 }

@@ -74,7 +74,11 @@ pub struct Quantised {
     /// Morton codes of the grid positions, sorted within each level.
     pub morton: Vec<u64>,
     /// For every group except Position: dequantisation steps and channel values (`[channel][gaussian]`).
+    /// An SH band with a codebook holds the rows its codebook restores.
     pub groups: Vec<(Group, Vec<f32>, Vec<Vec<i32>>)>,
+    /// SH bands coded by vector quantisation (SPEC §3.2, format 5.0): the band's codebook, whose
+    /// rows at its indices are the band's channels in [`Quantised::groups`].
+    pub codebooks: Vec<(Group, super::vq::Codebook)>,
 }
 
 impl Quantised {
@@ -130,6 +134,11 @@ fn q_dz(v: f32, step: f32, dz: f32) -> i32 {
 /// With `level` (one entry per Gaussian, e.g. [`super::importance::levels`]), Gaussians are
 /// ordered by level first and [`Quantised::levels`] holds the level sizes; empty = one level.
 pub fn quantise(splats: &Splats, steps: &Steps, level: &[u8]) -> Quantised {
+    quantise_ordered(splats, steps, level).0
+}
+
+/// [`quantise`], with the file order: Gaussian `i` of the result is `splats`' Gaussian `order[i]`.
+pub fn quantise_ordered(splats: &Splats, steps: &Steps, level: &[u8]) -> (Quantised, Vec<usize>) {
     let n = splats.len();
     let bits = steps.position_bits.unwrap_or_else(|| position_bits(splats, steps.position_rel)).min(MAX_POSITION_BITS);
     let (lo, hi) = splats.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
@@ -189,6 +198,7 @@ pub fn quantise(splats: &Splats, steps: &Steps, level: &[u8]) -> Quantised {
         levels,
         morton: keyed.iter().map(|&(_, m, _)| m).collect(),
         groups,
+        codebooks: Vec::new(),
     };
     // Leave out SH bands whose coefficients all quantise to zero.
     while out.sh_degree > 0 {
@@ -200,7 +210,25 @@ pub fn quantise(splats: &Splats, steps: &Steps, level: &[u8]) -> Quantised {
         out.groups.retain(|x| x.0 != g);
         out.sh_degree -= 1;
     }
-    out
+    (out, order)
+}
+
+/// Codes SH band b (1..=3) of `q` by vector quantisation where `ks[b − 1] > 0`: a codebook of at
+/// most that many rows ([`super::vq::kmeans`], rows weighted by `weights`, one per Gaussian in
+/// file order), and the band's channels become the rows the codebook restores.
+///
+/// # Panics
+/// If `weights` is not one value per Gaussian of `q`.
+pub fn apply_codebooks(q: &mut Quantised, weights: &[f32], ks: [u32; 3]) {
+    for (g, _, chans) in q.groups.iter_mut() {
+        let b = usize::from(g.sh_band());
+        if b == 0 || ks[b - 1] == 0 {
+            continue;
+        }
+        let cb = super::vq::kmeans(chans, weights, ks[b - 1] as usize, b as u64);
+        *chans = cb.decoded_channels();
+        q.codebooks.push((*g, cb));
+    }
 }
 
 /// Normalises, makes the largest component positive and quantises the other three.

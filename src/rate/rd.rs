@@ -1,6 +1,7 @@
 //! Rate–distortion search over the encoder's choices by rendering: per-group step sizes, the
-//! significance pruning threshold, the SH degree and per-Gaussian SH band dropping, greedily
-//! coarsened while `J = D + λ·R` falls; the trials of each stage run in parallel.
+//! significance pruning threshold, the SH degree, per-Gaussian SH band dropping and per-band SH
+//! vector quantisation, greedily chosen while `J = D + λ·R` falls; the trials of each stage run
+//! in parallel.
 //!
 //! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
 //!   ([`crate::views::orbit_cameras`], up −y as `eval --orbit`, 8 views at 96×96) against the views of the input scene.
@@ -89,18 +90,23 @@ impl<'a> Evaluator<'a> {
         let t = Instant::now();
         let (bytes, report, q) = encode_cached(self.scene, config, Some(&self.significance), Some(&self.cache))?;
         let t1 = Instant::now();
-        let dec = dequantise(&q);
-        let base = self.base.as_ref().filter(|(b, _)| same_geometry(b, &dec));
+        let d = self.distortion(&dequantise(&q));
+        self.encode_ns.fetch_add((t1 - t).as_nanos() as u64, Ordering::Relaxed);
+        self.render_ns.fetch_add(t1.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        Ok((bytes.len(), d, report))
+    }
+
+    /// `D` of a decoded scene: 255² × the mean squared error of its views against the input's.
+    /// A scene with the base's geometry is drawn by replaying the base's frames.
+    pub fn distortion(&self, dec: &Splats) -> f64 {
+        let base = self.base.as_ref().filter(|(b, _)| same_geometry(b, dec));
         let frame = |v: usize| match base {
-            Some((_, recordings)) => replay(&recordings[v], &dec, &self.cams[v], &self.opts),
-            None => render(&dec, &self.cams[v], &self.opts),
+            Some((_, recordings)) => replay(&recordings[v], dec, &self.cams[v], &self.opts),
+            None => render(dec, &self.cams[v], &self.opts),
         };
         // Views in parallel (a frame at 96² has only 6 rows of tiles to share out), summed in order.
         let per_view: Vec<f64> = self.refs.par_iter().enumerate().map(|(v, r)| crate::metrics::mse(r, &frame(v))).collect();
-        let mse = per_view.iter().sum::<f64>() / self.cams.len() as f64;
-        self.encode_ns.fetch_add((t1 - t).as_nanos() as u64, Ordering::Relaxed);
-        self.render_ns.fetch_add(t1.elapsed().as_nanos() as u64, Ordering::Relaxed);
-        Ok((bytes.len(), mse * 255.0 * 255.0, report))
+        per_view.iter().sum::<f64>() / self.cams.len() as f64 * 255.0 * 255.0
     }
 
     /// [`Evaluator::eval_report`] of `config`, recording its frames as the base that later trials
@@ -156,6 +162,10 @@ const PRUNE_QUANTILES: [f32; 19] =
     [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95];
 /// Fractions of the kept Gaussians (weakest first) whose band is zeroed by SH band dropping.
 const SH_DROP_QUANTILES: [f32; 7] = [0.1, 0.25, 0.4, 0.55, 0.7, 0.85, 0.95];
+/// Codebook sizes tried per SH band for vector quantisation (`EncodeConfig::sh_vq`), each at the
+/// band's chosen step and half an octave finer.
+const VQ_ROWS: [u32; 4] = [64, 256, 1024, 4096];
+const VQ_STEPS: [f32; 2] = [1.0, std::f32::consts::FRAC_1_SQRT_2];
 /// SH rest dead zones tried after the steps are chosen (see `Steps::rest_deadzone`).
 const DEADZONES: [f32; 4] = [0.1, 0.2, 0.3, 0.4];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
@@ -308,11 +318,36 @@ fn step_pass<F: FnMut(&Trial)>(
     Ok(best.into_iter().fold(*start, |c, (k, _, m)| with_knob(&c, k, m)))
 }
 
+/// Per SH band up to `degree`, in order: a codebook of each of [`VQ_ROWS`] rows at each of
+/// [`VQ_STEPS`] × the band's step, or per-coefficient coding as in `start` (whole-file J; the
+/// start stays a candidate, so the result's J is never above the start's).
+fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: EncodeConfig, degree: u8) -> Result<EncodeConfig, SceneError> {
+    let mut chosen = start;
+    for b in 1..=chosen.max_sh_degree.min(degree).min(3) {
+        let bi = usize::from(b) - 1;
+        let (bytes, d, _) = trials.one(&chosen)?;
+        let cands = VQ_ROWS
+            .iter()
+            .flat_map(|&k| VQ_STEPS.iter().map(move |&m| (k, m)))
+            .map(|(k, m)| {
+                let mut c = chosen;
+                c.sh_vq[bi] = k;
+                c.steps.sh_rest[bi] *= m;
+                (format!("sh_vq band{b} K={k} step×{m:.3}"), c)
+            })
+            .collect();
+        let keep = (log.j(bytes, d), chosen);
+        chosen = log.stage(trials, keep, cands)?.1;
+    }
+    Ok(chosen)
+}
+
 /// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the significance pruning threshold, then the SH degree and
 /// the per-Gaussian SH band dropping (whole-file J), then per group the multiplier of the fine
-/// step minimising `ΔD_g + λ·R_g`, then the SH rest dead zone. `on_step` sees each trial.
+/// step minimising `ΔD_g + λ·R_g`, then the SH rest dead zone, then per SH band a codebook
+/// (vector quantisation) or none. `on_step` sees each trial.
 ///
 /// The trials of each stage are independent and run in parallel; the result (and the trial
 /// list) is the same for any number of threads.
@@ -395,6 +430,8 @@ pub fn search_from(
         chosen = log.stage(&mut trials, keep, cands)?.1;
         clock.lap(&trials, "SH dead zone");
     }
+    // 6. SH vector quantisation, band by band.
+    let chosen = vq_stage(&mut trials, &mut log, chosen, scene.sh_degree)?;
     Ok((EncodeConfig { learned_tables: true, ..chosen }, log.path))
 }
 
@@ -454,6 +491,8 @@ mod tests {
         let mut configs: Vec<(Option<Group>, EncodeConfig)> = Group::ALL.into_iter().map(|g| (Some(g), with_knob(&start, g, 2.0))).collect();
         configs.push((None, EncodeConfig { max_sh_degree: 1, ..start }));
         configs.push((None, EncodeConfig { steps: Steps { rest_deadzone: 0.3, ..start.steps }, ..start }));
+        configs.push((None, EncodeConfig { sh_vq: [16, 0, 0], ..start }));
+        configs.push((None, EncodeConfig { sh_vq: [16, 8, 0], ..start }));
         let mut cached = Evaluator::new(&scene);
         cached.eval_as_base(&start).unwrap();
         assert!(cached.cache.len() >= 5, "{} groups", cached.cache.len());
@@ -474,7 +513,33 @@ mod tests {
             let dec = dequantise(&super::super::encode_with(&scene, c, Some(&cached.significance)).unwrap().2);
             replayed += usize::from(same_geometry(&cached.base.as_ref().unwrap().0, &dec));
         }
-        assert!(replayed >= 5, "{replayed} trials replayed"); // SH DC, 3 bands, degree, dead zone
+        assert!(replayed >= 7, "{replayed} trials replayed"); // SH DC, 3 bands, degree, dead zone, 2 codebooks
+    }
+
+    /// The codebook stage keeps per-coefficient coding unless a codebook lowers J: the result's J
+    /// is the lowest of the start's and every candidate's, and it is a codebook for some λ.
+    #[test]
+    fn the_search_picks_codebooks_only_when_j_is_lower() {
+        let scene = crate::sample::scene(600, 3);
+        assert!(scene.sh_degree > 0);
+        let mut picked = false;
+        for l in [0.0, 50.0, 2000.0] {
+            let lambda = Lambda::new(l).unwrap();
+            let mut trials = Trials { ev: Evaluator::new(&scene), seen: Vec::new() };
+            let mut on_step = |_: &Trial| {};
+            let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
+            let start = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
+            let (b0, d0, _) = trials.one(&start).unwrap();
+            let out = vq_stage(&mut trials, &mut log, start, scene.sh_degree).unwrap();
+            let (b, d, _) = trials.one(&out).unwrap();
+            let j = log.j(b, d);
+            assert!(j <= log.j(b0, d0));
+            assert!(log.path.iter().all(|t| t.j >= j - 1e-9), "λ {l}: a candidate had a lower J than the choice");
+            assert!(out.sh_vq == [0; 3] || j < log.j(b0, d0), "λ {l}: a codebook chosen without lowering J");
+            assert_eq!(log.path.len(), usize::from(scene.sh_degree) * VQ_ROWS.len() * VQ_STEPS.len());
+            picked |= out.sh_vq != [0; 3];
+        }
+        assert!(picked, "no λ chose a codebook");
     }
 
     /// The parallel search chooses the same configuration, records the same trials and writes

@@ -1,6 +1,9 @@
 //! The fixed header (SPEC §2): magic, version, section count, Gaussian count, SH degree.
 
-use super::{ByteReader, ByteWriter, MAGIC, MAX_GAUSSIANS, MAX_GAUSSIANS_PER_BYTE, MAX_SECTIONS, VERSION_MAJOR, VERSION_MAJOR_UNIFORM};
+use super::{
+    ByteReader, ByteWriter, MAGIC, MAX_GAUSSIANS, MAX_GAUSSIANS_PER_BYTE, MAX_SECTIONS, VERSION_MAJOR, VERSION_MAJOR_LEVELS,
+    VERSION_MAJOR_UNIFORM,
+};
 use crate::error::{self, DecodeError, FormatErrorKind, Limit, Place};
 
 /// Bytes of the fixed header.
@@ -9,7 +12,7 @@ pub const HEADER_BYTES: usize = 16;
 /// The fixed header's fields (the section count is the section table's length).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Header {
-    /// Format major version (this crate reads 3 and 4).
+    /// Format major version (this crate reads 3, 4 and 5).
     pub version_major: u8,
     /// Format minor version (a reader accepts any).
     pub version_minor: u8,
@@ -20,10 +23,15 @@ pub struct Header {
 }
 
 impl Header {
-    /// Whether the file has a levels section (format 4, SPEC §3.1); a 3.0 file's layout is
-    /// one level of 65,536-Gaussian chunks.
+    /// Whether the file has a levels section (formats 4 and 5, SPEC §3.1); a 3.0 file's layout
+    /// is one level of 65,536-Gaussian chunks.
     pub fn has_levels(&self) -> bool {
-        self.version_major == super::VERSION_MAJOR
+        self.version_major >= VERSION_MAJOR_LEVELS
+    }
+
+    /// Whether the file may hold SH codebooks (format 5, SPEC §3.2).
+    pub fn has_codebooks(&self) -> bool {
+        self.version_major >= VERSION_MAJOR
     }
 }
 
@@ -38,7 +46,7 @@ pub fn read_header(bytes: &[u8]) -> Result<(Header, usize), DecodeError> {
     }
     let major = r.u8("version")?;
     let minor = r.u8("version")?;
-    if major != VERSION_MAJOR && major != VERSION_MAJOR_UNIFORM {
+    if !(VERSION_MAJOR_UNIFORM..=VERSION_MAJOR).contains(&major) {
         return Err(error::unsupported_version(major, minor));
     }
     let count = r.u16("section count")? as usize;

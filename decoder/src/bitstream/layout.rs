@@ -104,6 +104,11 @@ impl Group {
 /// Required section of a 4.0 file with N > 0: the chunk sizes and levels (SPEC §3.1,
 /// [`super::levels::Layout`]).
 pub const LEVELS_KIND: u16 = 0x01;
+/// Section of a 5.0 file, chunk = SH band 1..=3: that band's codebook (SPEC §3.2,
+/// [`super::params::read_codebook`]).
+pub const CODEBOOK_KIND: u16 = 0x02;
+/// Most rows of a codebook (SPEC §3.2).
+pub const MAX_CODEBOOK_ROWS: usize = 1 << 16;
 /// Optional section: encoder information (`u32` Gaussians before pruning, `u8` SH degree of the input).
 pub const INFO_KIND: u16 = 0x100;
 /// Optional section: padding (ignored).

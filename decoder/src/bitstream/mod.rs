@@ -9,6 +9,7 @@
 //! | [`sections`] | §2, §3 | [`sections::read_table`], [`sections::parse`], [`sections::parse_prefix`] | [`sections::write`], [`sections::write_padded`] |
 //! | [`layout`] | §3 | attribute groups, section kinds, chunks | |
 //! | [`levels`] | §3.1 | [`levels::Layout::read`] | [`levels::Layout::write`] |
+//! | [`params`] | §3.2 | [`params::read_codebook`] | [`params::write_codebook`] |
 //! | [`params`] | §4 | [`params::read_params`] | [`params::write_position_params`], [`params::write_channel_params`] |
 //! | [`tables`] | §4.1 | [`tables::ChannelTable::read`] | `ChannelTable::write_*` |
 //! | [`stream`] | §6, §6.2 | channel streams of a data section | [`stream::write_channel_streams`], [`stream::push_stream`] |
@@ -36,9 +37,11 @@ pub use sections::{parse, parse_prefix, write, Container, Section};
 
 /// First four bytes of every `.gsc` file.
 pub const MAGIC: [u8; 4] = [0x8A, b'G', b'S', b'C'];
-/// Format major version of this crate: files with importance levels (SPEC §3.1) are written as
-/// 4.0; files of [`VERSION_MAJOR_UNIFORM`] are read too.
-pub const VERSION_MAJOR: u8 = 4;
+/// Newest format major version of this crate: files with SH codebooks (SPEC §3.2) are written as
+/// 5.0; files of [`VERSION_MAJOR_LEVELS`] and [`VERSION_MAJOR_UNIFORM`] are read too.
+pub const VERSION_MAJOR: u8 = 5;
+/// Format 4.0: importance levels (SPEC §3.1), written for progressive files without codebooks.
+pub const VERSION_MAJOR_LEVELS: u8 = 4;
 /// The previous major version (3.0: no levels section, chunks of 65,536), read by this crate and
 /// written for files of one level of such chunks, so that 3.0 readers can read them.
 pub const VERSION_MAJOR_UNIFORM: u8 = 3;

@@ -1,9 +1,12 @@
 //! Parameter sections (SPEC §4): per group, the dequantisation steps and one channel table per
-//! channel; for positions, the grid and the table of Morton-delta lengths.
+//! channel; for positions, the grid and the table of Morton-delta lengths. And the codebook
+//! sections of SH bands coded by vector quantisation (SPEC §3.2): the band's rows, coded like a
+//! parameter section and a data section of K "Gaussians", and then the band's parameter section
+//! holds one channel, the row index.
 
 use rayon::prelude::*;
 
-use super::layout::{Group, MAX_POSITION_BITS};
+use super::layout::{Group, MAX_CODEBOOK_ROWS, MAX_POSITION_BITS};
 use super::sections::Container;
 use super::tables::ChannelTable;
 use super::{ByteReader, ByteWriter};
@@ -21,11 +24,69 @@ pub struct GroupParams {
     pub tables: Vec<ChannelTable>,
     /// Position only: the grid.
     pub grid: Option<Grid>,
+    /// SH bands coded by vector quantisation (SPEC §3.2): the codebook; `steps` and `tables`
+    /// then hold the one index channel.
+    pub codebook: Option<Codebook>,
 }
 
-/// Reads the parameter section of group `g`; it must be consumed exactly.
-pub fn read_params(g: Group, r: &mut ByteReader<'_>) -> Result<GroupParams, DecodeError> {
-    let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None };
+/// A decoded codebook (SPEC §3.2): `rows` rows of the band's channels, dequantised, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Codebook {
+    /// Rows K.
+    pub rows: usize,
+    /// `K × channels` dequantised values.
+    pub values: Vec<f32>,
+}
+
+/// `u8 C` (which must be `channels`), then C × (f32 step, channel table) (SPEC §4).
+fn read_channel_tables(r: &mut ByteReader<'_>, channels: usize, p: &mut GroupParams) -> Result<(), DecodeError> {
+    let at = r.place();
+    let n = r.u8("channel count")? as usize;
+    if n != channels {
+        return Err(at.corrupt("wrong channel count"));
+    }
+    for _ in 0..n {
+        p.steps.push(r.f32("channel step")?);
+        p.tables.push(ChannelTable::read(r)?);
+    }
+    Ok(())
+}
+
+/// Reads the codebook section of SH group `g` in a file of `n` Gaussians (SPEC §3.2): `varint K`
+/// (1 ≤ K ≤ min(N, 65536)), the codebook's channel tables as a parameter section, then its K
+/// rows as the streams of a data section; it must be consumed exactly. The rows are
+/// dequantised with the codebook's steps (SPEC §8) and must be finite.
+pub fn read_codebook(g: Group, r: &mut ByteReader<'_>, n: usize) -> Result<Codebook, DecodeError> {
+    let at = r.place();
+    let k = r.varint("codebook rows")? as usize;
+    if k == 0 || k > MAX_CODEBOOK_ROWS || k > n {
+        return Err(at.corrupt("codebook rows outside 1..=min(N, 65536)"));
+    }
+    let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None, codebook: None };
+    read_channel_tables(r, g.channels(), &mut p)?;
+    let values = super::stream::decode_channels(&p, r, k, &p.steps, 0..g.channels())?;
+    if r.remaining() != 0 {
+        return Err(r.corrupt("trailing bytes in a codebook section"));
+    }
+    Ok(Codebook { rows: k, values })
+}
+
+/// Writes a codebook section: `varint K`, the codebook's parameter section
+/// ([`write_channel_params`]) and its data section ([`super::stream::write_channel_streams`]).
+pub fn write_codebook(rows: usize, params: &[u8], streams: &[u8]) -> Vec<u8> {
+    let mut w = ByteWriter::new();
+    w.varint(rows as u32);
+    w.bytes(params);
+    w.bytes(streams);
+    w.buf
+}
+
+/// Reads the parameter section of group `g`; it must be consumed exactly. With `codebook` (an SH
+/// band coded by vector quantisation, SPEC §3.2) it holds one channel, the row index, whose
+/// step is ignored.
+pub fn read_params(g: Group, r: &mut ByteReader<'_>, codebook: Option<Codebook>) -> Result<GroupParams, DecodeError> {
+    let channels = if codebook.is_some() { 1 } else { g.channels() };
+    let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None, codebook };
     if g == Group::Position {
         let origin = [r.f32("grid origin")?, r.f32("grid origin")?, r.f32("grid origin")?];
         let step = [r.f32("grid step")?, r.f32("grid step")?, r.f32("grid step")?];
@@ -42,15 +103,7 @@ pub fn read_params(g: Group, r: &mut ByteReader<'_>) -> Result<GroupParams, Deco
         }
         p.tables.push(lengths);
     } else {
-        let at = r.place();
-        let n = r.u8("channel count")? as usize;
-        if n != g.channels() {
-            return Err(at.corrupt("wrong channel count"));
-        }
-        for _ in 0..n {
-            p.steps.push(r.f32("channel step")?);
-            p.tables.push(ChannelTable::read(r)?);
-        }
+        read_channel_tables(r, channels, &mut p)?;
     }
     if r.remaining() != 0 {
         return Err(r.corrupt("trailing bytes in a parameter section"));
@@ -81,8 +134,8 @@ pub fn write_channel_params<'t>(steps: &[f32], tables: impl ExactSizeIterator<It
     w.buf
 }
 
-/// The parameter sections of the groups present up to SH degree `degree` (none for N = 0),
-/// read in parallel; a missing one is an error.
+/// The parameter sections of the groups present up to SH degree `degree` (none for N = 0), with
+/// the codebooks of the SH bands that have one, read in parallel; a missing one is an error.
 pub fn read_all_params(c: &Container<'_>, degree: u8) -> Result<Vec<(Group, GroupParams)>, DecodeError> {
     if c.header.gaussians == 0 {
         return Ok(Vec::new());
@@ -94,7 +147,11 @@ pub fn read_all_params(c: &Container<'_>, degree: u8) -> Result<Vec<(Group, Grou
             if c.section(g.params_kind(), 0).is_none() {
                 return Err(c.missing(SectionId { kind: g.params_kind(), chunk: 0 }, g.params_name()));
             }
-            Ok((g, read_params(g, &mut c.reader(g.params_kind(), 0))?))
+            let codebook = match c.codebook(g)? {
+                Some(mut r) => Some(read_codebook(g, &mut r, c.header.gaussians as usize)?),
+                None => None,
+            };
+            Ok((g, read_params(g, &mut c.reader(g.params_kind(), 0), codebook)?))
         })
         .collect()
 }
@@ -109,18 +166,18 @@ mod tests {
         ChannelTable::write_coded(&mut t, 0, &[3, 1, 1]);
         let grid = ([1.0, -2.0, 0.5], [0.25, 0.25, 0.125], 7);
         let bytes = write_position_params(&grid, &t.buf);
-        let p = read_params(Group::Position, &mut ByteReader::new(&bytes)).unwrap();
+        let p = read_params(Group::Position, &mut ByteReader::new(&bytes), None).unwrap();
         assert_eq!(p.grid, Some(grid));
         assert_eq!(p.tables.len(), 1);
         let mut c = ByteWriter::new();
         ChannelTable::write_constant(&mut c, 4);
         let bytes = write_channel_params(&[0.5, 0.25, -1.0], [&c.buf[..], &t.buf, &c.buf].into_iter());
-        let p = read_params(Group::Scale, &mut ByteReader::new(&bytes)).unwrap();
+        let p = read_params(Group::Scale, &mut ByteReader::new(&bytes), None).unwrap();
         assert_eq!((p.steps, p.tables[0].clone()), (vec![0.5, 0.25, -1.0], ChannelTable::Constant(4)));
         // Scale has 3 channels, not 1; and a parameter section must be consumed exactly.
-        assert_eq!(read_params(Group::Opacity, &mut ByteReader::new(&bytes)).unwrap_err().class(), "format");
+        assert_eq!(read_params(Group::Opacity, &mut ByteReader::new(&bytes), None).unwrap_err().class(), "format");
         let mut longer = bytes.clone();
         longer.push(0);
-        assert_eq!(read_params(Group::Scale, &mut ByteReader::new(&longer)).unwrap_err().class(), "format");
+        assert_eq!(read_params(Group::Scale, &mut ByteReader::new(&longer), None).unwrap_err().class(), "format");
     }
 }

@@ -184,7 +184,7 @@ mod tests {
         weights[0] = 5;
         let table = ChannelTable::Coded { lo: 0, table: FreqTable::from_weights(&weights) };
         let section = write_position_stream(&table, &deltas);
-        let p = GroupParams { steps: vec![], tables: vec![table], grid: Some(grid) };
+        let p = GroupParams { steps: vec![], tables: vec![table], grid: Some(grid), codebook: None };
         let xyz = decode_positions(&p, &mut ByteReader::new(&section), morton.len()).unwrap();
         let expected: Vec<f32> = morton.iter().flat_map(|&m| position_of(m, &grid)).collect();
         assert_eq!(xyz, expected);

@@ -2,7 +2,7 @@
 //! of one, and writing a file from its sections.
 
 use super::header::{self, check_allocation_bound, Header, HEADER_BYTES};
-use super::layout::{self, Group, INFO_KIND, LEVELS_KIND, PADDING_KIND};
+use super::layout::{self, Group, CODEBOOK_KIND, INFO_KIND, LEVELS_KIND, PADDING_KIND};
 use super::levels::Layout;
 use super::{ByteReader, ByteWriter, SECTION_OPTIONAL};
 use crate::error::{self, DecodeError, FormatErrorKind, Place, SectionId};
@@ -159,6 +159,18 @@ impl<'a> Container<'a> {
         Ok(layout)
     }
 
+    /// The codebook section of SH group `g` (SPEC §3.2), if the file has one. A known codebook
+    /// of a band above the file's degree D is corrupt (`format`).
+    pub fn codebook(&self, g: Group) -> Result<Option<ByteReader<'a>>, DecodeError> {
+        let band = u16::from(g.sh_band());
+        let d = u16::from(self.header.sh_degree);
+        if let Some(i) = self.sections.iter().position(|s| s.kind == CODEBOOK_KIND && s.chunk > d && is_known(&self.header, s.kind, s.chunk)) {
+            let s = &self.sections[i];
+            return Err(Place { section: Some(s.id()), offset: self.offsets[i] }.corrupt("codebook of an SH band the file does not have"));
+        }
+        Ok((band > 0 && self.section(CODEBOOK_KIND, band).is_some()).then(|| self.reader(CODEBOOK_KIND, band)))
+    }
+
     /// A missing required section.
     pub fn missing(&self, id: SectionId, what: &'static str) -> DecodeError {
         Place { section: Some(id), offset: self.payloads_start }.error(FormatErrorKind::MissingSection, what)
@@ -243,7 +255,8 @@ fn check_entry(c: &Container<'_>, e: &TableEntry, data: &[u8], at: Place, entry_
 
 /// Whether (kind, chunk) is a section the file's version defines for a file with `header`'s
 /// Gaussian count and SH degree (SPEC §3): parameters (chunk 0) and data of a present group, info
-/// and padding (chunk 0), and in 4.0 the levels section (chunk 0, N > 0). A 3.0 data section must
+/// and padding (chunk 0), in 4.0 and 5.0 the levels section (chunk 0, N > 0), in 5.0 the
+/// codebooks (chunk 1..=3, N > 0; one of a band above D is corrupt, [`Container::codebook`]). A 3.0 data section must
 /// have a chunk < ⌈N / 65536⌉; a 4.0 one may have any chunk here, and one beyond the levels'
 /// last chunk is corrupt ([`Container::layout`]). Anything else is unknown: skipped when
 /// OPTIONAL, else an error.
@@ -254,6 +267,9 @@ pub fn is_known(header: &Header, kind: u16, chunk: u16) -> bool {
     let n = header.gaussians as usize;
     if kind == LEVELS_KIND {
         return header.has_levels() && n > 0 && chunk == 0;
+    }
+    if kind == CODEBOOK_KIND {
+        return header.has_codebooks() && n > 0 && (1..=3).contains(&chunk);
     }
     let data_chunk = |c: u16| header.has_levels() || usize::from(c) < layout::chunk_count(n);
     n > 0
@@ -332,6 +348,27 @@ mod tests {
             assert_eq!(is_known(&v4(3), kind, chunk), known, "{kind:#x}/{chunk}");
         }
         assert!(!is_known(&v4(0), 0x01, 0));
+    }
+
+    /// Codebooks (kind 0x02, SPEC §3.2): known in 5.0 for bands 1..=3 when N > 0, unknown in
+    /// 4.0 and 3.0; one of a band above D is corrupt.
+    #[test]
+    fn codebook_sections_are_known_in_5_only() {
+        let v = |major, gaussians| Header { version_major: major, ..header(gaussians) };
+        for (major, n, chunk, known) in
+            [(5, 3, 1, true), (5, 3, 3, true), (5, 3, 0, false), (5, 3, 4, false), (5, 0, 1, false), (4, 3, 1, false), (3, 3, 1, false)]
+        {
+            assert_eq!(is_known(&v(major, n), CODEBOOK_KIND, chunk), known, "{major}.0 N={n} chunk {chunk}");
+        }
+        // header(): D = 1, so a codebook of band 2 is corrupt, one of band 1 is not.
+        let h = v(VERSION_MAJOR, 3);
+        let c = |chunk| {
+            let bytes = write(&h, &[Section { kind: CODEBOOK_KIND, chunk, flags: 0, data: b"" }]);
+            let c = parse(&bytes).unwrap();
+            c.codebook(Group::Sh1).map(|r| r.is_some()).map_err(|e| e.class())
+        };
+        assert_eq!(c(1), Ok(true));
+        assert_eq!(c(2), Err("format"));
     }
 
     #[test]

@@ -127,7 +127,8 @@ pub(crate) fn decode_channels(
 
 /// Decodes channels `channels` of one data section of `count` Gaussians, dequantised
 /// (position: `count × 3` coordinates; rotation: `count × 4` quaternion components, always all
-/// channels; other groups: Gaussian-major channel values).
+/// channels; an SH band with a codebook: always all its channels; other groups: Gaussian-major
+/// channel values).
 pub(crate) fn decode_data_section(
     g: Group,
     p: &GroupParams,
@@ -142,7 +143,23 @@ pub(crate) fn decode_data_section(
             let vals = decode_channels(p, r, count, &[1.0, p.steps[1], p.steps[2], p.steps[3]], 0..4)?;
             rotation_rows(&vals).map_err(|what| r.corrupt(what))?
         }
-        _ => decode_channels(p, r, count, &p.steps, channels)?,
+        _ => match &p.codebook {
+            // Vector-quantised SH band (SPEC §3.2): one index channel, each row looked up.
+            Some(cb) => {
+                let index = decode_channels(p, r, count, &[1.0], 0..1)?;
+                let w = g.channels();
+                let mut out = Vec::with_capacity(count * w);
+                for &i in &index {
+                    // f32(v) < K exactly when v < K, for K ≤ 2^16 (exact in f32; rounding is monotonic).
+                    if !(i >= 0.0 && i < cb.rows as f32) {
+                        return Err(r.corrupt("codebook index out of range"));
+                    }
+                    out.extend_from_slice(&cb.values[i as usize * w..][..w]);
+                }
+                out
+            }
+            None => decode_channels(p, r, count, &p.steps, channels)?,
+        },
     };
     if r.remaining() != 0 {
         return Err(r.corrupt("trailing bytes in a data section"));

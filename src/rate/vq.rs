@@ -1,0 +1,259 @@
+//! Vector quantisation of SH band rows: a significance-weighted k-means codebook over the
+//! quantised integer rows of one band (each row = the band's `C` channels of one Gaussian), so
+//! that a band can be stored as a codebook plus one index per Gaussian.
+//!
+//! Deterministic: k-means++ seeding with the project's [`Rng`], a fixed number of Lloyd
+//! iterations, training on a deterministic subsample of at most [`TRAIN_ROWS`] rows; the
+//! assignments run in parallel (rayon, each row independent) and the centroid sums are
+//! accumulated sequentially in row order, so the codebook does not depend on the thread count.
+
+use gscodec_decoder::rng::Rng;
+use rayon::prelude::*;
+
+/// Rows k-means trains on at most (a deterministic subsample beyond).
+pub const TRAIN_ROWS: usize = 32_768;
+/// Lloyd iterations.
+pub const ITERATIONS: usize = 8;
+
+/// A band's codebook and the index of every row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Codebook {
+    /// Channels per row.
+    pub channels: usize,
+    /// `K × channels` integer values, row-major.
+    pub rows: Vec<i32>,
+    /// One index per input row, `< K`.
+    pub index: Vec<u32>,
+}
+
+impl Codebook {
+    pub fn len(&self) -> usize {
+        self.rows.len() / self.channels.max(1)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rows.is_empty()
+    }
+
+    /// Row `i` of the codebook.
+    pub fn row(&self, i: usize) -> &[i32] {
+        &self.rows[i * self.channels..][..self.channels]
+    }
+
+    /// Channel `j` of the codebook rows (`K` values).
+    pub fn column(&self, j: usize) -> Vec<i32> {
+        (0..self.len()).map(|i| self.rows[i * self.channels + j]).collect()
+    }
+
+    /// The rows the codebook restores, channel-major like [`super::Quantised::groups`]:
+    /// `[channel][row]`.
+    pub fn decoded_channels(&self) -> Vec<Vec<i32>> {
+        (0..self.channels).map(|j| self.index.iter().map(|&i| self.rows[i as usize * self.channels + j]).collect()).collect()
+    }
+}
+
+/// Rows of channel-major values `chans[channel][row]` as row-major `f32`.
+fn rows_of(chans: &[Vec<i32>]) -> Vec<f32> {
+    let n = chans.first().map_or(0, Vec::len);
+    (0..n).flat_map(|i| chans.iter().map(move |c| c[i] as f32)).collect()
+}
+
+/// The distinct rows of `chans`, sorted, with every row's index: a lossless codebook (a palette).
+pub fn palette(chans: &[Vec<i32>]) -> Codebook {
+    let c = chans.len();
+    let n = chans.first().map_or(0, Vec::len);
+    let row = |i: usize| chans.iter().map(|ch| ch[i]).collect::<Vec<i32>>();
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by_key(|&i| row(i));
+    let mut rows: Vec<i32> = Vec::new();
+    let mut index = vec![0u32; n];
+    let mut last: Option<Vec<i32>> = None;
+    for &i in &order {
+        let r = row(i);
+        if last.as_ref() != Some(&r) {
+            rows.extend_from_slice(&r);
+            last = Some(r);
+        }
+        index[i] = (rows.len() / c.max(1) - 1) as u32;
+    }
+    Codebook { channels: c, rows, index }
+}
+
+fn dist2(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+/// Index of the nearest of `centroids` (`K × c`, row-major) to `row` (the first of equals).
+fn nearest(row: &[f32], centroids: &[f32], c: usize) -> u32 {
+    let mut best = (f32::INFINITY, 0u32);
+    for (k, cen) in centroids.chunks_exact(c).enumerate() {
+        let mut d = 0.0f32;
+        for (x, y) in row.iter().zip(cen) {
+            d += (x - y) * (x - y);
+            if d >= best.0 {
+                break;
+            }
+        }
+        if d < best.0 {
+            best = (d, k as u32);
+        }
+    }
+    best.1
+}
+
+/// A codebook of at most `k` rows for the band rows `chans[channel][row]`, each row weighted by
+/// `weights[row]` (significance: how much of the views the Gaussian covers): k-means on the
+/// integer rows, centroids rounded to integers. When the band has at most `k` distinct rows the
+/// codebook is exactly those rows ([`palette`], lossless).
+///
+/// # Panics
+/// If `weights` is not one value per row, or `k` is 0.
+pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codebook {
+    assert!(k > 0, "k ≥ 1");
+    let n = chans.first().map_or(0, Vec::len);
+    assert_eq!(weights.len(), n, "one weight per row");
+    let pal = palette(chans);
+    if pal.len() <= k {
+        return pal;
+    }
+    let c = chans.len();
+    let rows = rows_of(chans);
+    let mut rng = Rng::new(seed);
+    // Deterministic subsample for training.
+    let train: Vec<usize> = if n > TRAIN_ROWS {
+        let mut idx: Vec<usize> = (0..n).collect();
+        rng.shuffle(&mut idx);
+        idx.truncate(TRAIN_ROWS);
+        idx.sort_unstable();
+        idx
+    } else {
+        (0..n).collect()
+    };
+    let row = |i: usize| &rows[i * c..][..c];
+    // Weights: a zero-weight row still counts a little, so that unseen rows are not ignored.
+    let w: Vec<f64> = train.iter().map(|&i| f64::from(weights[i].max(0.0)) + 1e-6).collect();
+    // k-means++ seeding (weighted D² sampling), distances kept up to date per new centre.
+    let mut centroids: Vec<f32> = Vec::with_capacity(k * c);
+    let pick = |rng: &mut Rng, p: &[f64]| -> usize {
+        let total: f64 = p.iter().sum();
+        let mut t = rng.uniform_f64() * total;
+        for (j, &x) in p.iter().enumerate() {
+            if t < x {
+                return j;
+            }
+            t -= x;
+        }
+        p.iter().rposition(|&x| x > 0.0).unwrap_or(0)
+    };
+    let first = pick(&mut rng, &w);
+    centroids.extend_from_slice(row(train[first]));
+    let mut d2: Vec<f32> = train.par_iter().map(|&i| dist2(row(i), &centroids[..c])).collect();
+    while centroids.len() < k * c {
+        let p: Vec<f64> = d2.iter().zip(&w).map(|(&d, &wt)| f64::from(d) * wt).collect();
+        if p.iter().all(|&x| x <= 0.0) {
+            break; // fewer distinct rows in the sample than k
+        }
+        let j = pick(&mut rng, &p);
+        let start = centroids.len();
+        centroids.extend_from_slice(row(train[j]));
+        let cen = &centroids[start..];
+        d2.par_iter_mut().zip(&train).for_each(|(d, &i)| *d = d.min(dist2(row(i), cen)));
+    }
+    let kk = centroids.len() / c;
+    // Lloyd iterations on the training rows; sums in row order (f64).
+    for _ in 0..ITERATIONS {
+        let assign: Vec<u32> = train.par_iter().map(|&i| nearest(row(i), &centroids, c)).collect();
+        let mut sum = vec![0.0f64; kk * c];
+        let mut mass = vec![0.0f64; kk];
+        for ((&i, &a), &wt) in train.iter().zip(&assign).zip(&w) {
+            let a = a as usize;
+            mass[a] += wt;
+            for (s, &x) in sum[a * c..][..c].iter_mut().zip(row(i)) {
+                *s += wt * f64::from(x);
+            }
+        }
+        for a in 0..kk {
+            if mass[a] > 0.0 {
+                for j in 0..c {
+                    centroids[a * c + j] = (sum[a * c + j] / mass[a]) as f32;
+                }
+            }
+        }
+    }
+    // Integer codebook, then every row to its nearest integer centroid.
+    let int_rows: Vec<i32> = centroids.iter().map(|&x| x.round() as i32).collect();
+    let cen: Vec<f32> = int_rows.iter().map(|&x| x as f32).collect();
+    let index: Vec<u32> = (0..n).into_par_iter().map(|i| nearest(row(i), &cen, c)).collect();
+    compact(Codebook { channels: c, rows: int_rows, index })
+}
+
+/// Drops the codebook rows no index uses and duplicate rows, renumbering the indices (rows kept
+/// in first-use order of the sorted distinct rows, so the result is deterministic).
+fn compact(cb: Codebook) -> Codebook {
+    let c = cb.channels;
+    let mut used = vec![false; cb.len()];
+    for &i in &cb.index {
+        used[i as usize] = true;
+    }
+    let mut kept: Vec<usize> = (0..cb.len()).filter(|&i| used[i]).collect();
+    kept.sort_by(|&a, &b| cb.row(a).cmp(cb.row(b)).then(a.cmp(&b)));
+    let mut new_of = vec![0u32; cb.len()];
+    let mut rows: Vec<i32> = Vec::new();
+    for &i in &kept {
+        if rows.len() < c || rows[rows.len() - c..] != *cb.row(i) {
+            rows.extend_from_slice(cb.row(i));
+        }
+        new_of[i] = (rows.len() / c - 1) as u32;
+    }
+    let index = cb.index.iter().map(|&i| new_of[i as usize]).collect();
+    Codebook { channels: c, rows, index }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn band(n: usize, c: usize, seed: u64) -> (Vec<Vec<i32>>, Vec<f32>) {
+        let mut rng = Rng::new(seed);
+        let chans = (0..c).map(|_| (0..n).map(|_| (rng.normal() * 4.0).round() as i32).collect()).collect();
+        let w = (0..n).map(|_| rng.uniform()).collect();
+        (chans, w)
+    }
+
+    #[test]
+    fn a_palette_is_lossless_and_kmeans_uses_it_when_k_suffices() {
+        let chans = vec![vec![1, 2, 1, 3, 2], vec![0, 5, 0, 0, 5]];
+        let p = palette(&chans);
+        assert_eq!(p.len(), 3);
+        assert_eq!(p.decoded_channels(), chans);
+        assert_eq!(kmeans(&chans, &[1.0; 5], 3, 1), p);
+        let k2 = kmeans(&chans, &[1.0; 5], 2, 1);
+        assert!(k2.len() <= 2 && k2.index.iter().all(|&i| (i as usize) < k2.len()));
+    }
+
+    #[test]
+    fn kmeans_error_falls_as_k_grows_and_rows_go_to_a_nearest_centre() {
+        let (chans, w) = band(2000, 9, 3);
+        let err = |cb: &Codebook| -> f64 {
+            let d = cb.decoded_channels();
+            chans.iter().zip(&d).map(|(a, b)| a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>()).sum()
+        };
+        let e: Vec<f64> = [16, 64, 256].iter().map(|&k| err(&kmeans(&chans, &w, k, 7))).collect();
+        assert!(e[0] > e[1] && e[1] > e[2], "{e:?}");
+        let cb = kmeans(&chans, &w, 64, 7);
+        let rows = rows_of(&chans);
+        let cen: Vec<f32> = cb.rows.iter().map(|&x| x as f32).collect();
+        for i in 0..2000 {
+            let r = &rows[i * 9..][..9];
+            let best = nearest(r, &cen, 9) as usize;
+            assert_eq!(dist2(r, &cen[cb.index[i] as usize * 9..][..9]), dist2(r, &cen[best * 9..][..9]), "row {i}");
+        }
+    }
+
+    #[test]
+    fn kmeans_is_the_same_on_one_and_two_threads() {
+        let (chans, w) = band(40_000, 15, 5); // more than TRAIN_ROWS: the subsample too
+        let run = |t: usize| rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap().install(|| kmeans(&chans, &w, 128, 11));
+        assert_eq!(run(1), run(2));
+    }
+}
