@@ -89,20 +89,20 @@ fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool, t
     let compare = |v: &[i32], contexts| compare_with(learned, v, contexts);
     let mut plans = Vec::new();
     if todo.contains(&0) {
-    let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
-    let cmp = compare(&lens, None); // position lengths are never context-coded (SPEC §4)
-    let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
-    let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
-    let t = cmp.best;
-    plans.push(GroupPlan {
-        group: Group::Position,
-        params: write_position_params(&q.grid, &t.bytes),
-        codebook: None,
-        tables: vec![t],
-        histogram_bits: hb,
-        learned_bits: lb,
-        context_bits: f64::NAN,
-    });
+        let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
+        let cmp = compare(&lens, None); // position lengths are never context-coded (SPEC §4)
+        let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
+        let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
+        let t = cmp.best;
+        plans.push(GroupPlan {
+            group: Group::Position,
+            params: write_position_params(&q.grid, &t.bytes),
+            codebook: None,
+            tables: vec![t],
+            histogram_bits: hb,
+            learned_bits: lb,
+            context_bits: f64::NAN,
+        });
     }
     for &i in todo.iter().filter(|&&i| i > 0) {
         let (g, steps, chans) = &q.groups[i - 1];

@@ -12,10 +12,10 @@ use gscodec_decoder::{Image, RenderOptions, SceneError, Splats};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::encode::GroupCache;
 use super::group::Group;
 use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
-use super::encode::GroupCache;
 use super::{encode_cached, pruned, EncodeConfig};
 use crate::views::{orbit_cameras, UpAxis};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -75,9 +75,23 @@ impl<'a> Evaluator<'a> {
         let opts = RenderOptions::default();
         let refs = cams.par_iter().map(|c| render(scene, c, &opts)).collect();
         if timing() {
-            eprintln!("timing: significance ({} views) {sig_s:.3} s wall; reference renders {:.3} s wall", super::importance::views(scene).len(), t.elapsed().as_secs_f64() - sig_s);
+            eprintln!(
+                "timing: significance ({} views) {sig_s:.3} s wall; reference renders {:.3} s wall",
+                super::importance::views(scene).len(),
+                t.elapsed().as_secs_f64() - sig_s
+            );
         }
-        Evaluator { scene, cams, refs, opts, significance, encode_ns: AtomicU64::new(0), render_ns: AtomicU64::new(0), base: None, cache: GroupCache::default() }
+        Evaluator {
+            scene,
+            cams,
+            refs,
+            opts,
+            significance,
+            encode_ns: AtomicU64::new(0),
+            render_ns: AtomicU64::new(0),
+            base: None,
+            cache: GroupCache::default(),
+        }
     }
 
     /// (bytes, D) of `config`.
@@ -149,7 +163,10 @@ impl Clock {
             let secs = |a: &AtomicU64| a.swap(0, Ordering::Relaxed) as f64 * 1e-9;
             let (e, r) = (secs(&trials.ev.encode_ns), secs(&trials.ev.render_ns));
             let n = trials.seen.len() - self.evaluated;
-            eprintln!("timing: {stage}: {n} trials, {:.3} s wall; trial encode {e:.3} s, render {r:.3} s (summed over threads)", self.lap.elapsed().as_secs_f64());
+            eprintln!(
+                "timing: {stage}: {n} trials, {:.3} s wall; trial encode {e:.3} s, render {r:.3} s (summed over threads)",
+                self.lap.elapsed().as_secs_f64()
+            );
         }
         self.lap = Instant::now();
         self.evaluated = trials.seen.len();
@@ -488,7 +505,8 @@ mod tests {
         let scene = crate::sample::scene(300, 3);
         assert!(scene.sh_degree > 0);
         let start = EncodeConfig { steps: Steps::default().scaled(0.7), learned_tables: false, ..EncodeConfig::default() };
-        let mut configs: Vec<(Option<Group>, EncodeConfig)> = Group::ALL.into_iter().map(|g| (Some(g), with_knob(&start, g, 2.0))).collect();
+        let mut configs: Vec<(Option<Group>, EncodeConfig)> =
+            Group::ALL.into_iter().map(|g| (Some(g), with_knob(&start, g, 2.0))).collect();
         configs.push((None, EncodeConfig { max_sh_degree: 1, ..start }));
         configs.push((None, EncodeConfig { steps: Steps { rest_deadzone: 0.3, ..start.steps }, ..start }));
         configs.push((None, EncodeConfig { sh_vq: [16, 0, 0], ..start }));

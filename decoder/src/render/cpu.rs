@@ -44,7 +44,14 @@ fn project_one(splats: &Splats, i: usize, cam: &Camera, center: Vec3, degree: u8
     if r[2] <= r[0] || r[3] <= r[1] {
         return Projected::default();
     }
-    Projected { mean, conic, depth: t.z, radius, opacity: math::sigmoid(splats.opacity_logits[i]), color: color_of(splats, i, center, degree) }
+    Projected {
+        mean,
+        conic,
+        depth: t.z,
+        radius,
+        opacity: math::sigmoid(splats.opacity_logits[i]),
+        color: color_of(splats, i, center, degree),
+    }
 }
 
 /// The colour of Gaussian `i` seen from a camera at `center` (SH up to `degree`).
@@ -243,7 +250,8 @@ impl TileBlocks {
             let (hx, hy) = ((level * c / det).sqrt(), (level * a / det).sqrt());
             let terms = a * hx * hx + c * hy * hy + 2.0 * b.abs() * hx * hy;
             let level = level * 1.02 + 1e-5 * terms;
-            let half = |s: f64| if det > 0.0 && s > 0.0 && level.is_finite() { (level * s / det).sqrt() * 1.01 + 0.01 } else { f64::INFINITY };
+            let half =
+                |s: f64| if det > 0.0 && s > 0.0 && level.is_finite() { (level * s / det).sqrt() * 1.01 + 0.01 } else { f64::INFINITY };
             let (Some(bx), Some(by)) = (span(f64::from(g.mx), half(c), x0, nx), span(f64::from(g.my), half(a), y0, ny)) else {
                 continue;
             };
@@ -497,7 +505,14 @@ mod tests {
         let mut s = random_splats(600, 2, 5);
         let extreme = extreme_splats(2);
         for i in 0..extreme.len() {
-            s.push(extreme.positions[i], extreme.log_scales[i], extreme.rotations[i], extreme.opacity_logits[i], extreme.sh_dc[i], extreme.rest_of(i));
+            s.push(
+                extreme.positions[i],
+                extreme.log_scales[i],
+                extreme.rotations[i],
+                extreme.opacity_logits[i],
+                extreme.sh_dc[i],
+                extreme.rest_of(i),
+            );
         }
         let opts = RenderOptions { background: [0.3, 0.1, 0.6], ..RenderOptions::default() };
         for cam in rig_cameras(4, 3.5, 53, 38) {
@@ -541,7 +556,14 @@ mod tests {
         let mut s = random_splats(400, 3, 11);
         let extreme = extreme_splats(3);
         for i in 0..extreme.len() {
-            s.push(extreme.positions[i], extreme.log_scales[i], extreme.rotations[i], extreme.opacity_logits[i], extreme.sh_dc[i], extreme.rest_of(i));
+            s.push(
+                extreme.positions[i],
+                extreme.log_scales[i],
+                extreme.rotations[i],
+                extreme.opacity_logits[i],
+                extreme.sh_dc[i],
+                extreme.rest_of(i),
+            );
         }
         let opts = RenderOptions { background: [0.2, 0.4, 0.1], ..RenderOptions::default() };
         for cam in rig_cameras(3, 3.8, 45, 37) {
