@@ -2,6 +2,11 @@
 //! SPZ decode of the same scene. Uses `../shared/data/scenes/k7000.ply` (or `$GSCODEC_DATA`)
 //! when present, else `samples/tiny/truth.ply`.
 //!
+//! `decode_proxy`: the same on the 124,000-Gaussian proxy of docs/codec.md ("Encode speed at
+//! scale": playbot-lod3 tiled 2 × 2, built here, nothing committed), coded as `gscodec encode`
+//! does by default (RD search at λ 20); skipped without `../shared/data`. Throughput counts the
+//! input's Gaussians for both codecs.
+//!
 //! `cargo bench --bench decode`
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
@@ -10,6 +15,9 @@ use gscodec::io::ply::read_ply;
 use gscodec::io::spz::{decode_spz, encode_spz, SpzVersion};
 use gscodec::rate;
 use std::path::Path;
+
+#[path = "common/proxy.rs"]
+mod proxy;
 
 /// The λ of the README's SPZ comparison on k7000 (a file half the `.spz`'s size, at a higher PSNR).
 const LAMBDA: f64 = 24.0;
@@ -49,5 +57,34 @@ fn bench_decode(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_decode);
+fn bench_decode_proxy(c: &mut Criterion) {
+    let playbot = gscodec::testkit::data_dir().join("scenes/playbot-lod3.ply");
+    if !playbot.exists() {
+        eprintln!("decode_proxy: skipped ({} not found)", playbot.display());
+        return;
+    }
+    let s = proxy::tiled(&read_ply(&playbot).unwrap(), 2, 2);
+    let (config, _) = rate::rd::search(&s, rate::Lambda::new(20.0).expect("a valid λ"), |_| {}).expect("rd search");
+    let (gsc, report, _) = rate::encode(&s, &config).expect("encode");
+    let spz = encode_spz(&s, SpzVersion::V4).unwrap();
+    let n = s.len() as u64;
+    eprintln!("proxy: {n} Gaussians ({} kept), .gsc {} bytes, .spz {} bytes", report.gaussians, gsc.len(), spz.len());
+    let mut g = c.benchmark_group("decode_proxy");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(n));
+    for threads in [1usize, 0] {
+        let id = if threads == 1 { "gsc_1_thread" } else { "gsc_all_threads" };
+        g.bench_with_input(BenchmarkId::new(id, "playbot_2x2"), &gsc, |b, bytes| {
+            b.iter(|| {
+                let mut d = Decoder::new(&bytes[..]);
+                d.set_threads(threads);
+                d.read_info().and_then(|r| r.decode()).unwrap()
+            })
+        });
+    }
+    g.bench_with_input(BenchmarkId::new("spz_v4", "playbot_2x2"), &spz, |b, bytes| b.iter(|| decode_spz(bytes).unwrap()));
+    g.finish();
+}
+
+criterion_group!(benches, bench_decode, bench_decode_proxy);
 criterion_main!(benches);

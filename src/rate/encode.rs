@@ -3,6 +3,9 @@
 
 use rayon::prelude::*;
 use serde::Serialize;
+use std::collections::HashMap;
+use std::hash::{Hash, Hasher};
+use std::sync::{Arc, Mutex};
 
 use gscodec_decoder::bitstream::info::{write_info, EncoderInfo};
 use std::ops::Range;
@@ -74,7 +77,8 @@ struct GroupPlan {
     context_bits: f64,
 }
 
-fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool) -> Vec<GroupPlan> {
+/// Plans the groups `todo` of `q` (0 = position, `i` = `q.groups[i − 1]`; ascending).
+fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool, todo: &[usize]) -> Vec<GroupPlan> {
     fn compare_with(learned: bool, v: &[i32], contexts: Option<&[Range<usize>]>) -> tables::Compared {
         if learned {
             tables::compare(v, contexts)
@@ -84,21 +88,24 @@ fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool) -
     }
     let compare = |v: &[i32], contexts| compare_with(learned, v, contexts);
     let mut plans = Vec::new();
-    let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
-    let cmp = compare(&lens, None); // position lengths are never context-coded (SPEC §4)
-    let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
-    let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
-    let t = cmp.best;
-    plans.push(GroupPlan {
-        group: Group::Position,
-        params: write_position_params(&q.grid, &t.bytes),
-        codebook: None,
-        tables: vec![t],
-        histogram_bits: hb,
-        learned_bits: lb,
-        context_bits: f64::NAN,
-    });
-    for (g, steps, chans) in &q.groups {
+    if todo.contains(&0) {
+        let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
+        let cmp = compare(&lens, None); // position lengths are never context-coded (SPEC §4)
+        let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
+        let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
+        let t = cmp.best;
+        plans.push(GroupPlan {
+            group: Group::Position,
+            params: write_position_params(&q.grid, &t.bytes),
+            codebook: None,
+            tables: vec![t],
+            histogram_bits: hb,
+            learned_bits: lb,
+            context_bits: f64::NAN,
+        });
+    }
+    for &i in todo.iter().filter(|&&i| i > 0) {
+        let (g, steps, chans) = &q.groups[i - 1];
         if let Some((_, cb)) = q.codebooks.iter().find(|c| c.0 == *g) {
             // Vector quantisation (SPEC §3.2): the codebook's rows coded like one chunk of K
             // Gaussians, and the band's one channel, the row index.
@@ -129,6 +136,77 @@ fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool) -
     plans
 }
 
+/// A group's plan and its data sections, chunk by chunk.
+struct CodedGroup {
+    plan: GroupPlan,
+    streams: Vec<Vec<u8>>,
+}
+
+/// Coded groups by what determines them, shared by the trial encodes of an RD search: a trial
+/// that changes one group's step finds every other group (same values, steps, chunks and table
+/// choice) already coded. The key is a 128-bit hash (two SipHash-1-3 of the group's id, steps or
+/// grid, chunks, table choice, every value and its codebook if any); entries are never evicted (a search codes about
+/// a thousand groups).
+#[derive(Default)]
+pub struct GroupCache(Mutex<HashMap<(u64, u64), Arc<CodedGroup>>>);
+
+impl GroupCache {
+    /// Groups held.
+    pub fn len(&self) -> usize {
+        self.0.lock().expect("not poisoned").len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// The cache key of group `i` of `q` (numbered as in [`plan`]).
+fn group_key(q: &Quantised, chunks: &[Range<usize>], learned: bool, i: usize) -> (u64, u64) {
+    let hash = |salt: u8| {
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        (salt, learned, chunks.iter().map(|r| (r.start, r.end)).collect::<Vec<_>>()).hash(&mut h);
+        if i == 0 {
+            let (lo, step, bits) = &q.grid;
+            (lo.map(f32::to_bits), step.map(f32::to_bits), bits, &q.morton).hash(&mut h);
+        } else {
+            let (g, steps, chans) = &q.groups[i - 1];
+            (g.name(), steps.iter().map(|s| s.to_bits()).collect::<Vec<_>>(), chans).hash(&mut h);
+            if let Some((_, cb)) = q.codebooks.iter().find(|c| c.0 == *g) {
+                (cb.channels, &cb.rows, &cb.index).hash(&mut h);
+            }
+        }
+        h.finish()
+    };
+    (hash(1), hash(2))
+}
+
+/// Plans and codes every group of `q` (numbered as in [`plan`]), taking those `cache` holds
+/// from it and adding the others.
+fn code_groups(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool, cache: Option<&GroupCache>) -> Vec<Arc<CodedGroup>> {
+    let count = q.groups.len() + 1;
+    let keys: Vec<Option<(u64, u64)>> = (0..count).map(|i| cache.map(|_| group_key(q, chunks, learned, i))).collect();
+    let mut coded: Vec<Option<Arc<CodedGroup>>> = match cache {
+        Some(c) => {
+            let map = c.0.lock().expect("not poisoned");
+            keys.iter().map(|k| k.and_then(|k| map.get(&k).cloned())).collect()
+        }
+        None => vec![None; count],
+    };
+    let todo: Vec<usize> = (0..count).filter(|&i| coded[i].is_none()).collect();
+    let plans = plan(q, chunks, deltas, learned, &todo);
+    let jobs: Vec<(usize, usize)> = (0..plans.len()).flat_map(|p| (0..chunks.len()).map(move |c| (p, c))).collect();
+    let mut streams = jobs.par_iter().map(|&(p, c)| encode_chunk(q, &plans[p], deltas, chunks[c].clone())).collect::<Vec<_>>().into_iter();
+    for (plan, i) in plans.into_iter().zip(todo) {
+        let g = Arc::new(CodedGroup { plan, streams: streams.by_ref().take(chunks.len()).collect() });
+        if let (Some(c), Some(k)) = (cache, keys[i]) {
+            c.0.lock().expect("not poisoned").insert(k, g.clone());
+        }
+        coded[i] = Some(g);
+    }
+    coded.into_iter().map(|g| g.expect("coded above")).collect()
+}
+
 /// The data section of plan `p`'s group for the chunk of Gaussians `range`.
 fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], range: Range<usize>) -> Vec<u8> {
     if p.group == Group::Position {
@@ -153,6 +231,12 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], range: Range<usize
 /// codebooks ([`Quantised::codebooks`]) is a 5.0 file (always with a levels section), its
 /// codebooks right after the parameter sections.
 pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8>, EncodeReport) {
+    write_cached(q, input, learned_tables, None)
+}
+
+/// [`write`], taking the groups `cache` holds from it and adding the others: the same bytes and
+/// report.
+pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cache: Option<&GroupCache>) -> (Vec<u8>, EncodeReport) {
     let n = q.len();
     let progressive = !q.levels.is_empty();
     let codebooks = n > 0 && !q.codebooks.is_empty();
@@ -164,24 +248,26 @@ pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8
     let header = Header { version_major, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
     let info = write_info(&EncoderInfo { input_gaussians: input.0.min(u32::MAX as usize) as u32, input_sh_degree: input.1 });
     let mut report = EncodeReport { gaussians: n, sh_degree: q.sh_degree, position_bits: q.grid.2, file_bytes: 0, groups: Vec::new() };
-    let mut payloads: Vec<(u16, u16, u32, Vec<u8>)> = Vec::new();
+    let mut payloads: Vec<(u16, u16, u32, &[u8])> = Vec::new();
+    let levels;
+    let coded;
     if n > 0 {
         let layout = q.layout();
+        levels = layout.write();
         if progressive || codebooks {
-            payloads.push((LEVELS_KIND, 0, 0, layout.write()));
+            payloads.push((LEVELS_KIND, 0, 0, &levels));
         }
         let chunks = layout.chunk_ranges();
         let deltas = morton_deltas(&q.morton, &chunks);
-        let plans = plan(q, &chunks, &deltas, learned_tables);
-        // Chunk-major for the base groups, then band-major for SH (plans are in group order).
-        let base = plans.iter().take_while(|p| p.group.sh_band() == 0).count();
+        coded = code_groups(q, &chunks, &deltas, learned_tables, cache);
+        // Chunk-major for the base groups, then band-major for SH (groups are in group order).
+        let base = coded.iter().take_while(|g| g.plan.group.sh_band() == 0).count();
         let jobs: Vec<(usize, usize)> = (0..chunks.len())
             .flat_map(|c| (0..base).map(move |p| (p, c)))
-            .chain((base..plans.len()).flat_map(|p| (0..chunks.len()).map(move |c| (p, c))))
+            .chain((base..coded.len()).flat_map(|p| (0..chunks.len()).map(move |c| (p, c))))
             .collect();
-        let streams: Vec<Vec<u8>> = jobs.par_iter().map(|&(p, c)| encode_chunk(q, &plans[p], &deltas, chunks[c].clone())).collect();
-        for p in &plans {
-            payloads.push((p.group.params_kind(), 0, 0, p.params.clone()));
+        for p in coded.iter().map(|g| &g.plan) {
+            payloads.push((p.group.params_kind(), 0, 0, &p.params));
             report.groups.push(GroupReport {
                 group: p.group.name().into(),
                 table_bytes: p.params.len() + p.codebook.as_ref().map_or(0, |c| c.0.len()),
@@ -196,19 +282,20 @@ pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8
                 context_channels: p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Context { .. })).count(),
             });
         }
-        for p in &plans {
+        for p in coded.iter().map(|g| &g.plan) {
             if let Some((book, _)) = &p.codebook {
-                payloads.push((CODEBOOK_KIND, u16::from(p.group.sh_band()), 0, book.clone()));
+                payloads.push((CODEBOOK_KIND, u16::from(p.group.sh_band()), 0, book));
             }
         }
-        for (&(p, c), s) in jobs.iter().zip(streams) {
+        for &(p, c) in &jobs {
+            let s = &coded[p].streams[c];
             report.groups[p].stream_bytes += s.len();
             if !s.is_empty() {
-                payloads.push((plans[p].group.data_kind(), c as u16, 0, s));
+                payloads.push((coded[p].plan.group.data_kind(), c as u16, 0, s));
             }
         }
     }
-    payloads.push((INFO_KIND, 0, SECTION_OPTIONAL, info));
+    payloads.push((INFO_KIND, 0, SECTION_OPTIONAL, &info));
     let sections: Vec<Section> = payloads.iter().map(|(k, c, f, d)| Section { kind: *k, chunk: *c, flags: *f, data: d }).collect();
     let bytes = write_padded(&header, &sections);
     report.file_bytes = bytes.len();

@@ -16,6 +16,7 @@
 
 use gscodec_decoder::render::contributions;
 use gscodec_decoder::{RenderOptions, Splats};
+use rayon::prelude::*;
 
 use super::rd::{SIZE, VIEWS};
 use crate::views::{orbit_cameras, training_cameras, UpAxis};
@@ -34,9 +35,12 @@ pub fn significance(scene: &Splats) -> Vec<f32> {
     let cams = views(scene);
     // The weights do not depend on colour: skip the SH bands.
     let opts = RenderOptions { max_sh_degree: 0, ..RenderOptions::default() };
+    // The views are rendered in parallel, then summed in order (the same sum on any number of
+    // threads).
+    let per_view: Vec<Vec<f32>> = cams.par_iter().map(|cam| contributions(scene, cam, &opts)).collect();
     let mut sum = vec![0.0f64; scene.len()];
-    for cam in &cams {
-        for (s, c) in sum.iter_mut().zip(contributions(scene, cam, &opts)) {
+    for view in per_view {
+        for (s, c) in sum.iter_mut().zip(view) {
             *s += c as f64;
         }
     }

@@ -145,6 +145,17 @@ pub fn encode_with(
     config: &EncodeConfig,
     significance: Option<&[f32]>,
 ) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
+    encode_cached(splats, config, significance, None)
+}
+
+/// [`encode_with`], taking the coded groups `cache` holds from it and adding the others
+/// ([`encode::write_cached`]): the same bytes, report and quantised scene.
+pub fn encode_cached(
+    splats: &Splats,
+    config: &EncodeConfig,
+    significance: Option<&[f32]>,
+    cache: Option<&encode::GroupCache>,
+) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
     let (s, sig) = prepared_with_significance(splats, config, significance);
@@ -154,7 +165,7 @@ pub fn encode_with(
         let w: Vec<f32> = order.iter().map(|&i| sig.as_ref().map_or(1.0, |w| w[i])).collect();
         quantise::apply_codebooks(&mut q, &w, config.sh_vq);
     }
-    let (bytes, report) = encode::write(&q, input, config.learned_tables);
+    let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, cache);
     Ok((bytes, report, q))
 }
 

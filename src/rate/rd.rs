@@ -7,16 +7,19 @@
 //!   ([`crate::views::orbit_cameras`], up −y as `eval --orbit`, 8 views at 96×96) against the views of the input scene.
 //! * `R` = file size in megabits (bits / 10⁶): λ is a [`Lambda`], whose docs hold the unit.
 
-use gscodec_decoder::render::render;
+use gscodec_decoder::render::{record, render, replay, Recording};
 use gscodec_decoder::{Image, RenderOptions, SceneError, Splats};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::encode::GroupCache;
 use super::group::Group;
 use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
-use super::{encode_with, pruned, EncodeConfig};
+use super::{encode_cached, pruned, EncodeConfig};
 use crate::views::{orbit_cameras, UpAxis};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
 
 /// Views and resolution the search renders.
 pub const VIEWS: usize = 8;
@@ -41,14 +44,54 @@ pub struct Evaluator<'a> {
     opts: RenderOptions,
     /// The scene's significance ([`super::importance::significance`]), computed once.
     significance: Vec<f32>,
+    /// CPU time spent encoding and rendering trials (nanoseconds, summed over threads), for
+    /// [`Clock`].
+    encode_ns: AtomicU64,
+    render_ns: AtomicU64,
+    /// The decoded scene of the current stage's start and its frames' [`Recording`]s: a trial
+    /// whose decoded geometry is the same (it changes only SH coefficients or the SH degree) is
+    /// drawn by replaying them with its colours ([`replay`], bit-identical to a render).
+    base: Option<(Splats, Vec<Recording>)>,
+    /// The groups the trials have coded ([`GroupCache`]): a trial changing one group's step
+    /// codes only that group.
+    cache: GroupCache,
+}
+
+/// Whether `a` and `b` have the same geometry (positions, scales, rotations, opacities), bit for bit.
+fn same_geometry(a: &Splats, b: &Splats) -> bool {
+    let same = |x: &[f32], y: &[f32]| x.len() == y.len() && x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits());
+    same(a.positions.as_flattened(), b.positions.as_flattened())
+        && same(a.log_scales.as_flattened(), b.log_scales.as_flattened())
+        && same(a.rotations.as_flattened(), b.rotations.as_flattened())
+        && same(&a.opacity_logits, &b.opacity_logits)
 }
 
 impl<'a> Evaluator<'a> {
     pub fn new(scene: &'a Splats) -> Self {
+        let t = Instant::now();
+        let significance = super::importance::significance(scene);
+        let sig_s = t.elapsed().as_secs_f64();
         let cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector());
         let opts = RenderOptions::default();
-        let refs = cams.iter().map(|c| render(scene, c, &opts)).collect();
-        Evaluator { scene, cams, refs, opts, significance: super::importance::significance(scene) }
+        let refs = cams.par_iter().map(|c| render(scene, c, &opts)).collect();
+        if timing() {
+            eprintln!(
+                "timing: significance ({} views) {sig_s:.3} s wall; reference renders {:.3} s wall",
+                super::importance::views(scene).len(),
+                t.elapsed().as_secs_f64() - sig_s
+            );
+        }
+        Evaluator {
+            scene,
+            cams,
+            refs,
+            opts,
+            significance,
+            encode_ns: AtomicU64::new(0),
+            render_ns: AtomicU64::new(0),
+            base: None,
+            cache: GroupCache::default(),
+        }
     }
 
     /// (bytes, D) of `config`.
@@ -58,15 +101,75 @@ impl<'a> Evaluator<'a> {
 
     /// (bytes, D, encoder report) of `config`.
     pub fn eval_report(&self, config: &EncodeConfig) -> Result<(usize, f64, super::EncodeReport), SceneError> {
-        let (bytes, report, q) = encode_with(self.scene, config, Some(&self.significance))?;
-        Ok((bytes.len(), self.distortion(&dequantise(&q)), report))
+        let t = Instant::now();
+        let (bytes, report, q) = encode_cached(self.scene, config, Some(&self.significance), Some(&self.cache))?;
+        let t1 = Instant::now();
+        let d = self.distortion(&dequantise(&q));
+        self.encode_ns.fetch_add((t1 - t).as_nanos() as u64, Ordering::Relaxed);
+        self.render_ns.fetch_add(t1.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        Ok((bytes.len(), d, report))
     }
 
     /// `D` of a decoded scene: 255² × the mean squared error of its views against the input's.
+    /// A scene with the base's geometry is drawn by replaying the base's frames.
     pub fn distortion(&self, dec: &Splats) -> f64 {
-        let mse = self.cams.iter().zip(&self.refs).map(|(c, r)| crate::metrics::mse(r, &render(dec, c, &self.opts))).sum::<f64>()
-            / self.cams.len() as f64;
-        mse * 255.0 * 255.0
+        let base = self.base.as_ref().filter(|(b, _)| same_geometry(b, dec));
+        let frame = |v: usize| match base {
+            Some((_, recordings)) => replay(&recordings[v], dec, &self.cams[v], &self.opts),
+            None => render(dec, &self.cams[v], &self.opts),
+        };
+        // Views in parallel (a frame at 96² has only 6 rows of tiles to share out), summed in order.
+        let per_view: Vec<f64> = self.refs.par_iter().enumerate().map(|(v, r)| crate::metrics::mse(r, &frame(v))).collect();
+        per_view.iter().sum::<f64>() / self.cams.len() as f64 * 255.0 * 255.0
+    }
+
+    /// [`Evaluator::eval_report`] of `config`, recording its frames as the base that later trials
+    /// changing only colours replay (the same outcome: [`record`] draws what [`render`] draws).
+    fn eval_as_base(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
+        let t = Instant::now();
+        let (bytes, report, q) = encode_cached(self.scene, config, Some(&self.significance), Some(&self.cache))?;
+        let t1 = Instant::now();
+        let dec = dequantise(&q);
+        let (frames, recordings): (Vec<Image>, Vec<Recording>) = self.cams.par_iter().map(|c| record(&dec, c, &self.opts)).unzip();
+        let mse = self.refs.iter().zip(&frames).map(|(r, f)| crate::metrics::mse(r, f)).sum::<f64>() / self.cams.len() as f64;
+        self.base = Some((dec, recordings));
+        self.encode_ns.fetch_add((t1 - t).as_nanos() as u64, Ordering::Relaxed);
+        self.render_ns.fetch_add(t1.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        Ok((bytes.len(), mse * 255.0 * 255.0, report))
+    }
+}
+
+/// Whether the search prints its timing (`GSCODEC_TIMING` set in the environment): per stage,
+/// its wall time, the trials it evaluated and their encode and render time (summed over threads).
+fn timing() -> bool {
+    std::env::var_os("GSCODEC_TIMING").is_some()
+}
+
+/// The search's stage timer for `GSCODEC_TIMING`.
+struct Clock {
+    on: bool,
+    lap: Instant,
+    evaluated: usize,
+}
+
+impl Clock {
+    fn new(trials: &Trials) -> Clock {
+        Clock { on: timing(), lap: Instant::now(), evaluated: trials.seen.len() }
+    }
+
+    /// Prints the stage that ends now (see [`timing`]) and starts the next.
+    fn lap(&mut self, trials: &Trials, stage: &str) {
+        if self.on {
+            let secs = |a: &AtomicU64| a.swap(0, Ordering::Relaxed) as f64 * 1e-9;
+            let (e, r) = (secs(&trials.ev.encode_ns), secs(&trials.ev.render_ns));
+            let n = trials.seen.len() - self.evaluated;
+            eprintln!(
+                "timing: {stage}: {n} trials, {:.3} s wall; trial encode {e:.3} s, render {r:.3} s (summed over threads)",
+                self.lap.elapsed().as_secs_f64()
+            );
+        }
+        self.lap = Instant::now();
+        self.evaluated = trials.seen.len();
     }
 }
 
@@ -128,6 +231,16 @@ impl Trials<'_> {
 
     fn one(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
         Ok(self.run(std::slice::from_ref(config))?.remove(0))
+    }
+
+    /// The outcome of `config`, the start of a stage, whose frames become the base that the
+    /// stage's trials changing only colours replay ([`Evaluator::eval_as_base`]).
+    fn base(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
+        let outcome = self.ev.eval_as_base(config)?;
+        if !self.seen.iter().any(|(k, _)| k == config) {
+            self.seen.push((*config, outcome.clone()));
+        }
+        Ok(outcome)
     }
 }
 
@@ -201,7 +314,7 @@ fn step_pass<F: FnMut(&Trial)>(
 ) -> Result<EncodeConfig, SceneError> {
     let group_bytes =
         |r: &super::EncodeReport, k: Group| r.groups.iter().find(|g| g.group == k.name()).map_or(0, |g| g.stream_bytes + g.table_bytes);
-    let (_, d0, r0) = trials.one(start)?;
+    let (_, d0, r0) = trials.base(start)?;
     let knobs: Vec<(Group, f32)> =
         Group::ALL.into_iter().filter(|&k| group_bytes(&r0, k) > 0).flat_map(|k| mults.iter().map(move |&m| (k, m))).collect();
     let configs: Vec<EncodeConfig> = knobs.iter().map(|&(k, m)| with_knob(start, k, m)).collect();
@@ -269,6 +382,7 @@ pub fn search_from(
 ) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
     scene.validate()?;
     let mut trials = Trials { ev: Evaluator::new(scene), seen: Vec::new() };
+    let mut clock = Clock::new(&trials);
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
     // 1. Pruning by significance (at fine steps): what the views see of a Gaussian after
@@ -278,7 +392,8 @@ pub fn search_from(
     let sig = sorted(pruned(scene, &fine, Some(&trials.ev.significance)).1.expect("given"));
     let cands = prune_candidates(&sig, &fine);
     let base = log.stage(&mut trials, (f64::INFINITY, fine), cands)?.1;
-    let (b0, _, _) = trials.one(&base)?;
+    let (b0, _, _) = trials.base(&base)?;
+    clock.lap(&trials, "pruning");
     if b0 < 200 {
         return Ok((EncodeConfig { learned_tables: true, ..base }, log.path)); // nothing (or almost nothing) left to allocate
     }
@@ -286,6 +401,7 @@ pub fn search_from(
     let cands =
         (0..=scene.sh_degree.min(3)).rev().map(|deg| (format!("sh_degree={deg}"), EncodeConfig { max_sh_degree: deg, ..base })).collect();
     let mut base = log.stage(&mut trials, (f64::INFINITY, base), cands)?.1;
+    clock.lap(&trials, "SH degree");
     // 3. Per-Gaussian SH band dropping (whole-file J, at fine steps so the steps adapt to it),
     //    band by band: thresholds at quantiles of the kept Gaussians' band contributions
     //    weighted by significance.
@@ -303,9 +419,10 @@ pub fn search_from(
                     (t > 0.0).then(|| (format!("sh_drop band{b}<q{f}"), cfg))
                 })
                 .collect();
-            let (bytes, d, _) = trials.one(&base)?;
+            let (bytes, d, _) = trials.base(&base)?;
             let keep = (log.j(bytes, d), base);
             base = log.stage(&mut trials, keep, cands)?.1;
+            clock.lap(&trials, &format!("SH band {b} dropping"));
         }
     }
     // 4. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
@@ -313,10 +430,11 @@ pub fn search_from(
     let mut chosen = base;
     for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
         chosen = step_pass(&mut trials, &mut log, &chosen, pass, mults)?;
+        clock.lap(&trials, &format!("step pass {pass}"));
     }
     // 5. SH rest dead zone (whole-file J: it changes only the SH band groups).
     if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
-        let (b, d, _) = trials.one(&chosen)?;
+        let (b, d, _) = trials.base(&chosen)?;
         let cands = DEADZONES
             .iter()
             .map(|&dz| {
@@ -327,6 +445,7 @@ pub fn search_from(
             .collect();
         let keep = (log.j(b, d), chosen);
         chosen = log.stage(&mut trials, keep, cands)?.1;
+        clock.lap(&trials, "SH dead zone");
     }
     // 6. SH vector quantisation, band by band.
     let chosen = vq_stage(&mut trials, &mut log, chosen, scene.sh_degree)?;
@@ -376,6 +495,43 @@ mod tests {
             }
             last = Some((bytes, d));
         }
+    }
+
+    /// Trials coded through the search's [`GroupCache`] and drawn from a recorded base give the
+    /// bytes, reports and D of trials coded and drawn from scratch, and the cache serves the groups
+    /// a trial does not change.
+    #[test]
+    fn cached_and_replayed_trials_are_the_uncached_ones() {
+        let scene = crate::sample::scene(300, 3);
+        assert!(scene.sh_degree > 0);
+        let start = EncodeConfig { steps: Steps::default().scaled(0.7), learned_tables: false, ..EncodeConfig::default() };
+        let mut configs: Vec<(Option<Group>, EncodeConfig)> =
+            Group::ALL.into_iter().map(|g| (Some(g), with_knob(&start, g, 2.0))).collect();
+        configs.push((None, EncodeConfig { max_sh_degree: 1, ..start }));
+        configs.push((None, EncodeConfig { steps: Steps { rest_deadzone: 0.3, ..start.steps }, ..start }));
+        configs.push((None, EncodeConfig { sh_vq: [16, 0, 0], ..start }));
+        configs.push((None, EncodeConfig { sh_vq: [16, 8, 0], ..start }));
+        let mut cached = Evaluator::new(&scene);
+        cached.eval_as_base(&start).unwrap();
+        assert!(cached.cache.len() >= 5, "{} groups", cached.cache.len());
+        let fresh = Evaluator::new(&scene); // no base: every trial rendered
+        let mut replayed = 0;
+        for (knob, c) in &configs {
+            let before = cached.cache.len();
+            let (b, d, r) = cached.eval_report(c).unwrap();
+            let (bytes, r0, _) = super::super::encode_with(&scene, c, Some(&cached.significance)).unwrap();
+            assert_eq!(b, bytes.len(), "{c:?}");
+            assert_eq!(format!("{r:?}"), format!("{r0:?}"));
+            assert_eq!(d.to_bits(), fresh.eval(c).unwrap().1.to_bits(), "{c:?}");
+            let (again, ..) = super::super::encode_cached(&scene, c, Some(&cached.significance), Some(&cached.cache)).unwrap();
+            assert_eq!(again, bytes);
+            if knob.is_some_and(|g| g != Group::Position) {
+                assert_eq!(cached.cache.len(), before + 1, "{knob:?} codes only its own group");
+            }
+            let dec = dequantise(&super::super::encode_with(&scene, c, Some(&cached.significance)).unwrap().2);
+            replayed += usize::from(same_geometry(&cached.base.as_ref().unwrap().0, &dec));
+        }
+        assert!(replayed >= 7, "{replayed} trials replayed"); // SH DC, 3 bands, degree, dead zone, 2 codebooks
     }
 
     /// The codebook stage keeps per-coefficient coding unless a codebook lowers J: the result's J

@@ -44,11 +44,22 @@ fn project_one(splats: &Splats, i: usize, cam: &Camera, center: Vec3, degree: u8
     if r[2] <= r[0] || r[3] <= r[1] {
         return Projected::default();
     }
+    Projected {
+        mean,
+        conic,
+        depth: t.z,
+        radius,
+        opacity: math::sigmoid(splats.opacity_logits[i]),
+        color: color_of(splats, i, center, degree),
+    }
+}
+
+/// The colour of Gaussian `i` seen from a camera at `center` (SH up to `degree`).
+fn color_of(splats: &Splats, i: usize, center: Vec3, degree: u8) -> [f32; 3] {
     let k = math::sh_rest_coeffs(degree);
     let k_all = splats.rest_coeffs();
     let rest = &splats.sh_rest[i * k_all * 3..(i * k_all + k) * 3];
-    let color = math::sh_color(degree, splats.sh_dc[i], rest, math::view_dir(center, pos));
-    Projected { mean, conic, depth: t.z, radius, opacity: math::sigmoid(splats.opacity_logits[i]), color }
+    math::sh_color(degree, splats.sh_dc[i], rest, math::view_dir(center, Vec3::from_array(splats.positions[i])))
 }
 
 /// Projects all Gaussians (in parallel).
@@ -187,19 +198,93 @@ pub fn gather_tile(proj: &[Projected], cull: &[f32], ids: &[u32], out: &mut Vec<
     }));
 }
 
+/// Side, in pixels, of the blocks that [`shade`] and [`record`] cut a tile into.
+const BLOCK: u32 = 4;
+
+/// A tile's gathered list cut per [`BLOCK`]×[`BLOCK`] block of pixels: each block keeps the
+/// entries whose reach overlaps it, in the tile's order. An entry's reach is the bounding box of
+/// the ellipse where `opacity·exp(power) ≥ 1/255` (`q ≤ 2·ln(255·opacity)`, half-widths
+/// `√(2 ln(255·opacity)·Σ_xx)` and `√(… Σ_yy)` with `Σ` the inverse of the conic), widened
+/// (level +2 % and +1e-5 of its terms' magnitude, half-widths +1 % and +0.01 px) far beyond what
+/// f32 rounding in [`composite_with`] can move a blended pixel. An entry left out of a block is thus one that every pixel of the block skips anyway, so
+/// compositing a pixel over its block's list blends exactly what compositing it over the tile's
+/// list blends, in the same order: the same colour and weights, bit for bit, with fewer entries
+/// to visit.
+#[derive(Default)]
+struct TileBlocks {
+    /// Per block (row-major within the tile): the entries and their indices in the tile's list.
+    lists: Vec<(Vec<TileGaussian>, Vec<u32>)>,
+    /// Blocks per row of the tile.
+    per_row: u32,
+}
+
+impl TileBlocks {
+    /// Cuts `local`, the gathered list of tile (`tx`, `ty`) of a `width`×`height` frame.
+    fn cut(&mut self, local: &[TileGaussian], (tx, ty): (u32, u32), (width, height): (u32, u32)) {
+        let (x0, y0) = (tx * TILE, ty * TILE);
+        let (x1, y1) = ((x0 + TILE).min(width), (y0 + TILE).min(height));
+        let (nx, ny) = ((x1 - x0).div_ceil(BLOCK), (y1 - y0).div_ceil(BLOCK));
+        self.per_row = nx;
+        self.lists.resize_with((nx * ny) as usize, Default::default);
+        for (list, index) in &mut self.lists {
+            list.clear();
+            index.clear();
+        }
+        // The blocks (first, last) along one axis that [centre − half, centre + half] overlaps.
+        let span = |centre: f64, half: f64, origin: u32, n: u32| -> Option<(u32, u32)> {
+            let (lo, hi) = ((centre - half - f64::from(origin)) / f64::from(BLOCK), (centre + half - f64::from(origin)) / f64::from(BLOCK));
+            if !(hi >= 0.0 && lo < f64::from(n)) {
+                return if lo.is_nan() || hi.is_nan() { Some((0, n - 1)) } else { None };
+            }
+            Some((lo.max(0.0).floor() as u32, hi.min(f64::from(n - 1)).floor() as u32))
+        };
+        for (j, g) in local.iter().enumerate() {
+            let level = 2.0 * (f64::from(g.opacity) / f64::from(MIN_ALPHA)).ln();
+            if !(level > 0.0) {
+                continue; // below 1/255 everywhere: never blended
+            }
+            let [a, b, c] = g.conic.map(f64::from);
+            let det = a * c - b * b;
+            // The f32 rounding of `power` is below 1e-7 of the magnitude of its terms, which
+            // within the ellipse's box are at most `terms`: the level is raised by 1e-5 of that.
+            let (hx, hy) = ((level * c / det).sqrt(), (level * a / det).sqrt());
+            let terms = a * hx * hx + c * hy * hy + 2.0 * b.abs() * hx * hy;
+            let level = level * 1.02 + 1e-5 * terms;
+            let half =
+                |s: f64| if det > 0.0 && s > 0.0 && level.is_finite() { (level * s / det).sqrt() * 1.01 + 0.01 } else { f64::INFINITY };
+            let (Some(bx), Some(by)) = (span(f64::from(g.mx), half(c), x0, nx), span(f64::from(g.my), half(a), y0, ny)) else {
+                continue;
+            };
+            for yb in by.0..=by.1 {
+                for xb in bx.0..=bx.1 {
+                    let (list, index) = &mut self.lists[(yb * nx + xb) as usize];
+                    list.push(*g);
+                    index.push(j as u32);
+                }
+            }
+        }
+    }
+
+    /// The list and tile-list indices of the block holding pixel (`lx`, `ly`) of the tile.
+    fn at(&self, lx: u32, ly: u32) -> (&[TileGaussian], &[u32]) {
+        let (list, index) = &self.lists[((ly / BLOCK) * self.per_row + lx / BLOCK) as usize];
+        (list, index)
+    }
+}
+
 /// Composites one pixel (pixel-index coordinates `px, py`) front to back over a gathered,
 /// depth-sorted tile list. Returns the colour, the final transmittance and the number of list
 /// entries visited (what a backward pass needs to walk the list back).
 #[inline]
 pub fn composite(list: &[TileGaussian], px: f32, py: f32) -> ([f32; 3], f32, u32) {
-    composite_with(list, px, py, |_, _| ())
+    composite_with(list, px, py, |_, _, _| ())
 }
 
-/// [`composite`], also calling `blend(j, α·T)` for every list entry `j` that is blended in, with
-/// its blending weight (the share of the pixel it covers). The weights of a pixel sum to
-/// `1 − T_final` up to rounding.
+/// [`composite`], also calling `blend(j, α, T)` for every list entry `j` that is blended in, with
+/// its alpha and the transmittance in front of it: its blending weight `α·T` is the share of the
+/// pixel it covers. The weights of a pixel sum to `1 − T_final` up to rounding.
 #[inline]
-pub fn composite_with(list: &[TileGaussian], px: f32, py: f32, mut blend: impl FnMut(usize, f32)) -> ([f32; 3], f32, u32) {
+pub fn composite_with(list: &[TileGaussian], px: f32, py: f32, mut blend: impl FnMut(usize, f32, f32)) -> ([f32; 3], f32, u32) {
     let mut c = [0.0f32; 3];
     let mut t = 1.0f32;
     for (j, p) in list.iter().enumerate() {
@@ -219,7 +304,7 @@ pub fn composite_with(list: &[TileGaussian], px: f32, py: f32, mut blend: impl F
         for k in 0..3 {
             c[k] += p.color[k] * alpha * t;
         }
-        blend(j, alpha * t);
+        blend(j, alpha, t);
         t = next_t;
     }
     (c, t, list.len() as u32)
@@ -272,17 +357,20 @@ fn shade<const RECORD: bool>(proj: &[Projected], bins: &TileBins, cam: &Camera, 
         let ty = ty as u32;
         let band_start = bins.ranges[(ty * bins.tiles_x) as usize];
         let mut local = Vec::new();
+        let mut blocks = TileBlocks::default();
         for tx in 0..bins.tiles_x {
             let t = (ty * bins.tiles_x + tx) as usize;
             gather_tile(proj, &cull, bins.tile(t), &mut local);
+            blocks.cut(&local, (tx, ty), (w, cam.height));
             let offset = (bins.ranges[t] - band_start) as usize;
             let x1 = ((tx + 1) * TILE).min(w);
             for (ly, row) in band.chunks_mut(row_len).enumerate() {
                 let py = (ty * TILE + ly as u32) as f32;
                 for x in tx * TILE..x1 {
-                    let (c, t, _) = composite_with(&local, x as f32, py, |j, a| {
+                    let (list, index) = blocks.at(x - tx * TILE, ly as u32);
+                    let (c, t, _) = composite_with(list, x as f32, py, |j, a, t| {
                         if RECORD {
-                            band_w[offset + j] += a;
+                            band_w[offset + index[j] as usize] += a * t;
                         }
                     });
                     for k in 0..3 {
@@ -293,4 +381,203 @@ fn shade<const RECORD: bool>(proj: &[Projected], bins: &TileBins, cam: &Camera, 
         }
     });
     img
+}
+
+/// What compositing a frame blended at every pixel, in order: enough to composite the frame
+/// again with other colours while no Gaussian moves ([`replay`]). Made by [`record`].
+#[derive(Debug, Clone)]
+pub struct Recording {
+    width: u32,
+    height: u32,
+    /// Per row of tiles (the bands [`render`] shades in parallel), per pixel in the band's order:
+    /// the end of its entries in `entries` and its final transmittance.
+    bands: Vec<(Vec<(u32, f32)>, Vec<Blend>)>,
+}
+
+/// One Gaussian blended into a pixel: its index, its alpha and the transmittance in front of it.
+#[derive(Debug, Clone, Copy)]
+struct Blend {
+    id: u32,
+    alpha: f32,
+    t: f32,
+}
+
+impl Recording {
+    /// Bytes held (for callers that bound their memory).
+    pub fn bytes(&self) -> usize {
+        self.bands.iter().map(|(p, e)| p.len() * 8 + e.len() * 12).sum()
+    }
+}
+
+/// [`render`], also recording what every pixel blended ([`Recording`]).
+pub fn record(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Recording) {
+    let proj = preprocess(splats, cam, opts.max_sh_degree);
+    let bins = bin_tiles(&proj, cam.width, cam.height);
+    let w = cam.width;
+    let cull = cull_thresholds(&proj);
+    let mut img = Image::filled(w, cam.height, [0.0; 3]);
+    let row_len = (w * 3) as usize;
+    let bands = img
+        .data
+        .par_chunks_mut(row_len * TILE as usize)
+        .enumerate()
+        .map(|(ty, band)| {
+            let ty = ty as u32;
+            let (mut pixels, mut entries) = (Vec::new(), Vec::new());
+            let mut local = Vec::new();
+            let mut blocks = TileBlocks::default();
+            for tx in 0..bins.tiles_x {
+                let t = (ty * bins.tiles_x + tx) as usize;
+                let ids = bins.tile(t);
+                gather_tile(&proj, &cull, ids, &mut local);
+                blocks.cut(&local, (tx, ty), (w, cam.height));
+                let x1 = ((tx + 1) * TILE).min(w);
+                for (ly, row) in band.chunks_mut(row_len).enumerate() {
+                    let py = (ty * TILE + ly as u32) as f32;
+                    for x in tx * TILE..x1 {
+                        let (list, index) = blocks.at(x - tx * TILE, ly as u32);
+                        let (c, t, _) =
+                            composite_with(list, x as f32, py, |j, alpha, t| entries.push(Blend { id: ids[index[j] as usize], alpha, t }));
+                        pixels.push((entries.len() as u32, t));
+                        for k in 0..3 {
+                            row[x as usize * 3 + k] = c[k] + t * opts.background[k];
+                        }
+                    }
+                }
+            }
+            (pixels, entries)
+        })
+        .collect();
+    (img, Recording { width: w, height: cam.height, bands })
+}
+
+/// The frame [`render`] draws of `splats` from `cam`, given the [`Recording`] of a frame of a
+/// scene with the same geometry (positions, scales, rotations, opacities: only colours, i.e. SH
+/// coefficients or degree, may differ) from the same camera: bit-identical to [`render`], without
+/// projecting, binning or evaluating a Gaussian again.
+///
+/// # Panics
+/// If the recording is not of `cam`'s size.
+pub fn replay(rec: &Recording, splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Image {
+    assert_eq!((rec.width, rec.height), (cam.width, cam.height), "a recording of this camera");
+    let degree = opts.max_sh_degree.min(splats.sh_degree);
+    let center = cam.center();
+    let colors: Vec<[f32; 3]> = (0..splats.len()).into_par_iter().map(|i| color_of(splats, i, center, degree)).collect();
+    let w = cam.width;
+    let row_len = (w * 3) as usize;
+    let mut img = Image::filled(w, cam.height, [0.0; 3]);
+    img.data.par_chunks_mut(row_len * TILE as usize).zip(&rec.bands).for_each(|(band, (pixels, entries))| {
+        let mut next = pixels.iter();
+        let mut start = 0usize;
+        // The pixels in the order `record` visited them: tile by tile, row by row within a tile.
+        for tx in 0..w.div_ceil(TILE) {
+            let x1 = ((tx + 1) * TILE).min(w);
+            for row in band.chunks_mut(row_len) {
+                for x in tx * TILE..x1 {
+                    let &(end, t) = next.next().expect("one entry per pixel");
+                    let mut c = [0.0f32; 3];
+                    for b in &entries[start..end as usize] {
+                        let color = colors[b.id as usize];
+                        for k in 0..3 {
+                            c[k] += color[k] * b.alpha * b.t;
+                        }
+                    }
+                    start = end as usize;
+                    for k in 0..3 {
+                        row[x as usize * 3 + k] = c[k] + t * opts.background[k];
+                    }
+                }
+            }
+        }
+    });
+    img
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testkit::{extreme_splats, random_splats, rig_cameras};
+
+    /// Compositing over a tile's blocks ([`TileBlocks`]) gives, bit for bit, the image and the
+    /// contributions that compositing every pixel over its whole tile list gives.
+    #[test]
+    fn blocks_change_no_pixel_and_no_contribution() {
+        let mut s = random_splats(600, 2, 5);
+        let extreme = extreme_splats(2);
+        for i in 0..extreme.len() {
+            s.push(
+                extreme.positions[i],
+                extreme.log_scales[i],
+                extreme.rotations[i],
+                extreme.opacity_logits[i],
+                extreme.sh_dc[i],
+                extreme.rest_of(i),
+            );
+        }
+        let opts = RenderOptions { background: [0.3, 0.1, 0.6], ..RenderOptions::default() };
+        for cam in rig_cameras(4, 3.5, 53, 38) {
+            let proj = preprocess(&s, &cam, opts.max_sh_degree);
+            let bins = bin_tiles(&proj, cam.width, cam.height);
+            let cull = cull_thresholds(&proj);
+            let mut img = Image::filled(cam.width, cam.height, [0.0; 3]);
+            let mut sum = vec![0.0f64; s.len()];
+            let mut local = Vec::new();
+            for ty in 0..bins.tiles_y {
+                for tx in 0..bins.tiles_x {
+                    let t = (ty * bins.tiles_x + tx) as usize;
+                    gather_tile(&proj, &cull, bins.tile(t), &mut local);
+                    let mut w = vec![0.0f32; local.len()];
+                    for y in ty * TILE..((ty + 1) * TILE).min(cam.height) {
+                        for x in tx * TILE..((tx + 1) * TILE).min(cam.width) {
+                            let (c, t, _) = composite_with(&local, x as f32, y as f32, |j, a, t| w[j] += a * t);
+                            let i = ((y * cam.width + x) * 3) as usize;
+                            for k in 0..3 {
+                                img.data[i + k] = c[k] + t * opts.background[k];
+                            }
+                        }
+                    }
+                    for (&g, &v) in bins.tile(t).iter().zip(&w) {
+                        sum[g as usize] += v as f64;
+                    }
+                }
+            }
+            assert_eq!(render(&s, &cam, &opts).data, img.data);
+            let want: Vec<f32> = sum.into_iter().map(|v| v as f32).collect();
+            assert_eq!(contributions(&s, &cam, &opts), want);
+            assert!(want.iter().filter(|&&v| v > 0.0).count() > 100);
+        }
+    }
+
+    /// A recording's frame is `render`'s, and replaying it with other colours (SH coefficients
+    /// and degree changed, geometry kept) gives exactly the frame `render` draws of that scene,
+    /// at a size that is not a whole number of tiles.
+    #[test]
+    fn replay_is_render_with_new_colours() {
+        let mut s = random_splats(400, 3, 11);
+        let extreme = extreme_splats(3);
+        for i in 0..extreme.len() {
+            s.push(
+                extreme.positions[i],
+                extreme.log_scales[i],
+                extreme.rotations[i],
+                extreme.opacity_logits[i],
+                extreme.sh_dc[i],
+                extreme.rest_of(i),
+            );
+        }
+        let opts = RenderOptions { background: [0.2, 0.4, 0.1], ..RenderOptions::default() };
+        for cam in rig_cameras(3, 3.8, 45, 37) {
+            let (img, rec) = record(&s, &cam, &opts);
+            assert_eq!(img.data, render(&s, &cam, &opts).data);
+            assert!(rec.bytes() > 45 * 37 * 8);
+            let mut recoloured = s.clone();
+            recoloured.sh_dc.iter_mut().enumerate().for_each(|(i, c)| c[i % 3] = -c[i % 3] * 0.7 + 0.1);
+            recoloured.sh_rest.iter_mut().step_by(5).for_each(|v| *v *= -1.5);
+            let again = replay(&rec, &recoloured, &cam, &opts);
+            assert_ne!(again.data, img.data);
+            assert_eq!(again.data, render(&recoloured, &cam, &opts).data);
+            let sh1 = recoloured.with_sh_degree(1);
+            assert_eq!(replay(&rec, &sh1, &cam, &opts).data, render(&sh1, &cam, &opts).data);
+        }
+    }
 }
