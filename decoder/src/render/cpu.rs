@@ -498,12 +498,10 @@ mod tests {
     use super::*;
     use crate::testkit::{extreme_splats, random_splats, rig_cameras};
 
-    /// Compositing over a tile's blocks ([`TileBlocks`]) gives, bit for bit, the image and the
-    /// contributions that compositing every pixel over its whole tile list gives.
-    #[test]
-    fn blocks_change_no_pixel_and_no_contribution() {
-        let mut s = random_splats(600, 2, 5);
-        let extreme = extreme_splats(2);
+    /// `n` random Gaussians of SH degree `degree`, then the extreme ones.
+    fn random_and_extreme_splats(n: usize, degree: u8, seed: u64) -> Splats {
+        let mut s = random_splats(n, degree, seed);
+        let extreme = extreme_splats(degree);
         for i in 0..extreme.len() {
             s.push(
                 extreme.positions[i],
@@ -514,6 +512,14 @@ mod tests {
                 extreme.rest_of(i),
             );
         }
+        s
+    }
+
+    /// Compositing over a tile's blocks ([`TileBlocks`]) gives, bit for bit, the image and the
+    /// contributions that compositing every pixel over its whole tile list gives.
+    #[test]
+    fn blocks_change_no_pixel_and_no_contribution() {
+        let s = random_and_extreme_splats(600, 2, 5);
         let opts = RenderOptions { background: [0.3, 0.1, 0.6], ..RenderOptions::default() };
         for cam in rig_cameras(4, 3.5, 53, 38) {
             let proj = preprocess(&s, &cam, opts.max_sh_degree);
@@ -553,18 +559,7 @@ mod tests {
     /// at a size that is not a whole number of tiles.
     #[test]
     fn replay_is_render_with_new_colours() {
-        let mut s = random_splats(400, 3, 11);
-        let extreme = extreme_splats(3);
-        for i in 0..extreme.len() {
-            s.push(
-                extreme.positions[i],
-                extreme.log_scales[i],
-                extreme.rotations[i],
-                extreme.opacity_logits[i],
-                extreme.sh_dc[i],
-                extreme.rest_of(i),
-            );
-        }
+        let s = random_and_extreme_splats(400, 3, 11);
         let opts = RenderOptions { background: [0.2, 0.4, 0.1], ..RenderOptions::default() };
         for cam in rig_cameras(3, 3.8, 45, 37) {
             let (img, rec) = record(&s, &cam, &opts);
