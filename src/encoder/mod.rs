@@ -118,8 +118,6 @@ impl Encoder {
         if !init.is_empty() {
             let m = rate::rd::pruning_opacity(scene, self.config.lambda, &config).map_err(|e| Error::Input(e.to_string()))?;
             config.min_opacity = config.min_opacity.max(m);
-        }
-        if !init.is_empty() {
             // Training views avoid the orbit views `orbit_psnr` evaluates on (held out).
             let cams = training_cameras(scene, 8, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
             let dataset = crate::train::targets::render_targets(scene, &cams, [0.0; 3]);

@@ -61,7 +61,7 @@ pub struct EncodeReport {
     pub estimated_bytes: f64,
     /// Gaussians in the file.
     pub gaussians: usize,
-    /// Gaussians before pruning (after training).
+    /// Gaussians before pruning: the input scene's (a `.ply`), or the trained scene's (a dataset).
     pub input_gaussians: usize,
     /// SH degree of the file.
     pub sh_degree: u8,
