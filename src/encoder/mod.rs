@@ -88,14 +88,21 @@ impl Encoder {
     /// [`Error::Input`] for an invalid scene or a backend that cannot run the job;
     /// [`Error::Failure`] when training diverges.
     pub fn encode_scene(&self, scene: &Splats, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
-        let start = Instant::now();
         scene.validate().map_err(|e| Error::Input(e.to_string()))?;
+        self.encode_scene_with(&mut rate::rd::Trials::new(scene), progress)
+    }
+
+    /// [`Encoder::encode_scene`] of `trials`' scene, reusing (and adding to) the RD search's
+    /// evaluated configurations, which do not depend on λ (`--target-psnr`'s probes share them).
+    pub(crate) fn encode_scene_with(&self, trials: &mut rate::rd::Trials, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
+        let start = Instant::now();
+        let scene = trials.scene();
         let iters = self.config.iters_for(false);
         let mut stages = EncodeStages::default();
         let mut series = Vec::new();
         // The RD search's PSNR is against the input scene's own renders, the error the user
         // cares about, so its trials go into the time series.
-        let (mut config, _) = rate::rd::search(scene, self.config.lambda, |p| {
+        let (mut config, _) = rate::rd::search_with(trials, self.config.lambda, rate::rd::fine_steps(), |p| {
             series.push(SeriesPoint {
                 iteration: p.step,
                 trial: p.change.clone(),
@@ -116,7 +123,7 @@ impl Encoder {
         // their bits.
         let init = if iters > 0 { rate::prepared(scene, &config, None) } else { Splats::default() };
         if !init.is_empty() {
-            let m = rate::rd::pruning_opacity(scene, self.config.lambda, &config).map_err(|e| Error::Input(e.to_string()))?;
+            let m = rate::rd::pruning_opacity(trials, self.config.lambda, &config).map_err(|e| Error::Input(e.to_string()))?;
             config.min_opacity = config.min_opacity.max(m);
             // Training views avoid the orbit views `orbit_psnr` evaluates on (held out).
             let cams = training_cameras(scene, 8, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());

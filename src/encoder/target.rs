@@ -97,12 +97,16 @@ impl Encoder {
     /// An invalid target, a PSNR that even λ = 0 does not reach, or an encode's error.
     pub fn encode_scene_to(&self, scene: &Splats, target: Target, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
         target.validate()?;
+        scene.validate().map_err(|e| crate::Error::Input(e.to_string()))?;
+        // The probes share the RD search's trials: a configuration's size and distortion do not
+        // depend on λ, so each is coded and rendered once for all probes.
+        let mut trials = crate::rate::rd::Trials::new(scene);
         let mut probes = Vec::new();
         let mut best: Option<Encoded> = None;
         let mut probe = |t: f64, best: &mut Option<Encoded>| -> Result<bool> {
             let lambda = Lambda::new(t.exp_m1().max(0.0)).unwrap_or(Lambda::ZERO);
             let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
-            let e = enc.encode_scene(scene, progress)?;
+            let e = enc.encode_scene_with(&mut trials, progress)?;
             probes.push(Probe { lambda, bytes: e.bytes.len(), psnr: e.report.orbit_psnr });
             let met = target.met(&e);
             if met && best.as_ref().is_none_or(|b| target.better(&e, b)) {

@@ -204,14 +204,37 @@ fn with_knob(c: &EncodeConfig, g: Group, m: f32) -> EncodeConfig {
 /// The trials of a search: each configuration is evaluated once (a configuration tried again
 /// reuses its result), and a batch of configurations is evaluated in parallel (rayon). Results
 /// come back in the batch's order, and every evaluation is itself deterministic, so the search's
-/// choices and the chosen file do not depend on the thread count.
-struct Trials<'a> {
+/// choices and the chosen file do not depend on the thread count. An outcome does not depend on
+/// λ either, so searches of one scene at several λ (`encode --target-psnr`'s probes) share one
+/// `Trials` ([`search_with`]) and each configuration is coded and rendered once for all.
+pub struct Trials<'a> {
     ev: Evaluator<'a>,
     seen: Vec<(EncodeConfig, Outcome)>,
 }
 
 /// (bytes, D, encoder report) of one configuration.
 type Outcome = (usize, f64, super::EncodeReport);
+
+impl<'a> Trials<'a> {
+    /// No trials yet for `scene` (renders its reference views and computes its significance).
+    pub fn new(scene: &'a Splats) -> Self {
+        Trials { ev: Evaluator::new(scene), seen: Vec::new() }
+    }
+
+    /// The scene the trials code.
+    pub fn scene(&self) -> &'a Splats {
+        self.ev.scene
+    }
+
+    /// Configurations evaluated so far.
+    pub fn len(&self) -> usize {
+        self.seen.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.seen.is_empty()
+    }
+}
 
 impl Trials<'_> {
     /// The outcomes of `configs`, in order.
@@ -369,7 +392,12 @@ fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: Enco
 /// The trials of each stage are independent and run in parallel; the result (and the trial
 /// list) is the same for any number of threads.
 pub fn search(scene: &Splats, lambda: Lambda, on_step: impl FnMut(&Trial)) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
-    search_from(scene, lambda, Steps::default().scaled(0.7), on_step)
+    search_from(scene, lambda, fine_steps(), on_step)
+}
+
+/// The fine steps [`search`] starts from.
+pub fn fine_steps() -> Steps {
+    Steps::default().scaled(0.7)
 }
 
 /// [`search`] with the per-group step multipliers applied to `fine` (e.g. steps learned in
@@ -378,11 +406,26 @@ pub fn search_from(
     scene: &Splats,
     lambda: Lambda,
     fine: Steps,
-    mut on_step: impl FnMut(&Trial),
+    on_step: impl FnMut(&Trial),
 ) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
     scene.validate()?;
-    let mut trials = Trials { ev: Evaluator::new(scene), seen: Vec::new() };
-    let mut clock = Clock::new(&trials);
+    search_with(&mut Trials::new(scene), lambda, fine, on_step)
+}
+
+/// [`search_from`] on `trials`' scene, reusing (and adding to) its evaluated configurations:
+/// the same choice and trial list as a fresh search, with fewer encodes and renders.
+///
+/// # Errors
+/// An invalid scene.
+pub fn search_with(
+    trials: &mut Trials,
+    lambda: Lambda,
+    fine: Steps,
+    mut on_step: impl FnMut(&Trial),
+) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
+    let scene = trials.ev.scene;
+    scene.validate()?;
+    let mut clock = Clock::new(trials);
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
     // 1. Pruning by significance (at fine steps): what the views see of a Gaussian after
@@ -391,17 +434,17 @@ pub fn search_from(
     //    and everything (an empty file).
     let sig = sorted(pruned(scene, &fine, Some(&trials.ev.significance)).1.expect("given"));
     let cands = prune_candidates(&sig, &fine);
-    let base = log.stage(&mut trials, (f64::INFINITY, fine), cands)?.1;
+    let base = log.stage(trials, (f64::INFINITY, fine), cands)?.1;
     let (b0, _, _) = trials.base(&base)?;
-    clock.lap(&trials, "pruning");
+    clock.lap(trials, "pruning");
     if b0 < 200 {
         return Ok((EncodeConfig { learned_tables: true, ..base }, log.path)); // nothing (or almost nothing) left to allocate
     }
     // 2. SH degree (at fine steps): keep the degree with the lowest J.
     let cands =
         (0..=scene.sh_degree.min(3)).rev().map(|deg| (format!("sh_degree={deg}"), EncodeConfig { max_sh_degree: deg, ..base })).collect();
-    let mut base = log.stage(&mut trials, (f64::INFINITY, base), cands)?.1;
-    clock.lap(&trials, "SH degree");
+    let mut base = log.stage(trials, (f64::INFINITY, base), cands)?.1;
+    clock.lap(trials, "SH degree");
     // 3. Per-Gaussian SH band dropping (whole-file J, at fine steps so the steps adapt to it),
     //    band by band: thresholds at quantiles of the kept Gaussians' band contributions
     //    weighted by significance.
@@ -421,16 +464,16 @@ pub fn search_from(
                 .collect();
             let (bytes, d, _) = trials.base(&base)?;
             let keep = (log.j(bytes, d), base);
-            base = log.stage(&mut trials, keep, cands)?.1;
-            clock.lap(&trials, &format!("SH band {b} dropping"));
+            base = log.stage(trials, keep, cands)?.1;
+            clock.lap(trials, &format!("SH band {b} dropping"));
         }
     }
     // 4. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
     //    (half-octave moves around the first choice), then quarter-octave moves.
     let mut chosen = base;
     for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
-        chosen = step_pass(&mut trials, &mut log, &chosen, pass, mults)?;
-        clock.lap(&trials, &format!("step pass {pass}"));
+        chosen = step_pass(trials, &mut log, &chosen, pass, mults)?;
+        clock.lap(trials, &format!("step pass {pass}"));
     }
     // 5. SH rest dead zone (whole-file J: it changes only the SH band groups).
     if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
@@ -444,11 +487,11 @@ pub fn search_from(
             })
             .collect();
         let keep = (log.j(b, d), chosen);
-        chosen = log.stage(&mut trials, keep, cands)?.1;
-        clock.lap(&trials, "SH dead zone");
+        chosen = log.stage(trials, keep, cands)?.1;
+        clock.lap(trials, "SH dead zone");
     }
     // 6. SH vector quantisation, band by band.
-    let chosen = vq_stage(&mut trials, &mut log, chosen, scene.sh_degree)?;
+    let chosen = vq_stage(trials, &mut log, chosen, scene.sh_degree)?;
     Ok((EncodeConfig { learned_tables: true, ..chosen }, log.path))
 }
 
@@ -462,16 +505,17 @@ const PRUNE_OPACITIES: [f32; 11] = [2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 3
 /// Gaussians that do not pay for their bits under it while the others learn to cover for them
 /// (`encoder::Encoder::encode_scene`; docs/codec.md).
 ///
+/// `trials` are those of the search that chose `config` (or new ones for its scene).
+///
 /// # Errors
 /// An invalid scene.
-pub fn pruning_opacity(scene: &Splats, lambda: Lambda, config: &EncodeConfig) -> Result<f32, SceneError> {
-    let mut trials = Trials { ev: Evaluator::new(scene), seen: Vec::new() };
+pub fn pruning_opacity(trials: &mut Trials, lambda: Lambda, config: &EncodeConfig) -> Result<f32, SceneError> {
     let mut log = Log { path: Vec::new(), on_step: &mut |_: &Trial| {}, lambda };
     let base = EncodeConfig { min_significance: 0.0, min_opacity: 1.0 / 255.0, learned_tables: false, ..*config };
     let (b, d, _) = trials.one(&base)?;
     let cands =
         PRUNE_OPACITIES.iter().map(|&m| (format!("prune opacity<{m}/255"), EncodeConfig { min_opacity: m / 255.0, ..base })).collect();
-    Ok(log.stage(&mut trials, (log.j(b, d), base), cands)?.1.min_opacity)
+    Ok(log.stage(trials, (log.j(b, d), base), cands)?.1.min_opacity)
 }
 
 #[cfg(test)]
@@ -543,7 +587,7 @@ mod tests {
         let mut picked = false;
         for l in [0.0, 50.0, 2000.0] {
             let lambda = Lambda::new(l).unwrap();
-            let mut trials = Trials { ev: Evaluator::new(&scene), seen: Vec::new() };
+            let mut trials = Trials::new(&scene);
             let mut on_step = |_: &Trial| {};
             let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
             let start = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
@@ -590,9 +634,10 @@ mod tests {
         scene.opacity_logits.iter_mut().enumerate().for_each(|(i, o)| *o = -7.0 + 9.2 * i as f32 / n);
         let (config, _) = search(&scene, Lambda::new(20.0).unwrap(), |_| {}).unwrap();
         let ev = Evaluator::new(&scene);
+        let mut trials = Trials::new(&scene);
         let mut last = usize::MAX;
         for l in [0.0, 20.0, 2000.0, 1e6] {
-            let m = pruning_opacity(&scene, Lambda::new(l).unwrap(), &config).unwrap();
+            let m = pruning_opacity(&mut trials, Lambda::new(l).unwrap(), &config).unwrap();
             if l == 0.0 {
                 assert_eq!(m, 1.0 / 255.0);
             }
@@ -603,5 +648,27 @@ mod tests {
             assert!(bytes <= last, "λ {l}: {bytes} bytes after {last}");
             last = bytes;
         }
+    }
+
+    /// Searches sharing their trials (as `--target-psnr`'s probes do) choose, record and code
+    /// exactly what fresh searches do, and the later ones evaluate fewer new configurations.
+    #[test]
+    fn shared_trials_change_no_choice() {
+        let scene = crate::sample::scene(300, 6);
+        let mut shared = Trials::new(&scene);
+        let fine = fine_steps();
+        let mut added = Vec::new();
+        for l in [20.0, 200.0, 60.0] {
+            let lambda = Lambda::new(l).unwrap();
+            let before = shared.len();
+            let (a, pa) = search_with(&mut shared, lambda, fine, |_| {}).unwrap();
+            added.push(shared.len() - before);
+            let (b, pb) = search(&scene, lambda, |_| {}).unwrap();
+            assert_eq!(a, b, "λ {l}");
+            let key = |p: &[Trial]| p.iter().map(|t| (t.change.clone(), t.bytes, t.d.to_bits())).collect::<Vec<_>>();
+            assert_eq!(key(&pa), key(&pb), "λ {l}");
+            assert_eq!(super::super::encode(&scene, &a).unwrap().0, super::super::encode(&scene, &b).unwrap().0);
+        }
+        assert!(added[1] < added[0] && added[2] < added[0], "configurations evaluated per search: {added:?}");
     }
 }
