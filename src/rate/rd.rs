@@ -206,7 +206,8 @@ fn with_knob(c: &EncodeConfig, g: Group, m: f32) -> EncodeConfig {
 /// come back in the batch's order, and every evaluation is itself deterministic, so the search's
 /// choices and the chosen file do not depend on the thread count. An outcome does not depend on
 /// λ either, so searches of one scene at several λ (`encode --target-psnr`'s probes) share one
-/// `Trials` ([`search_with`]) and each configuration is coded and rendered once for all.
+/// `Trials` ([`search_with`]) and each configuration is coded and rendered once for all (each
+/// search starts a new cache of coded groups, so memory stays that of one search).
 pub struct Trials<'a> {
     ev: Evaluator<'a>,
     seen: Vec<(EncodeConfig, Outcome)>,
@@ -425,6 +426,9 @@ pub fn search_with(
 ) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
     let scene = trials.ev.scene;
     scene.validate()?;
+    // Keep one search's coded groups at a time (memory grows with the scene); the outcomes of
+    // the configurations, which are small, stay for the next search.
+    trials.ev.cache = GroupCache::default();
     let mut clock = Clock::new(trials);
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
