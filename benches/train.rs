@@ -9,7 +9,7 @@ use gscodec::loss::L1Ssim;
 use gscodec::raster;
 use gscodec::rate::group::Group;
 use gscodec::rng::Rng;
-use gscodec::testkit::{random_splats, rig_cameras};
+use gscodec::testkit::{bench_splats, rig_cameras};
 use gscodec::train::adam::{first_non_finite, Adam};
 use gscodec::train::densify::{densify_and_prune_keeping, DensifyParams, DensifyStats};
 use gscodec::train::targets::render_targets;
@@ -17,12 +17,8 @@ use gscodec_decoder::render::{bin_tiles, preprocess};
 use gscodec_decoder::{Image, RenderOptions, Splats};
 
 fn setup(n: usize) -> (Splats, Image, gscodec_decoder::Camera) {
-    let shrink = (n as f32 / 120.0).cbrt().ln();
-    let mut truth = random_splats(n, 1, 1).with_sh_degree(3);
-    truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-    let ds = render_targets(&truth, &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
-    let mut params = random_splats(n, 1, 2).with_sh_degree(3);
-    params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+    let ds = render_targets(&bench_splats(n, 1), &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
+    let params = bench_splats(n, 2);
     (params, (*ds.frames[0].image.get().unwrap()).clone(), ds.frames[0].camera)
 }
 

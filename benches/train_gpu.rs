@@ -14,7 +14,7 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use gscodec::loss::LossKind;
-use gscodec::testkit::{random_splats, rig_cameras};
+use gscodec::testkit::{bench_splats, rig_cameras};
 use gscodec::train::gpu::wd::{WdConfig, WdStage};
 use gscodec::train::gpu::{Gpu, Session};
 use gscodec::train::targets::render_targets;
@@ -51,17 +51,12 @@ fn bench_stages(c: &mut Criterion) {
     group.sample_size(10);
     for (w, h, n) in cases() {
         let id = format!("{w}x{h}/{n}");
-        // Scales shrink with the count so that the pairs per Gaussian stay a few.
-        let shrink = (n as f32 / 120.0).cbrt().ln();
-        let mut params = random_splats(n, 1, 2).with_sh_degree(3);
-        params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+        let params = bench_splats(n, 2);
         let cam = rig_cameras(2, 4.0, w, h).remove(0);
         // The target: a render of another random scene at small sizes; a flat grey at large ones
         // (the CPU render of a million Gaussians would dominate the set-up; the loss costs the same).
         let image = if n <= 100_000 {
-            let mut truth = random_splats(n, 1, 1).with_sh_degree(3);
-            truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-            (*render_targets(&truth, &[cam], [1.0; 3]).frames[0].image.get().unwrap()).clone()
+            (*render_targets(&bench_splats(n, 1), &[cam], [1.0; 3]).frames[0].image.get().unwrap()).clone()
         } else {
             Image::filled(w, h, [0.5; 3])
         };

@@ -5,7 +5,7 @@
 //! `cargo run --features gpu --example wd_gpu_cost [-- ROUNDS]`
 
 use gscodec::loss::LossKind;
-use gscodec::testkit::{random_splats, rig_cameras};
+use gscodec::testkit::{bench_splats, rig_cameras};
 use gscodec::train::gpu::wd::{WdConfig, WdStage};
 use gscodec::train::gpu::{Gpu, Session};
 use gscodec::train::targets::render_targets;
@@ -16,12 +16,8 @@ fn main() {
     let gpu = Gpu::new().unwrap().expect("a GPU adapter (lavapipe will do)");
     eprintln!("adapter: {}", gpu.adapter_name());
     let n = 10_000usize;
-    let shrink = (n as f32 / 120.0).cbrt().ln();
-    let mut truth = random_splats(n, 1, 1).with_sh_degree(3);
-    truth.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
-    let ds = render_targets(&truth, &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
-    let mut params = random_splats(n, 1, 2).with_sh_degree(3);
-    params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+    let ds = render_targets(&bench_splats(n, 1), &rig_cameras(2, 4.0, 200, 200), [1.0; 3]);
+    let params = bench_splats(n, 2);
     let cam = ds.frames[0].camera;
     let target = gpu.storage_init("target", bytemuck::cast_slice(&ds.frames[0].image.get().unwrap().data));
     let mut s = Session::new(&gpu, &params).unwrap();

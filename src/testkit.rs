@@ -25,3 +25,13 @@ pub fn shared_data(sub: &str) -> Option<PathBuf> {
         None
     }
 }
+
+/// `n` random Gaussians of seed `seed` at SH degree 3, their scales shrunk as the count grows so
+/// that the tile pairs per Gaussian stay a few: the scenes of the trainer benches (fit seed 2 to
+/// renders of seed 1).
+pub fn bench_splats(n: usize, seed: u64) -> gscodec_decoder::Splats {
+    let shrink = (n as f32 / 120.0).cbrt().ln();
+    let mut s = random_splats(n, 1, seed).with_sh_degree(3);
+    s.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
+    s
+}

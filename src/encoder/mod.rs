@@ -88,8 +88,8 @@ impl Encoder {
     /// [`Error::Input`] for an invalid scene or a backend that cannot run the job;
     /// [`Error::Failure`] when training diverges.
     pub fn encode_scene(&self, scene: &Splats, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
-        scene.validate().map_err(|e| Error::Input(e.to_string()))?;
-        self.encode_scene_with(&mut rate::rd::Trials::new(scene), progress)
+        let mut trials = rate::rd::Trials::new(scene).map_err(|e| Error::Input(e.to_string()))?;
+        self.encode_scene_with(&mut trials, progress)
     }
 
     /// [`Encoder::encode_scene`] of `trials`' scene, reusing (and adding to) the RD search's

@@ -97,10 +97,9 @@ impl Encoder {
     /// An invalid target, a PSNR that even λ = 0 does not reach, or an encode's error.
     pub fn encode_scene_to(&self, scene: &Splats, target: Target, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
         target.validate()?;
-        scene.validate().map_err(|e| crate::Error::Input(e.to_string()))?;
         // The probes share the RD search's trials: a configuration's size and distortion do not
         // depend on λ, so each is coded and rendered once for all probes.
-        let mut trials = crate::rate::rd::Trials::new(scene);
+        let mut trials = crate::rate::rd::Trials::new(scene).map_err(|e| crate::Error::Input(e.to_string()))?;
         let mut probes = Vec::new();
         let mut best: Option<Encoded> = None;
         let mut probe = |t: f64, best: &mut Option<Encoded>| -> Result<bool> {

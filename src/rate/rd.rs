@@ -218,8 +218,12 @@ type Outcome = (usize, f64, super::EncodeReport);
 
 impl<'a> Trials<'a> {
     /// No trials yet for `scene` (renders its reference views and computes its significance).
-    pub fn new(scene: &'a Splats) -> Self {
-        Trials { ev: Evaluator::new(scene), seen: Vec::new() }
+    ///
+    /// # Errors
+    /// An invalid scene (NaN/Inf, inconsistent arrays).
+    pub fn new(scene: &'a Splats) -> Result<Self, SceneError> {
+        scene.validate()?;
+        Ok(Trials { ev: Evaluator::new(scene), seen: Vec::new() })
     }
 
     /// The scene the trials code.
@@ -409,15 +413,14 @@ pub fn search_from(
     fine: Steps,
     on_step: impl FnMut(&Trial),
 ) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
-    scene.validate()?;
-    search_with(&mut Trials::new(scene), lambda, fine, on_step)
+    search_with(&mut Trials::new(scene)?, lambda, fine, on_step)
 }
 
 /// [`search_from`] on `trials`' scene, reusing (and adding to) its evaluated configurations:
 /// the same choice and trial list as a fresh search, with fewer encodes and renders.
 ///
 /// # Errors
-/// An invalid scene.
+/// A trial's encode (none for a scene [`Trials::new`] took).
 pub fn search_with(
     trials: &mut Trials,
     lambda: Lambda,
@@ -425,7 +428,6 @@ pub fn search_with(
     mut on_step: impl FnMut(&Trial),
 ) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
     let scene = trials.ev.scene;
-    scene.validate()?;
     // Keep one search's coded groups at a time (memory grows with the scene); the outcomes of
     // the configurations, which are small, stay for the next search.
     trials.ev.cache = GroupCache::default();
@@ -512,7 +514,7 @@ const PRUNE_OPACITIES: [f32; 11] = [2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 3
 /// `trials` are those of the search that chose `config` (or new ones for its scene).
 ///
 /// # Errors
-/// An invalid scene.
+/// A trial's encode (none for a scene [`Trials::new`] took).
 pub fn pruning_opacity(trials: &mut Trials, lambda: Lambda, config: &EncodeConfig) -> Result<f32, SceneError> {
     let mut log = Log { path: Vec::new(), on_step: &mut |_: &Trial| {}, lambda };
     let base = EncodeConfig { min_significance: 0.0, min_opacity: 1.0 / 255.0, learned_tables: false, ..*config };
@@ -591,7 +593,7 @@ mod tests {
         let mut picked = false;
         for l in [0.0, 50.0, 2000.0] {
             let lambda = Lambda::new(l).unwrap();
-            let mut trials = Trials::new(&scene);
+            let mut trials = Trials::new(&scene).unwrap();
             let mut on_step = |_: &Trial| {};
             let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
             let start = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
@@ -638,7 +640,7 @@ mod tests {
         scene.opacity_logits.iter_mut().enumerate().for_each(|(i, o)| *o = -7.0 + 9.2 * i as f32 / n);
         let (config, _) = search(&scene, Lambda::new(20.0).unwrap(), |_| {}).unwrap();
         let ev = Evaluator::new(&scene);
-        let mut trials = Trials::new(&scene);
+        let mut trials = Trials::new(&scene).unwrap();
         let mut last = usize::MAX;
         for l in [0.0, 20.0, 2000.0, 1e6] {
             let m = pruning_opacity(&mut trials, Lambda::new(l).unwrap(), &config).unwrap();
@@ -659,7 +661,7 @@ mod tests {
     #[test]
     fn shared_trials_change_no_choice() {
         let scene = crate::sample::scene(300, 6);
-        let mut shared = Trials::new(&scene);
+        let mut shared = Trials::new(&scene).unwrap();
         let fine = fine_steps();
         let mut added = Vec::new();
         for l in [20.0, 200.0, 60.0] {
