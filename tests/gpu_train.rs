@@ -21,6 +21,7 @@ use glam::{Mat3, Quat, Vec3};
 use gscodec::encoder::{Backend, LossSpec, TrainJob};
 use gscodec::io::{load_dataset, LoadOptions, Split};
 use gscodec::loss::features::pyramid::Pyramid;
+use gscodec::loss::wd::Sigma;
 use gscodec::loss::wdr::{WdDistortion, WdrLoss};
 use gscodec::loss::{FeatureSpec, ImageLoss, L1Ssim, LossKind};
 use gscodec::raster;
@@ -363,12 +364,15 @@ fn unsupported_losses_are_input_errors() {
     let cfg = TrainConfig { iters: 1, ..Default::default() };
     let vgg = FeatureSpec::Vgg16("vgg16.safetensors".into());
     for kind in [LossKind::Wd, LossKind::Wdr] {
-        let e = gpu::train(&ds, None, &cfg, &GpuLoss::new(kind, &vgg, None), &mut |_| {}).unwrap_err();
+        let e = gpu::train(&ds, None, &cfg, &GpuLoss::new(kind, &vgg, None, None), &mut |_| {}).unwrap_err();
         assert_eq!(e.exit_code(), 2);
         assert!(e.to_string().contains("pyramid") && e.to_string().contains("--backend cpu"), "{e}");
-        let e = GpuLoss::new(kind, &FeatureSpec::Pyramid, Some(-1.0)).check().unwrap_err();
+        let e = GpuLoss::new(kind, &FeatureSpec::Pyramid, Some(-1.0), None).check().unwrap_err();
         assert!(e.exit_code() == 2 && e.to_string().contains("--wd-gamma"), "{e}");
-        GpuLoss::new(kind, &FeatureSpec::Pyramid, None).check().unwrap();
+        let e = GpuLoss::new(kind, &FeatureSpec::Pyramid, None, Some(0.5)).check().unwrap_err();
+        assert!(e.exit_code() == 2 && e.to_string().contains("--wd-sigma 0.5"), "{e}");
+        GpuLoss::new(kind, &FeatureSpec::Pyramid, None, Some(2.0)).check().unwrap();
+        GpuLoss::new(kind, &FeatureSpec::Pyramid, None, None).check().unwrap();
     }
     let _ = Mat3::IDENTITY;
 }
@@ -419,20 +423,22 @@ fn assert_value(what: &str, gpu: f64, cpu: f64) {
     assert!(gpu.is_finite() && (gpu - cpu).abs() <= 1e-4 * cpu.abs() + 1e-9, "{what}: GPU {gpu} vs CPU {cpu}");
 }
 
-/// d_WD (built-in features, σ = 4) and its image gradient: GPU kernels against `wd.rs` /
-/// `pyramid.rs` at odd and even sizes (the CPU gradient is checked against f64 finite
-/// differences in tests/wd.rs).
+/// d_WD (built-in features, σ = 4 and σ = 2, whose level 0 counts on the ½-resolution arrays)
+/// and its image gradient: GPU kernels against `wd.rs` / `pyramid.rs` at odd and even sizes (the
+/// CPU gradient is checked against f64 finite differences in tests/wd.rs).
 #[test]
 fn wd_value_and_gradient_match_cpu() {
     let Some(gpu) = device() else { return };
-    for (seed, (w, h)) in [(0u64, (37u32, 29u32)), (1, (64, 64)), (2, (23, 40))] {
-        let (r, t) = image_pair(seed, w, h);
-        let (cv, cg) = WdDistortion::new(Box::new(Pyramid)).value_and_grad(&r, &t, None);
-        // `wd` with γ = 1 past its warm-up is d_WD itself.
-        let loss = GpuLoss::new(LossKind::Wd, &FeatureSpec::Pyramid, Some(1.0));
-        let (gv, gg) = gpu::training_loss_and_grad(&gpu, &r, &t, &loss, 1, 1).unwrap();
-        assert_value(&format!("{w}x{h} d_WD"), gv, cv);
-        assert_close(&format!("{w}x{h} d(d_WD)/dimage"), &gg, &cg);
+    for sigma in [4.0, 2.0] {
+        for (seed, (w, h)) in [(0u64, (37u32, 29u32)), (1, (64, 64)), (2, (23, 40))] {
+            let (r, t) = image_pair(seed, w, h);
+            let (cv, cg) = WdDistortion::new(Box::new(Pyramid)).with_sigma(Sigma::Constant(sigma)).value_and_grad(&r, &t, None);
+            // `wd` with γ = 1 past its warm-up is d_WD itself.
+            let loss = GpuLoss::new(LossKind::Wd, &FeatureSpec::Pyramid, Some(1.0), Some(sigma));
+            let (gv, gg) = gpu::training_loss_and_grad(&gpu, &r, &t, &loss, 1, 1).unwrap();
+            assert_value(&format!("σ {sigma} {w}x{h} d_WD"), gv, cv);
+            assert_close(&format!("σ {sigma} {w}x{h} d(d_WD)/dimage"), &gg, &cg);
+        }
     }
 }
 
@@ -448,13 +454,13 @@ fn wdr_loss_and_gradient_match_cpu() {
             cpu = cpu.with_fixed_gamma(g);
         }
         let (cv, cg) = cpu.loss_and_grad(&r, &t, 0, 1);
-        let loss = GpuLoss::new(LossKind::Wdr, &FeatureSpec::Pyramid, gamma);
+        let loss = GpuLoss::new(LossKind::Wdr, &FeatureSpec::Pyramid, gamma, None);
         let (gv, gg) = gpu::training_loss_and_grad(&gpu, &r, &t, &loss, 1, 1).unwrap();
         assert_value(&format!("WD-R, gamma {gamma:?}"), gv, cv);
         assert_close(&format!("WD-R gradient, gamma {gamma:?}"), &gg, &cg);
     }
     // In the warm-up (iteration 5 of 100) both train with L_orig alone.
-    let loss = GpuLoss::new(LossKind::Wdr, &FeatureSpec::Pyramid, None);
+    let loss = GpuLoss::new(LossKind::Wdr, &FeatureSpec::Pyramid, None, None);
     let (gv, gg) = gpu::training_loss_and_grad(&gpu, &r, &t, &loss, 100, 5).unwrap();
     let (cv, cg) = WdrLoss::new(Box::new(Pyramid), 100).loss_and_grad(&r, &t, 0, 5);
     assert_value("WD-R warm-up", gv, cv);
@@ -496,7 +502,7 @@ fn wdr_training_matches_cpu_psnr() {
 #[test]
 fn wd_stage_memory_per_view() {
     for ((w, h), want) in [((200u32, 200u32), 750_000u64 * 4), ((1000, 1000), 18_750_000 * 4)] {
-        let (arena, reference) = gpu::wd::WdStage::memory(w, h);
+        let (arena, reference) = gpu::wd::WdStage::memory(w, h, 4.0);
         eprintln!(
             "{w}x{h}: WD working memory {:.1} MB, reference statistics {:.1} MB per view",
             arena as f64 / 1e6,

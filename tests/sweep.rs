@@ -18,6 +18,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
         lambda,
         loss: loss.into(),
         iters: None,
+        wd_sigma: None,
         bytes: (bytes0 * scale).round() as u64,
         gaussians: (bytes0 / 10.0) as u64,
         psnr: Some(20.0 + 3.0 * q),

@@ -7,7 +7,7 @@ use gscodec::loss::features::pyramid::Pyramid;
 use gscodec::loss::features::vgg16::{Vgg16, CONV_INDICES, VGG16_CHANNELS};
 use gscodec::loss::features::FeatureSpace;
 use gscodec::loss::tensor::{Real, Tensor};
-use gscodec::loss::wd::{self, Reference, Sigma};
+use gscodec::loss::wd::{self, Plan, Reference, Sigma};
 use gscodec::loss::wdr::{self, WdDistortion, WdrLoss};
 use gscodec::loss::ImageLoss;
 use gscodec::rng::Rng;
@@ -126,7 +126,7 @@ fn matches_naive_formula_with_all_levels_computed() {
     for &(c, h, w) in &[(2, 16, 16), (3, 13, 10), (1, 9, 24)] {
         let a = random_tensor::<f64>(&mut rng, c, h, w);
         let b = random_tensor::<f64>(&mut rng, c, h, w);
-        for sigma in [4.0, 2.5, 1.0, 5.7, 32.0] {
+        for sigma in [4.0, 2.0, 2.5, 1.0, 5.7, 32.0] {
             let ls = vec![(sigma as f64).log2(); h * w];
             let got = wd::wd(&[a.clone()], &[b.clone()], &Sigma::Constant(sigma), h, w);
             let want = naive_wd(&a, &b, &ls);
@@ -142,29 +142,64 @@ fn matches_naive_formula_with_all_levels_computed() {
 
 #[test]
 fn downscaled_arrays_get_smaller_sigma_and_zero_levels_are_skipped() {
-    // σ = 4 on a 64×64 image: the full-resolution arrays use level 2 only, a ½ array level 1,
-    // a ¼ array level 0 and an ⅛ array level 0 (relu'd): 5 of 30 levels.
+    // On a 64×64 image, ℓ = log2 σ less each array's log2 downscale factor, relu'd. σ = 4: the
+    // full-resolution arrays use level 2 only, a ½ array level 1, a ¼ and an ⅛ array level 0;
+    // σ = 2: the full-resolution arrays level 1, every smaller array level 0. 5 of 30 levels.
+    let expected = [(4.0, [2, 2, 1, 0, 0]), (2.0, [1, 1, 0, 0, 0])];
     let mut rng = Rng::new(3);
     let img = random_image::<f64>(&mut rng, 64, 64);
     let feats = Pyramid.features(&img);
-    let r = Reference::new(&feats, &Sigma::Constant(4.0), 64, 64);
-    assert_eq!(feats.len(), 5);
-    assert_eq!(r.active_levels(), 5);
-    let levels: Vec<Vec<usize>> = r.arrays.iter().map(|a| (0..=5).filter(|&i| a.plan.weights[i].is_some()).collect()).collect();
-    assert_eq!(levels, vec![vec![2], vec![2], vec![1], vec![0], vec![0]]);
-    // The skipped computation equals the full naive one with the reduced ℓ per array.
     let other = random_image::<f64>(&mut rng, 64, 64);
     let fo = Pyramid.features(&other);
-    let got = wd::distortion(&r, &fo);
-    let want: f64 = feats
-        .iter()
-        .zip(&fo)
-        .map(|(a, b)| {
-            let l = (2.0 - (64.0 / a.h as f64).log2()).max(0.0);
-            naive_wd(a, b, &vec![l; a.h * a.w])
-        })
-        .sum();
-    assert!((got - want).abs() <= 1e-12 * want, "{got} vs {want}");
+    for (sigma, want_levels) in expected {
+        let r = Reference::new(&feats, &Sigma::Constant(sigma), 64, 64);
+        assert_eq!(feats.len(), 5);
+        assert_eq!(r.active_levels(), 5);
+        let levels: Vec<Vec<usize>> = r.arrays.iter().map(|a| (0..=5).filter(|&i| a.plan.weights[i].is_some()).collect()).collect();
+        assert_eq!(levels, want_levels.map(|l| vec![l]).to_vec(), "σ = {sigma}");
+        // The skipped computation equals the full naive one with the reduced ℓ per array.
+        let got = wd::distortion(&r, &fo);
+        let want: f64 = feats
+            .iter()
+            .zip(&fo)
+            .map(|(a, b)| {
+                let l = (sigma.log2() - (64.0 / a.h as f64).log2()).max(0.0);
+                naive_wd(a, b, &vec![l; a.h * a.w])
+            })
+            .sum();
+        assert!((got - want).abs() <= 1e-12 * want, "σ = {sigma}: {got} vs {want}");
+    }
+}
+
+#[test]
+fn level_weights_follow_the_design_formula() {
+    // w_i = relu(1 − |ℓ_i − i|), ℓ_0 = ℓ_1 = ℓ, ℓ_{i+1} = lowpass2(ℓ_i) (zero padding attenuates
+    // the border). Uniform σ on a 12×10 array of a 12×10 image, by hand:
+    // σ = 2 (ℓ = 1): w_1 = 1 everywhere (ℓ_1 is not low-passed), every other level 0;
+    // σ = 4 (ℓ = 2): w_2 = relu(1 − |ℓ_2 − 2|) with ℓ_2 = 2·(the low-pass of 1), sampled on the
+    //   odd rows and columns ("SAME" for even sizes), so only the last row and column touch the
+    //   padding: 1 inside and at (0, 0), ¾·2 − 1 = ½ on the last column, (¾)²·2 − 1 = ⅛ in the
+    //   last corner; w_1 = w_3 = 0;
+    // σ = 2√2 (ℓ = 1.5): w_1 = ½ everywhere, w_2 = relu(1 − |ℓ_2 − 2|): ½ inside, ⅛ on the last column.
+    let (h, w) = (12, 10);
+    let weights = |sigma: f64| Plan::<f64>::new(&Sigma::Constant(sigma), h, w, h, w).weights;
+    let at = |t: &Option<Tensor<f64>>, y: usize, x: usize| t.as_ref().map_or(0.0, |t| t.data[y * t.w + x]);
+    let p2 = weights(2.0);
+    assert!(p2[1].as_ref().unwrap().data.iter().all(|&v| v == 1.0));
+    assert_eq!(p2.iter().enumerate().filter(|(i, t)| *i != 1 && t.is_some()).count(), 0, "σ = 2 weights level 1 only");
+    let p4 = weights(4.0);
+    assert!(p4[0].is_none() && p4[1].is_none() && p4[3].is_none());
+    let w2 = &p4[2];
+    let (lh, lw) = (w2.as_ref().unwrap().h, w2.as_ref().unwrap().w);
+    assert_eq!((lh, lw), (6, 5), "level 2 lives at the resolution of x_1");
+    for ((y, x), want) in [((2, 2), 1.0), ((0, 0), 1.0), ((2, 4), 0.5), ((5, 2), 0.5), ((5, 4), 0.125)] {
+        assert!((at(w2, y, x) - want).abs() < 1e-12, "σ = 4, w_2 at ({y}, {x}): {} vs {want}", at(w2, y, x));
+    }
+    let p3 = weights(2.0 * 2f64.sqrt());
+    assert!(p3[1].as_ref().unwrap().data.iter().all(|&v| (v - 0.5).abs() < 1e-12));
+    for ((y, x), want) in [((2, 2), 0.5), ((2, 4), 0.125)] {
+        assert!((at(&p3[2], y, x) - want).abs() < 1e-12, "σ = 2√2, w_2 at ({y}, {x}): {} vs {want}", at(&p3[2], y, x));
+    }
 }
 
 #[test]
@@ -276,6 +311,7 @@ fn gradient_of_raw_wd_matches_finite_differences() {
     let mut rng = Rng::new(21);
     let sigmas = [
         Sigma::Constant(4.0),
+        Sigma::Constant(2.0),
         Sigma::Constant(2.7),
         Sigma::Constant(1.0),
         Sigma::map(4, 3, &(0..12).map(|i| 1.0 + i as f64 * 1.3).collect::<Vec<_>>()),
@@ -303,13 +339,14 @@ fn gradient_through_pyramid_matches_finite_differences() {
     let (h, w) = (21, 18);
     let target = random_image::<f64>(&mut rng, h, w);
     let x = random_image::<f64>(&mut rng, h, w);
-    let sigma = Sigma::Constant(4.0);
-    let r = Reference::new(&Pyramid.features(&target), &sigma, h, w);
-    let ex = Pyramid.extract(&x);
-    let (_, grads) = wd::distortion_and_grad(&r, &ex.arrays);
-    let g = ex.tape.backward(&grads);
-    let idx = some_indices(&mut rng, x.data.len(), 16);
-    check_grad(&x, &g, &idx, 1e-6, 1e-6, &|t| wd::distortion(&r, &Pyramid.features(t)));
+    for sigma in [Sigma::Constant(4.0), Sigma::Constant(2.0)] {
+        let r = Reference::new(&Pyramid.features(&target), &sigma, h, w);
+        let ex = Pyramid.extract(&x);
+        let (_, grads) = wd::distortion_and_grad(&r, &ex.arrays);
+        let g = ex.tape.backward(&grads);
+        let idx = some_indices(&mut rng, x.data.len(), 16);
+        check_grad(&x, &g, &idx, 1e-6, 1e-6, &|t| wd::distortion(&r, &Pyramid.features(t)));
+    }
 }
 
 /// A safetensors file of VGG-16 layout with the given output widths and random weights.
@@ -398,10 +435,22 @@ fn wdr_gradient_matches_finite_differences_and_composition() {
     // make every value exactly representable in f32 so the f32 and f64 paths see the same image
     x.data.iter_mut().for_each(|v| *v = *v as f32 as f64);
     let target: Tensor<f64> = Tensor::from_vec(3, h, w, target.data.iter().map(|v| *v as f32 as f64).collect());
-    let (ti, xi) = (to_image(&target), to_image(&x));
 
+    // the default σ (4) and `--wd-sigma 2`
+    for sigma in [None, Some(2.0)] {
+        wdr_matches_its_formula(&mut rng, &x, &target, sigma);
+    }
+}
+
+/// WD-R at σ (None: the default) against f64 finite differences of γ(d_WD + β L_orig) at `x`.
+fn wdr_matches_its_formula(rng: &mut Rng, x: &Tensor<f64>, target: &Tensor<f64>, sigma: Option<f64>) {
+    let (h, w) = (x.h, x.w);
+    let (ti, xi) = (to_image(target), to_image(x));
     let total = 1000;
     let mut loss = WdrLoss::new(Box::new(Pyramid), total).with_fixed_gamma(wdr::DEFAULT_GAMMA_WDR);
+    if let Some(s) = sigma {
+        loss = loss.with_sigma(Sigma::Constant(s));
+    }
     assert_eq!(loss.warmup, 100);
     // warm-up: L_orig alone
     let (lw, gw) = loss.loss_and_grad(&xi, &ti, 0, 99);
@@ -409,13 +458,13 @@ fn wdr_gradient_matches_finite_differences_and_composition() {
     assert_eq!((lw, &gw), (lo, &go));
     // after: γ(d_WD + β L_orig), checked against f64 finite differences of that formula
     let (l, g) = loss.loss_and_grad(&xi, &ti, 0, 100);
-    let sigma = Sigma::Constant(4.0);
-    let r = Reference::new(&Pyramid.features(&target), &sigma, h, w);
+    let sigma = Sigma::Constant(sigma.unwrap_or(wd::DEFAULT_SIGMA));
+    let r = Reference::new(&Pyramid.features(target), &sigma, h, w);
     let f = |t: &Tensor<f64>| {
         let d = wd::distortion(&r, &Pyramid.features(t));
         wdr::DEFAULT_GAMMA_WDR * (d + wdr::BETA * wdr::l_orig(&to_image(t), &ti).0)
     };
-    assert!((l - f(&x)).abs() < 1e-5 * l, "{l} vs {}", f(&x));
+    assert!((l - f(x)).abs() < 1e-5 * l, "{sigma:?}: {l} vs {}", f(x));
     let gt = Tensor::<f64>::from_vec(3, h, w, {
         let n = h * w;
         let mut d = vec![0.0; 3 * n];
@@ -426,9 +475,9 @@ fn wdr_gradient_matches_finite_differences_and_composition() {
         }
         d
     });
-    let idx = some_indices(&mut rng, x.data.len(), 12);
+    let idx = some_indices(rng, x.data.len(), 12);
     // eps 2^-10 keeps the perturbed values exact in f32
-    check_grad(&x, &gt, &idx, 1.0 / 1024.0, 2e-3, &f);
+    check_grad(x, &gt, &idx, 1.0 / 1024.0, 2e-3, &f);
 }
 
 #[test]
@@ -564,6 +613,25 @@ fn loss_options_parse_and_fail_cleanly() {
     assert_eq!(build_loss(&g.loss, 10, LossKind::L1ssim).err().unwrap().exit_code(), 2);
     let ok = Cli::try_parse_from(["x", "--loss", "wd", "--wd-gamma", "0.5"]).unwrap();
     assert_eq!(build_loss(&ok.loss, 10, LossKind::L1ssim).unwrap().name(), "wd");
+    // --wd-sigma: [1, 32] (ℓ in [0, NUM_LEVELS]); outside, or NaN, is bad input naming the bound
+    for bad in ["0.5", "33", "NaN", "-4"] {
+        let c = Cli::try_parse_from(["x", "--loss", "wdr", &format!("--wd-sigma={bad}")]).unwrap();
+        let e = build_loss(&c.loss, 10, LossKind::L1ssim).err().expect("σ out of range");
+        assert_eq!(e.exit_code(), 2);
+        assert!(e.to_string().contains(&format!("--wd-sigma {bad}: must be in [1, 32]")), "{e}");
+    }
+    // the σ given is the σ trained with: `wd` at γ = 1 past its warm-up is d_WD at that σ
+    let mut rng = Rng::new(12);
+    let (a, b) = (to_image(&random_image::<f64>(&mut rng, 24, 20)), to_image(&random_image::<f64>(&mut rng, 24, 20)));
+    let d = |s: f64| WdDistortion::new(Box::new(Pyramid)).with_sigma(Sigma::Constant(s)).value(&a, &b, None);
+    for (args, sigma) in
+        [(vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-sigma", "2"], 2.0), (vec!["x", "--loss", "wd", "--wd-gamma", "1"], 4.0)]
+    {
+        let c = Cli::try_parse_from(args).unwrap();
+        let got = build_loss(&c.loss, 10, LossKind::L1ssim).unwrap().loss_and_grad(&a, &b, 0, 5).0;
+        assert!((got - d(sigma)).abs() <= 1e-6 * got, "σ {sigma}: {got} vs {}", d(sigma));
+    }
+    assert!((d(2.0) - d(4.0)).abs() > 1e-3 * d(4.0), "σ changes the value");
 }
 
 #[test]
@@ -612,4 +680,29 @@ fn train_cli_runs_wdr_on_the_tiny_sample() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.starts_with("error: /nonexistent/vgg.safetensors"), "{err}");
     assert!(!bad.exists());
+}
+
+#[test]
+fn wd_sigma_out_of_range_is_bad_input_on_every_command() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = env!("CARGO_MANIFEST_DIR");
+    let tiny = format!("{root}/samples/tiny");
+    let out = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let runs: [Vec<String>; 3] = [
+        vec!["train".into(), tiny.clone(), "-o".into(), out("t.ply"), "--loss".into(), "wdr".into()],
+        vec!["encode".into(), tiny.clone(), "-o".into(), out("e.gsc")],
+        vec!["sweep".into(), tiny.clone(), "-o".into(), out("sw")],
+    ];
+    for args in runs {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_gscodec"))
+            .args(&args)
+            .args(["--iters", "5", "--wd-sigma", "0.5", "--quiet"])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{}: {err}", args[0]);
+        assert_eq!(err.lines().count(), 1, "{}: {err}", args[0]);
+        assert!(err.starts_with("error: ") && err.contains("--wd-sigma 0.5: must be in [1, 32]"), "{}: {err}", args[0]);
+    }
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no partial output");
 }

@@ -26,6 +26,9 @@ pub struct Args {
     /// Training iterations per encode (encoder default when absent).
     #[arg(long)]
     pub iters: Option<usize>,
+    /// Pooling scale σ of `wd` / `wdr` (1 ≤ S ≤ 32) [default: 4].
+    #[arg(long = "wd-sigma", value_name = "S")]
+    pub wd_sigma: Option<f64>,
     /// Training backend of every encode: cpu, gpu, or auto (a hardware GPU if there is one).
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
@@ -63,6 +66,7 @@ pub fn run(args: Args) -> Result<()> {
         lambdas,
         losses,
         iters: args.iters,
+        wd_sigma: args.wd_sigma,
         backend: args.backend,
         dataset_args: args.dataset.to_args(),
     };

@@ -21,7 +21,7 @@ pub struct Args {
     /// Random seed (initialisation, view order, densification).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Training loss (`--loss`, `--features`, `--wd-gamma`).
+    /// Training loss (`--loss`, `--features`, `--wd-gamma`, `--wd-sigma`).
     #[command(flatten)]
     pub loss: LossArgs,
     /// Start from this scene (.ply) instead of the dataset's points / random points.

@@ -74,7 +74,7 @@ impl TrainBackend for GpuBackend {
     }
 
     fn train(&mut self, job: TrainJob<'_>, progress: &mut dyn FnMut(&Progress)) -> Result<(Splats, TrainReport)> {
-        let loss = crate::train::gpu::GpuLoss::new(job.loss.kind, &job.loss.features, job.loss.wd_gamma);
+        let loss = crate::train::gpu::GpuLoss::new(job.loss.kind, &job.loss.features, job.loss.wd_gamma, job.loss.wd_sigma);
         let refused = loss.check().err();
         match refused {
             Some(_) if self.fall_back_to_cpu => CpuBackend.train(job, progress),
@@ -89,7 +89,7 @@ impl TrainBackend for GpuBackend {
     }
 }
 
-/// The image loss a backend trains with, as a description (kind, features, γ), so that a GPU
+/// The image loss a backend trains with, as a description (kind, features, γ, σ), so that a GPU
 /// backend can build its own kernels; [`LossSpec::build`] makes the CPU implementation.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct LossSpec {
@@ -99,12 +99,20 @@ pub struct LossSpec {
     pub features: FeatureSpec,
     /// γ of WD / WD-R (None: the loss's default).
     pub wd_gamma: Option<f64>,
+    /// Uniform pooling scale σ of WD / WD-R (None: [`crate::loss::wd::DEFAULT_SIGMA`]).
+    pub wd_sigma: Option<f64>,
 }
 
 impl LossSpec {
-    /// The loss `--loss`/`--features`/`--wd-gamma` describe, `default` when `--loss` is absent.
+    /// The loss `--loss`/`--features`/`--wd-gamma`/`--wd-sigma` describe, `default` when
+    /// `--loss` is absent.
     pub fn from_args(args: &LossArgs, default: LossKind) -> LossSpec {
-        LossSpec { kind: args.loss.unwrap_or(default), features: args.features.clone(), wd_gamma: args.wd_gamma }
+        LossSpec { kind: args.loss.unwrap_or(default), features: args.features.clone(), wd_gamma: args.wd_gamma, wd_sigma: args.wd_sigma }
+    }
+
+    /// WD's σ for reports: the value trained with for `wd` / `wdr`, None for `l1ssim`.
+    pub fn reported_sigma(&self) -> Option<f64> {
+        (self.kind != LossKind::L1ssim).then(|| self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA))
     }
 
     /// Short name (`l1ssim`, `wd`, `wdr`).
@@ -119,9 +127,9 @@ impl LossSpec {
     /// The CPU loss for a run of `iters` iterations.
     ///
     /// # Errors
-    /// Unreadable VGG weights or a γ that is not a positive number (exit 2).
+    /// Unreadable VGG weights, a γ that is not a positive number or a σ out of range (exit 2).
     pub fn build(&self, iters: usize) -> Result<Box<dyn ImageLoss>> {
-        let args = LossArgs { loss: Some(self.kind), features: self.features.clone(), wd_gamma: self.wd_gamma };
+        let args = LossArgs { loss: Some(self.kind), features: self.features.clone(), wd_gamma: self.wd_gamma, wd_sigma: self.wd_sigma };
         crate::loss::build_loss(&args, iters, self.kind)
     }
 }

@@ -103,6 +103,9 @@ impl EncoderConfig {
         if let Some(g) = self.loss.wd_gamma.filter(|g| !(g.is_finite() && *g > 0.0)) {
             return Err(InvalidConfig::WdGamma { value: g });
         }
+        if let Some(s) = self.loss.wd_sigma {
+            crate::loss::check_wd_sigma(s)?;
+        }
         Ok(())
     }
 
@@ -136,6 +139,14 @@ pub enum InvalidConfig {
     WdGamma {
         /// The value given.
         value: f64,
+    },
+    /// σ of WD / WD-R must be in [1, 2^NUM_LEVELS] (ℓ = log2 σ in [0, NUM_LEVELS]).
+    #[error("--wd-sigma {value}: must be in [1, {max}]")]
+    WdSigma {
+        /// The value given.
+        value: f64,
+        /// The largest accepted.
+        max: f64,
     },
     /// A dataset is encoded by training: iterations must be ≥ 1.
     #[error("--iters 0: encoding a dataset needs training, at least 1 iteration")]
@@ -177,6 +188,15 @@ mod tests {
         let e = EncoderConfig::default().with_loss(loss).validate().unwrap_err();
         assert_eq!(e, InvalidConfig::WdGamma { value: -0.5 });
         assert!(e.to_string().contains("-0.5") && e.to_string().contains("> 0"));
+        for s in [0.5, 33.0, f64::NAN] {
+            let loss = LossSpec { wd_sigma: Some(s), ..LossSpec::default() };
+            let e = EncoderConfig::default().with_loss(loss).validate().unwrap_err();
+            assert_eq!(e.to_string(), format!("--wd-sigma {s}: must be in [1, 32]"));
+        }
+        for s in [1.0, 2.0, 32.0] {
+            let loss = LossSpec { wd_sigma: Some(s), ..LossSpec::default() };
+            assert_eq!(EncoderConfig::default().with_loss(loss).validate(), Ok(()));
+        }
         let c = EncoderConfig::default().with_iters(Some(0));
         assert_eq!(c.validate(), Ok(()), "a scene may be coded as is");
         assert_eq!(c.validate_for_dataset(), Err(InvalidConfig::DatasetWithoutTraining));

@@ -264,6 +264,7 @@ impl Encoder {
             input: String::new(),
             lambda: self.config.lambda,
             loss: train.as_ref().map(|_| self.config.loss.name()),
+            wd_sigma: train.as_ref().and_then(|_| self.config.loss.reported_sigma()),
             iters,
             backend: train.as_ref().map(|t| t.backend),
             file_bytes: bytes.len(),

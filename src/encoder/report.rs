@@ -51,6 +51,8 @@ pub struct EncodeReport {
     pub lambda: Lambda,
     /// Training distortion, when the encode trained.
     pub loss: Option<&'static str>,
+    /// WD's uniform pooling scale σ (`--wd-sigma`), when the encode trained with `wd` / `wdr`.
+    pub wd_sigma: Option<f64>,
     /// Training iterations (0: coded as is).
     pub iters: usize,
     /// The training backend that ran (`cpu`, `gpu`), when the encode trained.

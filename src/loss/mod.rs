@@ -52,28 +52,51 @@ pub struct LossArgs {
     /// see docs/wd.md).
     #[arg(long = "wd-gamma", value_name = "G")]
     pub wd_gamma: Option<f64>,
+    /// Pooling scale σ of `wd` / `wdr` in pixels, the same everywhere: 1 ≤ S ≤ 32 (default: 4,
+    /// DESIGN §4; see docs/wd.md).
+    #[arg(long = "wd-sigma", value_name = "S")]
+    pub wd_sigma: Option<f64>,
+}
+
+/// Largest uniform σ WD accepts: 2^[`wd::NUM_LEVELS`] (ℓ = log2 σ ≤ NUM_LEVELS).
+pub const MAX_WD_SIGMA: f64 = (1u32 << wd::NUM_LEVELS) as f64;
+
+/// Checks a `--wd-sigma`: in [1, [`MAX_WD_SIGMA`]] (NaN is not).
+///
+/// # Errors
+/// [`InvalidConfig::WdSigma`](crate::encoder::InvalidConfig::WdSigma), naming the value and the bound.
+pub fn check_wd_sigma(sigma: f64) -> Result<(), crate::encoder::InvalidConfig> {
+    match (1.0..=MAX_WD_SIGMA).contains(&sigma) {
+        true => Ok(()),
+        false => Err(crate::encoder::InvalidConfig::WdSigma { value: sigma, max: MAX_WD_SIGMA }),
+    }
 }
 
 /// Builds the loss for a run of `total_iters` iterations (the WD warm-up is 10 % of it);
 /// `default` is used when `--loss` was not given.
 ///
 /// # Errors
-/// Bad input (exit 2) for an unreadable VGG weights file or a γ that is not a positive number.
+/// Bad input (exit 2) for an unreadable VGG weights file, a γ that is not a positive number or a
+/// σ out of [1, [`MAX_WD_SIGMA`]].
 pub fn build_loss(args: &LossArgs, total_iters: usize, default: LossKind) -> crate::Result<Box<dyn ImageLoss>> {
     if let Some(g) = args.wd_gamma {
         if !(g.is_finite() && g > 0.0) {
             return Err(crate::Error::Input(format!("--wd-gamma must be a positive number, got {g}")));
         }
     }
+    if let Some(s) = args.wd_sigma {
+        check_wd_sigma(s)?;
+    }
+    let sigma = wd::Sigma::Constant(args.wd_sigma.unwrap_or(wd::DEFAULT_SIGMA));
     Ok(match args.loss.unwrap_or(default) {
         LossKind::L1ssim => Box::new(L1Ssim::default()),
         LossKind::Wd => {
-            let mut l = wdr::WdLoss::new(args.features.build()?, total_iters);
+            let mut l = wdr::WdLoss::new(args.features.build()?, total_iters).with_sigma(sigma);
             l.gamma = args.wd_gamma.unwrap_or(l.gamma);
             Box::new(l)
         }
         LossKind::Wdr => {
-            let l = wdr::WdrLoss::new(args.features.build()?, total_iters);
+            let l = wdr::WdrLoss::new(args.features.build()?, total_iters).with_sigma(sigma);
             Box::new(match args.wd_gamma {
                 Some(g) => l.with_fixed_gamma(g),
                 None => l,

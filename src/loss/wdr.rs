@@ -168,6 +168,11 @@ impl WdLoss {
     pub fn new(space: Box<dyn FeatureSpace<f32>>, total_iters: usize) -> Self {
         WdLoss { distortion: WdDistortion::new(space), gamma: DEFAULT_GAMMA_WD, warmup: warmup_iters(total_iters) }
     }
+
+    /// The same loss with pooling scale `sigma` (see [`WdDistortion::with_sigma`]).
+    pub fn with_sigma(self, sigma: Sigma) -> Self {
+        WdLoss { distortion: self.distortion.with_sigma(sigma), ..self }
+    }
 }
 
 impl ImageLoss for WdLoss {
@@ -221,6 +226,11 @@ impl WdrLoss {
     /// The same loss with the fixed γ `gamma` (no normalisation).
     pub fn with_fixed_gamma(self, gamma: f64) -> Self {
         WdrLoss { gamma, normalise: false, ..self }
+    }
+
+    /// The same loss with pooling scale `sigma` (see [`WdDistortion::with_sigma`]).
+    pub fn with_sigma(self, sigma: Sigma) -> Self {
+        WdrLoss { distortion: self.distortion.with_sigma(sigma), ..self }
     }
 
     /// Whether γ is final (fixed, or normalised over [`NORMALISE_VIEWS`] views).

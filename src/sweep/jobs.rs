@@ -79,6 +79,7 @@ mod tests {
             lambdas: vec![0.1, 0.01],
             losses: vec!["wdr".into()],
             iters: None,
+            wd_sigma: None,
             backend: crate::encoder::Backend::Auto,
             dataset_args: Vec::new(),
         };

@@ -75,6 +75,8 @@ pub struct Plan {
     pub losses: Vec<String>,
     /// `encode --iters`, or the encoder's default.
     pub iters: Option<usize>,
+    /// `encode --wd-sigma` (None: the default σ).
+    pub wd_sigma: Option<f64>,
     /// Training backend of every encode.
     pub backend: Backend,
     /// Dataset options (`--downscale N`, …) as command-line words, passed on to emitted jobs;
@@ -93,16 +95,19 @@ impl Plan {
         self.out.join("points").join(p.dir_name())
     }
 
-    /// Whether a point has a result file from the same settings (`--iters`); a result from other
-    /// settings, or an unreadable one, is redone.
+    /// Whether a point has a result file from the same settings (`--iters`, and `--wd-sigma` for
+    /// `wd` / `wdr`); a result from other settings, or an unreadable one, is redone.
     pub fn is_done(&self, p: &Point) -> bool {
-        results::read_result(&self.point_dir(p).join(RESULT_FILE)).is_ok_and(|r| r.iters == self.iters)
+        let Ok(r) = results::read_result(&self.point_dir(p).join(RESULT_FILE)) else { return false };
+        // Results written before σ was an option were trained at the default σ.
+        let done_sigma = r.wd_sigma.or_else(|| (r.loss != "l1ssim").then_some(crate::loss::wd::DEFAULT_SIGMA));
+        r.iters == self.iters && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma)
     }
 
-    /// Checks λs and losses.
+    /// Checks λs, losses and σ.
     ///
     /// # Errors
-    /// A negative or non-finite λ, an unknown loss, or an empty grid (exit 2).
+    /// A negative or non-finite λ, an unknown loss, an empty grid or a σ out of range (exit 2).
     pub fn validate(&self) -> Result<()> {
         let arg = Path::new("sweep");
         if self.lambdas.is_empty() || self.losses.is_empty() {
@@ -114,6 +119,9 @@ impl Plan {
         if let Some(l) = self.losses.iter().find(|l| !KNOWN_LOSSES.contains(&l.as_str())) {
             return Err(Error::input(arg, format!("--loss: unknown loss '{l}' (expected one of {})", KNOWN_LOSSES.join(", "))));
         }
+        if let Some(s) = self.wd_sigma {
+            crate::loss::check_wd_sigma(s).map_err(|e| Error::input(arg, e))?;
+        }
         Ok(())
     }
 
@@ -124,6 +132,7 @@ impl Plan {
             "lambdas": self.lambdas,
             "losses": self.losses,
             "iters": self.iters,
+            "wd_sigma": self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA),
         })
     }
 
@@ -143,6 +152,9 @@ impl Plan {
         if let Some(n) = self.iters {
             c.extend(["--iters".into(), n.to_string()]);
         }
+        if let Some(s) = self.wd_sigma {
+            c.extend(["--wd-sigma".into(), s.to_string()]);
+        }
         c.extend(self.dataset_args.iter().cloned());
         if self.backend != Backend::Auto {
             let b = self.backend.to_possible_value().expect("no skipped variants");
@@ -157,13 +169,18 @@ impl Plan {
     /// # Errors
     /// An unknown loss or a negative λ (exit 2); [`Plan::validate`] rules these out.
     pub fn encoder_config(&self, p: &Point) -> Result<EncoderConfig> {
-        let kind = <LossKind as ValueEnum>::from_str(&p.loss, true).map_err(|e| Error::input(Path::new("--loss"), e))?;
+        let loss = self.loss_spec(p)?;
         let lambda = Lambda::new(p.lambda).ok_or_else(|| Error::input(Path::new("--lambdas"), format!("{} is not >= 0", p.lambda)))?;
-        Ok(EncoderConfig::default()
-            .with_lambda(lambda)
-            .with_iters(self.iters)
-            .with_loss(LossSpec { kind, ..LossSpec::default() })
-            .with_backend(self.backend))
+        Ok(EncoderConfig::default().with_lambda(lambda).with_iters(self.iters).with_loss(loss).with_backend(self.backend))
+    }
+
+    /// The training loss of point `p`.
+    ///
+    /// # Errors
+    /// An unknown loss (exit 2); [`Plan::validate`] rules it out.
+    pub fn loss_spec(&self, p: &Point) -> Result<LossSpec> {
+        let kind = <LossKind as ValueEnum>::from_str(&p.loss, true).map_err(|e| Error::input(Path::new("--loss"), e))?;
+        Ok(LossSpec { kind, wd_sigma: self.wd_sigma, ..LossSpec::default() })
     }
 }
 
@@ -245,6 +262,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
         lambda: p.lambda,
         loss: p.loss.clone(),
         iters: plan.iters,
+        wd_sigma: plan.loss_spec(p)?.reported_sigma(),
         bytes: out.bytes.len() as u64,
         gaussians: decoded.len() as u64,
         psnr: Some(m.psnr),
@@ -282,6 +300,7 @@ mod tests {
             lambdas: vec![0.1, 0.01],
             losses: vec!["l1ssim".into(), "wdr".into()],
             iters: Some(300),
+            wd_sigma: None,
             backend: Backend::Auto,
             dataset_args: Vec::new(),
         };
@@ -299,7 +318,17 @@ mod tests {
         let cpu = Plan { backend: Backend::Cpu, ..plan.clone() };
         assert!(cpu.point_command(&pts[0]).join(" ").ends_with("--iters 300 --backend cpu --points-only --quiet"));
         let c = plan.encoder_config(&pts[3]).unwrap();
-        assert_eq!((c.lambda.get(), c.loss.kind, c.iters), (0.01, LossKind::Wdr, Some(300)));
+        assert_eq!((c.lambda.get(), c.loss.kind, c.iters, c.loss.wd_sigma), (0.01, LossKind::Wdr, Some(300), None));
+        assert_eq!(plan.settings()["wd_sigma"], 4.0, "the default σ is recorded");
+        // --wd-sigma reaches the encoder, the emitted jobs and the summary; l1ssim points record none
+        let s2 = Plan { wd_sigma: Some(2.0), ..plan.clone() };
+        s2.validate().unwrap();
+        assert!(s2.point_command(&pts[3]).join(" ").ends_with("--iters 300 --wd-sigma 2 --points-only --quiet"));
+        assert_eq!(s2.encoder_config(&pts[3]).unwrap().loss.wd_sigma, Some(2.0));
+        assert_eq!(s2.settings()["wd_sigma"], 2.0);
+        assert_eq!((s2.loss_spec(&pts[0]).unwrap().reported_sigma(), s2.loss_spec(&pts[3]).unwrap().reported_sigma()), (None, Some(2.0)));
+        let bad = Plan { wd_sigma: Some(0.5), ..plan.clone() };
+        assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --wd-sigma 0.5: must be in [1, 32]");
         let bad = Plan { lambdas: vec![-1.0], ..plan.clone() };
         assert!(bad.validate().unwrap_err().to_string().contains("-1"));
         let bad = Plan { losses: vec!["mse".into()], ..plan };

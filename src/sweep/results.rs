@@ -40,6 +40,10 @@ pub struct PointResult {
     /// `encode --iters` (None: the encoder's default).
     #[serde(default)]
     pub iters: Option<usize>,
+    /// WD's σ (`--wd-sigma`) of a `wd` / `wdr` point; None for `l1ssim`, and in results written
+    /// before σ was an option (σ = 4 then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wd_sigma: Option<f64>,
     /// Size of the `.gsc` bitstream.
     pub bytes: u64,
     /// Gaussians in the decoded scene.

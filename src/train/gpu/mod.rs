@@ -51,13 +51,15 @@ pub struct GpuLoss {
     pub ssim_weight: f32,
     /// γ of `wd` / `wdr` (None: `wd`'s default, `wdr`'s normalised γ; see docs/wd.md).
     pub wd_gamma: Option<f64>,
+    /// Uniform σ of `wd` / `wdr` (None: [`crate::loss::wd::DEFAULT_SIGMA`]).
+    pub wd_sigma: Option<f64>,
     /// WD in VGG-16 features (refused: the GPU has only the built-in `pyramid` bank).
     pub vgg_features: bool,
 }
 
 impl Default for GpuLoss {
     fn default() -> Self {
-        GpuLoss { kind: LossKind::L1ssim, ssim_weight: 0.2, wd_gamma: None, vgg_features: false }
+        GpuLoss { kind: LossKind::L1ssim, ssim_weight: 0.2, wd_gamma: None, wd_sigma: None, vgg_features: false }
     }
 }
 
@@ -68,13 +70,13 @@ impl From<LossKind> for GpuLoss {
 }
 
 impl GpuLoss {
-    /// The loss `--loss`, `--features` and `--wd-gamma` describe.
-    pub fn new(kind: LossKind, features: &FeatureSpec, wd_gamma: Option<f64>) -> Self {
-        GpuLoss { kind, wd_gamma, vgg_features: matches!(features, FeatureSpec::Vgg16(_)), ..Default::default() }
+    /// The loss `--loss`, `--features`, `--wd-gamma` and `--wd-sigma` describe.
+    pub fn new(kind: LossKind, features: &FeatureSpec, wd_gamma: Option<f64>, wd_sigma: Option<f64>) -> Self {
+        GpuLoss { kind, wd_gamma, wd_sigma, vgg_features: matches!(features, FeatureSpec::Vgg16(_)), ..Default::default() }
     }
 
-    /// The input error for a loss the GPU trainer does not have (WD in VGG-16 features) or a γ
-    /// that is not a positive number.
+    /// The input error for a loss the GPU trainer does not have (WD in VGG-16 features), a γ
+    /// that is not a positive number or a σ out of range.
     pub fn check(&self) -> Result<()> {
         if self.kind == LossKind::L1ssim {
             return Ok(());
@@ -83,6 +85,9 @@ impl GpuLoss {
             return Err(Error::Input(
                 "GPU training computes WD only in the built-in `pyramid` features; --features vgg16=… runs on the CPU backend (--backend cpu)".into(),
             ));
+        }
+        if let Some(s) = self.wd_sigma {
+            crate::loss::check_wd_sigma(s)?;
         }
         match self.wd_gamma {
             Some(g) if !(g.is_finite() && g > 0.0) => Err(Error::Input(format!("--wd-gamma must be a positive number, got {g}"))),
@@ -164,7 +169,7 @@ pub fn training_loss_and_grad(
     let tgt = gpu.storage_init("target", bytemuck::cast_slice(&target.data));
     let mut stage = match loss.kind {
         LossKind::L1ssim => None,
-        kind => Some(wd::WdStage::new(gpu, wd::WdConfig::new(kind, loss.wd_gamma, iters), w, h)?),
+        kind => Some(wd::WdStage::new(gpu, wd::WdConfig::new(kind, loss.wd_gamma, loss.wd_sigma, iters), w, h)?),
     };
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     s.loss(&mut enc, &tgt, loss.ssim_weight);
@@ -334,7 +339,7 @@ pub fn train_with(
     };
     // The WD stage, one per image size (laid out on first use); reference statistics are cached
     // by training-view index, so a streamed target works as well.
-    let wd_config = (loss.kind != LossKind::L1ssim).then(|| wd::WdConfig::new(loss.kind, loss.wd_gamma, cfg.iters));
+    let wd_config = (loss.kind != LossKind::L1ssim).then(|| wd::WdConfig::new(loss.kind, loss.wd_gamma, loss.wd_sigma, cfg.iters));
     let mut wd_stages: Vec<wd::WdStage> = Vec::new();
     let log_every = (cfg.iters / 500).max(1);
     let mut n = session.scene.n;

@@ -15,7 +15,7 @@ use super::context::{dims, Gpu};
 use super::session::{Session, WD_TIMESTAMPS};
 use crate::loss::features::{pyramid, IMAGENET_MEAN, IMAGENET_STD};
 use crate::loss::tensor::{half, same_offset};
-use crate::loss::wd::{Plan, Sigma, NUM_LEVELS};
+use crate::loss::wd::{Plan, Sigma, DEFAULT_SIGMA, NUM_LEVELS};
 use crate::loss::wdr::{self, BETA, DEFAULT_GAMMA_WD, DEFAULT_GAMMA_WDR, NORMALISE_VIEWS};
 use crate::loss::LossKind;
 use crate::{Error, Result};
@@ -111,6 +111,8 @@ pub struct WdConfig {
     pub kind: LossKind,
     /// A fixed γ; None: `wd`'s default, or `wdr`'s measured γ.
     pub gamma: Option<f64>,
+    /// Uniform pooling scale σ (`--wd-sigma`; the level weights come from the CPU's [`Plan`]).
+    pub sigma: f64,
     /// Iterations (1-based numbers below this) trained with `L_orig` alone.
     pub warmup: usize,
     /// Budget of the reference cache in bytes.
@@ -118,9 +120,11 @@ pub struct WdConfig {
 }
 
 impl WdConfig {
-    /// The config of a `kind` run of `iters` iterations (the warm-up of [`wdr::warmup_iters`]).
-    pub fn new(kind: LossKind, gamma: Option<f64>, iters: usize) -> Self {
-        WdConfig { kind, gamma, warmup: wdr::warmup_iters(iters), cache_bytes: DEFAULT_CACHE_BYTES }
+    /// The config of a `kind` run of `iters` iterations (the warm-up of [`wdr::warmup_iters`]);
+    /// `sigma` None is [`DEFAULT_SIGMA`].
+    pub fn new(kind: LossKind, gamma: Option<f64>, sigma: Option<f64>, iters: usize) -> Self {
+        let sigma = sigma.unwrap_or(DEFAULT_SIGMA);
+        WdConfig { kind, gamma, sigma, warmup: wdr::warmup_iters(iters), cache_bytes: DEFAULT_CACHE_BYTES }
     }
 
     fn normalise(&self) -> bool {
@@ -306,10 +310,10 @@ struct Layout {
 }
 
 impl Layout {
-    /// σ = 4 (the CPU's default) and the `pyramid` arrays of a `width × height` image.
-    fn new(width: u32, height: u32) -> Layout {
+    /// A uniform `sigma` and the `pyramid` arrays of a `width × height` image.
+    fn new(width: u32, height: u32, sigma: f64) -> Layout {
         let (ww, hh) = (width as usize, height as usize);
-        let sigma = Sigma::default();
+        let sigma = Sigma::Constant(sigma);
         let mut a = Alloc::default();
         let mut r = Alloc::default();
         let mut weights: Vec<(u32, Vec<f32>)> = Vec::new();
@@ -393,12 +397,13 @@ pub struct WdStage {
 }
 
 impl WdStage {
-    /// Lays out the stage for `width × height` images (σ = 4, the `pyramid` features).
+    /// Lays out the stage for `width × height` images (`config.sigma`, the `pyramid` features).
     ///
     /// # Errors
     /// An input error when the arena or one view's statistics exceed what the adapter binds.
     pub fn new(gpu: &Gpu, config: WdConfig, width: u32, height: u32) -> Result<WdStage> {
-        let Layout { shapes, arrays, luma, gluma, t3, gb5, gw, weights, arena_floats, ref_floats } = Layout::new(width, height);
+        let Layout { shapes, arrays, luma, gluma, t3, gb5, gw, weights, arena_floats, ref_floats } =
+            Layout::new(width, height, config.sigma);
         let n0 = width as usize * height as usize;
         gpu.fits("the WD arena", arena_floats * 4)?;
         gpu.fits("one view's WD reference statistics", ref_floats * 4)?;
@@ -609,10 +614,10 @@ impl WdStage {
         })
     }
 
-    /// GPU memory of the stage for `width × height` images: (working memory of the stage,
-    /// reference statistics of one cached view), in bytes.
-    pub fn memory(width: u32, height: u32) -> (u64, u64) {
-        let l = Layout::new(width, height);
+    /// GPU memory of the stage for `width × height` images at a uniform `sigma`: (working
+    /// memory of the stage, reference statistics of one cached view), in bytes.
+    pub fn memory(width: u32, height: u32, sigma: f64) -> (u64, u64) {
+        let l = Layout::new(width, height, sigma);
         (l.arena_floats * 4, l.ref_floats * 4)
     }
 
