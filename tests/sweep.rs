@@ -198,3 +198,30 @@ fn two_jobs_run_points_in_process_with_typed_reports() {
     let rd = std::fs::read_to_string(out.join("rd.svg")).unwrap();
     assert!(rd.contains("l1ssim") && rd.contains("wdr"), "one curve per loss");
 }
+
+#[test]
+fn a_point_of_another_wd_sigma_is_redone() {
+    use gscodec::sweep::{Plan, Point};
+    let tmp = tempfile::tempdir().unwrap();
+    let plan = Plan {
+        input: "lego".into(),
+        out: tmp.path().to_path_buf(),
+        lambdas: vec![2.0],
+        losses: vec!["l1ssim".into(), "wdr".into()],
+        iters: None,
+        wd_sigma: None,
+        backend: gscodec::encoder::Backend::Cpu,
+        dataset_args: Vec::new(),
+    };
+    let (l1, wdr) = (Point { lambda: 2.0, loss: "l1ssim".into() }, Point { lambda: 2.0, loss: "wdr".into() });
+    // a wdr result from before --wd-sigma existed (no wd_sigma) was trained at σ = 4
+    write_point(tmp.path(), &fake("l1ssim", 2.0, 1.0));
+    write_point(tmp.path(), &fake("wdr", 2.0, 1.0));
+    let s2 = Plan { wd_sigma: Some(2.0), ..plan.clone() };
+    let s4 = Plan { wd_sigma: Some(4.0), ..plan.clone() };
+    assert!(plan.is_done(&wdr) && s4.is_done(&wdr) && !s2.is_done(&wdr));
+    // l1ssim has no σ: finished whatever --wd-sigma says
+    assert!(plan.is_done(&l1) && s2.is_done(&l1));
+    write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), ..fake("wdr", 2.0, 1.0) });
+    assert!(s2.is_done(&wdr) && !plan.is_done(&wdr) && !s4.is_done(&wdr));
+}
