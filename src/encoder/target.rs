@@ -5,7 +5,12 @@ use serde::Serialize;
 
 use gscodec_decoder::Splats;
 
-use super::{Encoded, Encoder, InvalidConfig, Lambda};
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::{EncodeStages, Encoded, Encoder, InvalidConfig, Lambda, Orbit};
+use crate::rate::{self, rd, rd::Trials, EncodeConfig};
 use crate::train::Progress;
 use crate::Result;
 
@@ -31,6 +36,8 @@ const RESOLUTION: f64 = 0.08;
 /// `ln` of the budget over the bytes: 0.5 %).
 const CLOSE_PSNR: f64 = 0.05;
 const CLOSE_BYTES: f64 = 0.005;
+/// Rounds of configurations between the best probe and the nearest miss (`Encoder::fill`).
+const FILL_ROUNDS: usize = 3;
 
 /// One encode of the search.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -43,6 +50,18 @@ pub struct Probe {
     pub psnr: f64,
 }
 
+/// A configuration tried between the best probe and the nearest one that missed
+/// ([`rd::between`]): the knob changed (`+ knob`: added to the knobs kept before), file size
+/// (without learned tables) and orbit PSNR.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Between {
+    /// Round of `Encoder::fill`'s search (each starts from the best of the one before).
+    pub round: usize,
+    pub change: String,
+    pub bytes: usize,
+    pub psnr: f64,
+}
+
 /// How a target was met: the target and every encode tried, in order.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TargetSearch {
@@ -50,6 +69,9 @@ pub struct TargetSearch {
     pub target: Target,
     /// Every encode of the search.
     pub probes: Vec<Probe>,
+    /// The configurations tried between the best probe and the nearest that missed (RD search
+    /// alone, `iters` 0).
+    pub between: Vec<Between>,
 }
 
 impl Target {
@@ -71,19 +93,27 @@ impl Target {
         }
     }
 
-    fn met(self, e: &Encoded) -> bool {
+    fn met(self, (bytes, psnr): (usize, f64)) -> bool {
         match self {
-            Target::Psnr(p) => e.report.orbit_psnr >= p,
-            Target::Bytes(b) => e.bytes.len() as u64 <= b,
+            Target::Psnr(p) => psnr >= p,
+            Target::Bytes(b) => bytes as u64 <= b,
         }
     }
 
-    /// By how much `e` meets the target (negative: misses it), in the unit the search
-    /// interpolates: dB for a PSNR, `ln(budget / bytes)` for a size.
-    fn margin(self, e: &Encoded) -> f64 {
+    /// Whether `a` is better than `b` (bytes, PSNR), both meeting the target.
+    fn better(self, a: (usize, f64), b: (usize, f64)) -> bool {
         match self {
-            Target::Psnr(p) => e.report.orbit_psnr - p,
-            Target::Bytes(b) => (b as f64).ln() - (e.bytes.len() as f64).ln(),
+            Target::Psnr(_) => a.0 < b.0,
+            Target::Bytes(_) => a.1 > b.1,
+        }
+    }
+
+    /// By how much (bytes, PSNR) meets the target (negative: misses it), in the unit the search
+    /// interpolates: dB for a PSNR, `ln(budget / bytes)` for a size.
+    fn margin(self, (bytes, psnr): (usize, f64)) -> f64 {
+        match self {
+            Target::Psnr(p) => psnr - p,
+            Target::Bytes(b) => (b as f64).ln() - (bytes as f64).ln(),
         }
     }
 
@@ -94,19 +124,11 @@ impl Target {
             Target::Bytes(_) => CLOSE_BYTES,
         }
     }
-
-    /// Whether `a` is better than `b`, both meeting the target.
-    fn better(self, a: &Encoded, b: &Encoded) -> bool {
-        match self {
-            Target::Psnr(_) => a.bytes.len() < b.bytes.len(),
-            Target::Bytes(_) => a.report.orbit_psnr > b.report.orbit_psnr,
-        }
-    }
 }
 
 /// Size of the file of an empty scene (the smallest `.gsc`).
 fn empty_file_bytes() -> u64 {
-    crate::rate::encode(&Splats::new(0), &crate::rate::EncodeConfig::default()).map_or(0, |(b, _, _)| b.len() as u64)
+    rate::encode(&Splats::new(0), &EncodeConfig::default()).map_or(0, |(b, _, _)| b.len() as u64)
 }
 
 impl Encoder {
@@ -126,15 +148,22 @@ impl Encoder {
         let mut trials = crate::rate::rd::Trials::new(scene).map_err(|e| crate::Error::Input(e.to_string()))?;
         let mut probes = Vec::new();
         let mut best: Option<Encoded> = None;
+        // The configuration and `t` of every probe that missed the target.
+        let mut missed: Vec<(f64, EncodeConfig)> = Vec::new();
+        let mut best_t = 0.0;
         let mut probe = |t: f64, best: &mut Option<Encoded>| -> Result<f64> {
             let lambda = Lambda::new(t.exp_m1().max(0.0)).unwrap_or(Lambda::ZERO);
             let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
             let e = enc.encode_scene_with(&mut trials, progress)?;
-            probes.push(Probe { lambda, bytes: e.bytes.len(), psnr: e.report.orbit_psnr });
-            let met = target.met(&e);
-            let margin = target.margin(&e);
-            if met && best.as_ref().is_none_or(|b| target.better(&e, b)) {
+            let outcome = (e.bytes.len(), e.report.orbit_psnr);
+            probes.push(Probe { lambda, bytes: outcome.0, psnr: outcome.1 });
+            let met = target.met(outcome);
+            let margin = target.margin(outcome);
+            if !met {
+                missed.push((t, e.config));
+            } else if best.as_ref().is_none_or(|b| target.better(outcome, (b.bytes.len(), b.report.orbit_psnr))) {
                 *best = Some(e);
+                best_t = t;
             }
             // `met` decides the side even where the margin rounds to 0.
             Ok(if met { margin.max(0.0) } else { margin.min(-f64::MIN_POSITIVE) })
@@ -145,7 +174,16 @@ impl Encoder {
         if (m0 >= 0.0) != (m1 >= 0.0) {
             bracket(ends[0], m0, ends[1], m1, target.close(), |t| probe(t, &mut best))?;
         }
-        let search = TargetSearch { target, probes };
+        // The RD curve has steps (the search's choices are discrete): between the best probe
+        // and the nearest that missed, try configurations mixing their choices.
+        let mut between = Vec::new();
+        let nearest_miss = missed.iter().min_by(|a, b| (a.0 - best_t).abs().total_cmp(&(b.0 - best_t).abs()));
+        if let (Some(e), Some((_, bad)), 0) = (&best, nearest_miss, self.config.iters_for(false)) {
+            if let Some(filled) = self.fill(&trials, target, e, bad, &mut between)? {
+                best = Some(filled);
+            }
+        }
+        let search = TargetSearch { target, probes, between };
         match best {
             Some(mut e) => {
                 e.report.target = Some(search);
@@ -162,6 +200,76 @@ impl Encoder {
                 }))
             }
         }
+    }
+}
+
+impl Encoder {
+    /// Between `good` (the best encode meeting `target`, from an RD search alone) and `bad`
+    /// (the choices of the nearest probe that missed it), up to [`FILL_ROUNDS`] rounds from the
+    /// best so far: the best with each one of its knobs set as in `bad` ([`rd::between`]); of
+    /// those that meet the target and beat the best, the best one, then the others added one
+    /// after another (most bytes saved, or PSNR gained, first), each kept if the result still
+    /// meets the target and is better. A round that finds nothing better ends the search. Every
+    /// configuration tried goes into `tried`. Returns the encode of the best when it beats `good`.
+    fn fill(
+        &self,
+        trials: &Trials,
+        target: Target,
+        good: &Encoded,
+        bad: &EncodeConfig,
+        tried: &mut Vec<Between>,
+    ) -> Result<Option<Encoded>> {
+        let scene = trials.scene();
+        let began = Instant::now();
+        let orbit = Orbit::new(scene);
+        let eval = |c: &EncodeConfig| -> Result<(usize, f64)> {
+            let c = EncodeConfig { learned_tables: false, progressive: self.config.progressive, ..*c };
+            let (bytes, _, q) =
+                rate::encode_with(scene, &c, Some(trials.significance())).map_err(|e| crate::Error::Input(e.to_string()))?;
+            Ok((bytes.len(), orbit.psnr(&rate::quantise::dequantise(&q))))
+        };
+        // Compared like for like: without learned tables (as every trial), same PSNR.
+        let start = (good.config, eval(&good.config)?);
+        let mut cur = start;
+        for round in 1..=FILL_ROUNDS {
+            let alone = rd::between(&cur.0, bad);
+            let outcomes = alone.par_iter().map(|(_, c)| eval(c)).collect::<Result<Vec<_>>>()?;
+            let mut pays = Vec::new();
+            for ((knob, c), &o) in alone.iter().zip(&outcomes) {
+                tried.push(Between { round, change: knob.clone(), bytes: o.0, psnr: o.1 });
+                if target.met(o) && target.better(o, cur.1) {
+                    pays.push((knob.as_str(), *c, o));
+                }
+            }
+            match target {
+                Target::Psnr(_) => pays.sort_by_key(|p| p.2 .0),
+                Target::Bytes(_) => pays.sort_by(|a, b| b.2 .1.total_cmp(&a.2 .1)),
+            }
+            let Some(&(_, c, o)) = pays.first() else { break };
+            let from = cur;
+            cur = (c, o);
+            for &(knob, _, _) in &pays[1..] {
+                let Some((_, c)) = rd::between(&cur.0, bad).into_iter().find(|(name, _)| name == knob) else { continue };
+                let o = eval(&c)?;
+                tried.push(Between { round, change: format!("+ {knob}"), bytes: o.0, psnr: o.1 });
+                if target.met(o) && target.better(o, cur.1) {
+                    cur = (c, o);
+                }
+            }
+            debug_assert!(target.better(cur.1, from.1));
+        }
+        if cur.0 == start.0 {
+            return Ok(None);
+        }
+        let config = cur.0;
+        let enc = Encoder { config: self.config.clone().with_lambda(good.report.lambda) };
+        // Its search: the best probe's RD search, then this one.
+        let searched = good.report.stages.rd_search_s + began.elapsed().as_secs_f64();
+        let stages = EncodeStages { rd_search_s: searched, ..EncodeStages::default() };
+        let mut e = enc.finish(scene, scene, &config, 0, Instant::now(), stages, good.report.series.clone(), None, None)?;
+        e.report.stages.total_s += searched;
+        // The decoded scene, hence the PSNR, is the trial's; learned tables only shrink the file.
+        Ok(target.met((e.bytes.len(), e.report.orbit_psnr)).then_some(e))
     }
 }
 
@@ -233,6 +341,12 @@ mod tests {
         assert!(s.probes.iter().filter(|p| p.psnr >= want).all(|p| p.bytes >= e.bytes.len()), "{s:?}");
         assert!(s.probes.iter().any(|p| p.psnr < want), "the search brackets the target: {s:?}");
         assert!(s.probes.len() <= 2 + MAX_INNER_PROBES, "{s:?}");
+        // The file is what its configuration codes; one smaller than every probe's came from the
+        // configurations tried between the best probe and the nearest miss, with that PSNR.
+        assert_eq!(rate::encode(&scene, &e.config).unwrap().0, e.bytes);
+        if s.probes.iter().all(|p| p.bytes > e.bytes.len()) {
+            assert!(s.between.iter().any(|b| b.psnr == e.report.orbit_psnr && b.bytes >= e.bytes.len()), "{s:?}");
+        }
         // A size target: half the file the PSNR target gave.
         let budget = e.bytes.len() as u64 / 2;
         let f = enc.encode_scene_to(&scene, Target::Bytes(budget), &mut |_| {}).unwrap();
