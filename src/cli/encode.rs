@@ -20,13 +20,13 @@ pub struct Args {
     /// Larger gives smaller files; 0 = finest.
     #[arg(long, default_value_t = Lambda::DEFAULT)]
     pub lambda: Lambda,
-    /// Instead of a λ: the smallest file whose PSNR reaches DB, found by bisection on λ (about
-    /// ten encodes). The PSNR is measured as `gscodec eval OUTPUT --reference INPUT --orbit 8`
+    /// Instead of a λ: the smallest file whose PSNR reaches DB, found by a bracketing search on
+    /// λ (regula falsi; at most ten encodes). The PSNR is measured as `gscodec eval OUTPUT --reference INPUT --orbit 8`
     /// measures it (8 orbit views at 256×256, up −y, black background). A scene input only (not a dataset).
     #[arg(long, value_name = "DB", conflicts_with_all = ["lambda", "target_bytes"])]
     pub target_psnr: Option<f64>,
     /// Instead of a λ: the best PSNR (measured as for --target-psnr) among files of at most N
-    /// bytes, found by bisection on λ. A scene input only (not a dataset).
+    /// bytes, found by the same search on λ. A scene input only (not a dataset).
     #[arg(long, value_name = "N", conflicts_with = "lambda")]
     pub target_bytes: Option<u64>,
     /// Training distortion and its options.

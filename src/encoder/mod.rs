@@ -26,6 +26,8 @@ mod target;
 
 use std::time::Instant;
 
+use rayon::prelude::*;
+
 use gscodec_decoder::render::render;
 use gscodec_decoder::{RenderOptions, Splats};
 
@@ -57,6 +59,9 @@ pub struct Encoded {
     pub decoded: Splats,
     /// What the encode did.
     pub report: EncodeReport,
+    /// The encoder's choices that [`Encoded::bytes`] codes with (the RD search's, with the
+    /// steps fine-tuning learned).
+    pub config: EncodeConfig,
 }
 
 /// An encoder with validated settings.
@@ -283,7 +288,7 @@ impl Encoder {
             series,
             target: None,
         };
-        Ok(Encoded { bytes, decoded, report })
+        Ok(Encoded { bytes, decoded, report, config: *config })
     }
 }
 
@@ -302,9 +307,29 @@ fn learned_steps(base: Steps, r: &TrainReport) -> Steps {
 /// Mean PSNR of `b` against `a` over [`ORBIT_VIEWS`] orbit views of `a` at [`ORBIT_SIZE`]²
 /// (up −y, black background): what `eval --reference A --orbit 8` reports for `b`.
 pub fn orbit_psnr(a: &Splats, b: &Splats) -> f64 {
-    let opts = RenderOptions::default();
-    let cams = orbit_cameras(a, ORBIT_VIEWS, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
-    cams.iter().map(|c| crate::metrics::psnr(&render(a, c, &opts), &render(b, c, &opts))).sum::<f64>() / cams.len() as f64
+    Orbit::new(a).psnr(b)
+}
+
+/// The orbit views of [`orbit_psnr`]'s reference scene, rendered once, for measuring many scenes
+/// against it.
+pub(crate) struct Orbit {
+    cams: Vec<gscodec_decoder::Camera>,
+    refs: Vec<gscodec_decoder::Image>,
+}
+
+impl Orbit {
+    pub(crate) fn new(reference: &Splats) -> Orbit {
+        let cams = orbit_cameras(reference, ORBIT_VIEWS, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
+        let refs = cams.iter().map(|c| render(reference, c, &RenderOptions::default())).collect();
+        Orbit { cams, refs }
+    }
+
+    /// [`orbit_psnr`] of `b` (the views summed in order).
+    pub(crate) fn psnr(&self, b: &Splats) -> f64 {
+        let opts = RenderOptions::default();
+        let per_view: Vec<f64> = self.cams.par_iter().zip(&self.refs).map(|(c, r)| crate::metrics::psnr(r, &render(b, c, &opts))).collect();
+        per_view.iter().sum::<f64>() / self.cams.len() as f64
+    }
 }
 
 #[cfg(test)]

@@ -1,11 +1,16 @@
 //! Encoding to a target instead of a λ: the smallest file that reaches a PSNR, or the best PSNR
-//! within a size, found by bisection on λ ([`Encoder::encode_scene_to`]).
+//! within a size, found by a bracketing search on λ ([`Encoder::encode_scene_to`]).
 
 use serde::Serialize;
 
 use gscodec_decoder::Splats;
 
-use super::{Encoded, Encoder, InvalidConfig, Lambda};
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::{EncodeStages, Encoded, Encoder, InvalidConfig, Lambda, Orbit};
+use crate::rate::{self, rd, rd::Trials, EncodeConfig};
 use crate::train::Progress;
 use crate::Result;
 
@@ -23,8 +28,16 @@ pub enum Target {
 pub const MAX_TARGET_PSNR: f64 = 200.0;
 /// The largest λ the search tries (every scene's file is nearly empty there).
 pub const MAX_LAMBDA: f64 = 1e9;
-/// Bisection steps between the ends (in `ln(1+λ)`; 8 steps resolve λ to within ≈8 %).
-const BISECTION_STEPS: usize = 8;
+/// Probes between the ends at most (bisection would resolve λ to within ≈8 % in 8).
+const MAX_INNER_PROBES: usize = 8;
+/// The search stops when the bracket is narrower than this in `ln(1+λ)` (λ within ≈8 %) ...
+const RESOLUTION: f64 = 0.08;
+/// ... or when a probe meets the target by less than this margin (dB of PSNR; for a size,
+/// `ln` of the budget over the bytes: 0.5 %).
+const CLOSE_PSNR: f64 = 0.05;
+const CLOSE_BYTES: f64 = 0.005;
+/// Rounds of configurations between the best probe and the nearest miss (`Encoder::fill`).
+const FILL_ROUNDS: usize = 3;
 
 /// One encode of the search.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -37,6 +50,18 @@ pub struct Probe {
     pub psnr: f64,
 }
 
+/// A configuration tried between the best probe and the nearest one that missed
+/// ([`rd::between`]): the knob changed (`+ knob`: added to the knobs kept before), file size
+/// (without learned tables) and orbit PSNR.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Between {
+    /// Round of `Encoder::fill`'s search (each starts from the best of the one before).
+    pub round: usize,
+    pub change: String,
+    pub bytes: usize,
+    pub psnr: f64,
+}
+
 /// How a target was met: the target and every encode tried, in order.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TargetSearch {
@@ -44,6 +69,9 @@ pub struct TargetSearch {
     pub target: Target,
     /// Every encode of the search.
     pub probes: Vec<Probe>,
+    /// The configurations tried between the best probe and the nearest that missed (RD search
+    /// alone, `iters` 0).
+    pub between: Vec<Between>,
 }
 
 impl Target {
@@ -65,31 +93,49 @@ impl Target {
         }
     }
 
-    fn met(self, e: &Encoded) -> bool {
+    fn met(self, (bytes, psnr): (usize, f64)) -> bool {
         match self {
-            Target::Psnr(p) => e.report.orbit_psnr >= p,
-            Target::Bytes(b) => e.bytes.len() as u64 <= b,
+            Target::Psnr(p) => psnr >= p,
+            Target::Bytes(b) => bytes as u64 <= b,
         }
     }
 
-    /// Whether `a` is better than `b`, both meeting the target.
-    fn better(self, a: &Encoded, b: &Encoded) -> bool {
+    /// Whether `a` is better than `b` (bytes, PSNR), both meeting the target.
+    fn better(self, a: (usize, f64), b: (usize, f64)) -> bool {
         match self {
-            Target::Psnr(_) => a.bytes.len() < b.bytes.len(),
-            Target::Bytes(_) => a.report.orbit_psnr > b.report.orbit_psnr,
+            Target::Psnr(_) => a.0 < b.0,
+            Target::Bytes(_) => a.1 > b.1,
+        }
+    }
+
+    /// By how much (bytes, PSNR) meets the target (negative: misses it), in the unit the search
+    /// interpolates: dB for a PSNR, `ln(budget / bytes)` for a size.
+    fn margin(self, (bytes, psnr): (usize, f64)) -> f64 {
+        match self {
+            Target::Psnr(p) => psnr - p,
+            Target::Bytes(b) => (b as f64).ln() - (bytes as f64).ln(),
+        }
+    }
+
+    /// A margin close enough to the target to stop searching.
+    fn close(self) -> f64 {
+        match self {
+            Target::Psnr(_) => CLOSE_PSNR,
+            Target::Bytes(_) => CLOSE_BYTES,
         }
     }
 }
 
 /// Size of the file of an empty scene (the smallest `.gsc`).
 fn empty_file_bytes() -> u64 {
-    crate::rate::encode(&Splats::new(0), &crate::rate::EncodeConfig::default()).map_or(0, |(b, _, _)| b.len() as u64)
+    rate::encode(&Splats::new(0), &EncodeConfig::default()).map_or(0, |(b, _, _)| b.len() as u64)
 }
 
 impl Encoder {
-    /// Encodes `scene` to `target` by bisection on λ in `ln(1+λ)` over [0, [`MAX_LAMBDA`]]: the
-    /// PSNR falls and the size shrinks as λ grows, so the search keeps the boundary between λs
-    /// that meet the target and λs that do not, and returns the best encode that met it (the
+    /// Encodes `scene` to `target` by a bracketing search ([`bracket`]: regula falsi, Illinois)
+    /// on λ in `ln(1+λ)` over [0, [`MAX_LAMBDA`]]: the PSNR falls and the size shrinks as λ
+    /// grows, so the search keeps the boundary between λs that meet the target and λs that do
+    /// not, and returns the best encode that met it (the
     /// smallest file for a PSNR, the best PSNR for a size); its report's `target` lists every
     /// encode tried. Each probe is a full [`Encoder::encode_scene`] with this encoder's settings.
     ///
@@ -102,34 +148,42 @@ impl Encoder {
         let mut trials = crate::rate::rd::Trials::new(scene).map_err(|e| crate::Error::Input(e.to_string()))?;
         let mut probes = Vec::new();
         let mut best: Option<Encoded> = None;
-        let mut probe = |t: f64, best: &mut Option<Encoded>| -> Result<bool> {
+        // The configuration and `t` of every probe that missed the target.
+        let mut missed: Vec<(f64, EncodeConfig)> = Vec::new();
+        let mut best_t = 0.0;
+        let mut probe = |t: f64, best: &mut Option<Encoded>| -> Result<f64> {
             let lambda = Lambda::new(t.exp_m1().max(0.0)).unwrap_or(Lambda::ZERO);
             let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
             let e = enc.encode_scene_with(&mut trials, progress)?;
-            probes.push(Probe { lambda, bytes: e.bytes.len(), psnr: e.report.orbit_psnr });
-            let met = target.met(&e);
-            if met && best.as_ref().is_none_or(|b| target.better(&e, b)) {
+            let outcome = (e.bytes.len(), e.report.orbit_psnr);
+            probes.push(Probe { lambda, bytes: outcome.0, psnr: outcome.1 });
+            let met = target.met(outcome);
+            let margin = target.margin(outcome);
+            if !met {
+                missed.push((t, e.config));
+            } else if best.as_ref().is_none_or(|b| target.better(outcome, (b.bytes.len(), b.report.orbit_psnr))) {
                 *best = Some(e);
+                best_t = t;
             }
-            Ok(met)
+            // `met` decides the side even where the margin rounds to 0.
+            Ok(if met { margin.max(0.0) } else { margin.min(-f64::MIN_POSITIVE) })
         };
         // Ends: t = 0 (finest) and t = ln(1 + MAX_LAMBDA) (coarsest).
-        let (mut lo, mut hi) = (0.0f64, MAX_LAMBDA.ln_1p());
-        let (met_lo, met_hi) = (probe(lo, &mut best)?, probe(hi, &mut best)?);
-        if !(met_lo && met_hi) && (met_lo || met_hi) {
-            // `good` is the end that meets the target; bisect towards the other.
-            let psnr_side = met_lo; // a PSNR target is met at small λ, a size target at large λ
-            for _ in 0..BISECTION_STEPS {
-                let mid = 0.5 * (lo + hi);
-                let met = probe(mid, &mut best)?;
-                if met == psnr_side {
-                    lo = mid;
-                } else {
-                    hi = mid;
-                }
+        let ends = [0.0f64, MAX_LAMBDA.ln_1p()];
+        let (m0, m1) = (probe(ends[0], &mut best)?, probe(ends[1], &mut best)?);
+        if (m0 >= 0.0) != (m1 >= 0.0) {
+            bracket(ends[0], m0, ends[1], m1, target.close(), |t| probe(t, &mut best))?;
+        }
+        // The RD curve has steps (the search's choices are discrete): between the best probe
+        // and the nearest that missed, try configurations mixing their choices.
+        let mut between = Vec::new();
+        let nearest_miss = missed.iter().min_by(|a, b| (a.0 - best_t).abs().total_cmp(&(b.0 - best_t).abs()));
+        if let (Some(e), Some((_, bad)), 0) = (&best, nearest_miss, self.config.iters_for(false)) {
+            if let Some(filled) = self.fill(&trials, target, e, bad, &mut between)? {
+                best = Some(filled);
             }
         }
-        let search = TargetSearch { target, probes };
+        let search = TargetSearch { target, probes, between };
         match best {
             Some(mut e) => {
                 e.report.target = Some(search);
@@ -147,6 +201,114 @@ impl Encoder {
             }
         }
     }
+}
+
+impl Encoder {
+    /// Between `good` (the best encode meeting `target`, from an RD search alone) and `bad`
+    /// (the choices of the nearest probe that missed it), up to [`FILL_ROUNDS`] rounds from the
+    /// best so far: the best with each one of its knobs set as in `bad` ([`rd::between`]); of
+    /// those that meet the target and beat the best, the best one, then the others added one
+    /// after another (most bytes saved, or PSNR gained, first), each kept if the result still
+    /// meets the target and is better. A round that finds nothing better ends the search. Every
+    /// configuration tried goes into `tried`. Returns the encode of the best when it beats `good`.
+    fn fill(
+        &self,
+        trials: &Trials,
+        target: Target,
+        good: &Encoded,
+        bad: &EncodeConfig,
+        tried: &mut Vec<Between>,
+    ) -> Result<Option<Encoded>> {
+        let scene = trials.scene();
+        let began = Instant::now();
+        let orbit = Orbit::new(scene);
+        let eval = |c: &EncodeConfig| -> Result<(usize, f64)> {
+            let c = EncodeConfig { learned_tables: false, progressive: self.config.progressive, ..*c };
+            let (bytes, _, q) =
+                rate::encode_with(scene, &c, Some(trials.significance())).map_err(|e| crate::Error::Input(e.to_string()))?;
+            Ok((bytes.len(), orbit.psnr(&rate::quantise::dequantise(&q))))
+        };
+        // Compared like for like: without learned tables (as every trial), same PSNR.
+        let start = (good.config, eval(&good.config)?);
+        let mut cur = start;
+        for round in 1..=FILL_ROUNDS {
+            let alone = rd::between(&cur.0, bad);
+            let outcomes = alone.par_iter().map(|(_, c)| eval(c)).collect::<Result<Vec<_>>>()?;
+            let mut pays = Vec::new();
+            for ((knob, c), &o) in alone.iter().zip(&outcomes) {
+                tried.push(Between { round, change: knob.clone(), bytes: o.0, psnr: o.1 });
+                if target.met(o) && target.better(o, cur.1) {
+                    pays.push((knob.as_str(), *c, o));
+                }
+            }
+            match target {
+                Target::Psnr(_) => pays.sort_by_key(|p| p.2 .0),
+                Target::Bytes(_) => pays.sort_by(|a, b| b.2 .1.total_cmp(&a.2 .1)),
+            }
+            let Some(&(_, c, o)) = pays.first() else { break };
+            let from = cur;
+            cur = (c, o);
+            for &(knob, _, _) in &pays[1..] {
+                let Some((_, c)) = rd::between(&cur.0, bad).into_iter().find(|(name, _)| name == knob) else { continue };
+                let o = eval(&c)?;
+                tried.push(Between { round, change: format!("+ {knob}"), bytes: o.0, psnr: o.1 });
+                if target.met(o) && target.better(o, cur.1) {
+                    cur = (c, o);
+                }
+            }
+            debug_assert!(target.better(cur.1, from.1));
+        }
+        if cur.0 == start.0 {
+            return Ok(None);
+        }
+        let config = cur.0;
+        let enc = Encoder { config: self.config.clone().with_lambda(good.report.lambda) };
+        // Its search: the best probe's RD search, then this one.
+        let searched = good.report.stages.rd_search_s + began.elapsed().as_secs_f64();
+        let stages = EncodeStages { rd_search_s: searched, ..EncodeStages::default() };
+        let mut e = enc.finish(scene, scene, &config, 0, Instant::now(), stages, good.report.series.clone(), None, None)?;
+        e.report.stages.total_s += searched;
+        // The decoded scene, hence the PSNR, is the trial's; learned tables only shrink the file.
+        Ok(target.met((e.bytes.len(), e.report.orbit_psnr)).then_some(e))
+    }
+}
+
+/// Narrows the bracket between `t0` and `t1`, whose margins `m0` and `m1` have opposite signs
+/// (≥ 0: meets the target), by the Illinois variant of regula falsi: the next probe is where the
+/// straight line between the ends' margins crosses 0, kept within the middle 80 % of the bracket
+/// (bisection where a margin is not finite); an end kept twice in a row has its margin halved,
+/// so both ends move. Stops when the bracket is narrower than [`RESOLUTION`], when a probe meets
+/// the target by less than `close`, or after [`MAX_INNER_PROBES`] probes. The margin falls as
+/// `t` grows for a PSNR target and rises for a size target; either way works.
+fn bracket(t0: f64, m0: f64, t1: f64, m1: f64, close: f64, mut probe: impl FnMut(f64) -> Result<f64>) -> Result<()> {
+    let (mut good, mut bad) = if m0 >= 0.0 { ((t0, m0), (t1, m1)) } else { ((t1, m1), (t0, m0)) };
+    let mut last_met = None;
+    for _ in 0..MAX_INNER_PROBES {
+        if (good.0 - bad.0).abs() <= RESOLUTION {
+            break;
+        }
+        let f = good.1 / (good.1 - bad.1);
+        let f = if f.is_finite() { f.clamp(0.1, 0.9) } else { 0.5 };
+        let t = good.0 + f * (bad.0 - good.0);
+        let m = probe(t)?;
+        let met = m >= 0.0;
+        if met {
+            good = (t, m);
+            if last_met == Some(true) {
+                bad.1 *= 0.5;
+            }
+            if m < close {
+                break;
+            }
+        } else {
+            bad = (t, m);
+            if last_met == Some(false) {
+                good.1 *= 0.5;
+            }
+        }
+        last_met = Some(met);
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -177,8 +339,14 @@ mod tests {
         assert!(e.report.orbit_psnr >= want, "{} < {want}", e.report.orbit_psnr);
         // The smallest file that met it, and no probe that met it is smaller.
         assert!(s.probes.iter().filter(|p| p.psnr >= want).all(|p| p.bytes >= e.bytes.len()), "{s:?}");
-        assert!(s.probes.iter().any(|p| p.psnr < want), "the bisection brackets the target: {s:?}");
-        assert_eq!(s.probes.len(), 2 + BISECTION_STEPS);
+        assert!(s.probes.iter().any(|p| p.psnr < want), "the search brackets the target: {s:?}");
+        assert!(s.probes.len() <= 2 + MAX_INNER_PROBES, "{s:?}");
+        // The file is what its configuration codes; one smaller than every probe's came from the
+        // configurations tried between the best probe and the nearest miss, with that PSNR.
+        assert_eq!(rate::encode(&scene, &e.config).unwrap().0, e.bytes);
+        if s.probes.iter().all(|p| p.bytes > e.bytes.len()) {
+            assert!(s.between.iter().any(|b| b.psnr == e.report.orbit_psnr && b.bytes >= e.bytes.len()), "{s:?}");
+        }
         // A size target: half the file the PSNR target gave.
         let budget = e.bytes.len() as u64 / 2;
         let f = enc.encode_scene_to(&scene, Target::Bytes(budget), &mut |_| {}).unwrap();
@@ -188,5 +356,61 @@ mod tests {
         // Unreachable: more than the finest setting gives.
         let e = enc.encode_scene_to(&scene, Target::Psnr(199.0), &mut |_| {}).unwrap_err();
         assert!(e.to_string().contains("not reachable") && e.exit_code() == 2, "{e}");
+    }
+
+    /// Runs [`bracket`] on `margin` over the ends' bracket; returns the probes (t, margin).
+    fn probes_of(margin: impl Fn(f64) -> f64, close: f64) -> Vec<(f64, f64)> {
+        let t1 = MAX_LAMBDA.ln_1p();
+        let mut seen = Vec::new();
+        bracket(0.0, margin(0.0), t1, margin(t1), close, |t| {
+            seen.push((t, margin(t)));
+            Ok(margin(t))
+        })
+        .unwrap();
+        seen
+    }
+
+    /// The best probe meeting the target (the largest t for a falling margin) and the closest
+    /// one missing it.
+    fn bracket_of(probes: &[(f64, f64)]) -> (f64, f64) {
+        let good = probes.iter().filter(|p| p.1 >= 0.0).map(|p| p.0).fold(0.0, f64::max);
+        let bad = probes.iter().filter(|p| p.1 < 0.0).map(|p| p.0).fold(MAX_LAMBDA.ln_1p(), f64::min);
+        (good, bad)
+    }
+
+    #[test]
+    fn a_smooth_curve_is_resolved_in_fewer_probes_than_bisection() {
+        // A PSNR-like margin: 52 dB at λ = 0 falling to 10 dB, crossing the target at t = 3.2.
+        let psnr = |t: f64| 10.0 + 42.0 / (1.0 + (t / 2.0).powi(2));
+        let target = psnr(3.2);
+        let probes = probes_of(|t| psnr(t) - target, CLOSE_PSNR);
+        let (good, bad) = bracket_of(&probes);
+        assert!(good <= 3.2 && 3.2 < bad, "{probes:?}");
+        let met_closely = probes.iter().any(|p| (0.0..CLOSE_PSNR).contains(&p.1));
+        assert!(met_closely || bad - good <= RESOLUTION, "{probes:?}");
+        assert!(probes.len() < MAX_INNER_PROBES, "{} probes: {probes:?}", probes.len());
+    }
+
+    #[test]
+    fn a_step_curve_keeps_the_bracket_and_the_probe_budget() {
+        // A stepped curve (the RD search's choices are discrete): met below t = 5.3, by 1 dB.
+        let probes = probes_of(|t| if t < 5.3 { 1.0 } else { -1.0 }, CLOSE_PSNR);
+        let (good, bad) = bracket_of(&probes);
+        assert!(good < 5.3 && 5.3 <= bad, "{probes:?}");
+        assert_eq!(probes.len(), MAX_INNER_PROBES, "a step is never met closely: {probes:?}");
+        // Bisection's 8 halvings would give 20.7 / 256; the clamped steps give at most 2x that.
+        assert!(bad - good <= 2.0 * MAX_LAMBDA.ln_1p() / 256.0, "{probes:?}");
+    }
+
+    #[test]
+    fn a_rising_margin_is_bracketed_from_the_other_end() {
+        // A size target: the margin ln(budget / bytes) rises with t; met above t = 7.
+        let bytes = |t: f64| 1e6 * (-0.4 * t).exp() + 100.0;
+        let budget = bytes(7.0);
+        let probes = probes_of(|t| budget.ln() - bytes(t).ln(), CLOSE_BYTES);
+        let lowest_met = probes.iter().filter(|p| p.1 >= 0.0).map(|p| p.0).fold(f64::INFINITY, f64::min);
+        let highest_missed = probes.iter().filter(|p| p.1 < 0.0).map(|p| p.0).fold(0.0, f64::max);
+        assert!(highest_missed < 7.0 && 7.0 <= lowest_met, "{probes:?}");
+        assert!(probes.len() < MAX_INNER_PROBES, "{probes:?}");
     }
 }

@@ -231,6 +231,11 @@ impl<'a> Trials<'a> {
         self.ev.scene
     }
 
+    /// The scene's significance ([`super::importance::significance`]).
+    pub fn significance(&self) -> &[f32] {
+        &self.ev.significance
+    }
+
     /// Configurations evaluated so far.
     pub fn len(&self) -> usize {
         self.seen.len()
@@ -501,6 +506,43 @@ pub fn search_with(
     Ok((EncodeConfig { learned_tables: true, ..chosen }, log.path))
 }
 
+/// Configurations between two search results, `from` and `to` (e.g. the choices at two
+/// neighbouring λ, where the search's discrete choices leave a step in the RD curve): `from`
+/// with one knob set as in `to`, for each knob in which they differ — the pruning thresholds
+/// (and the geometric mean of two significance thresholds), the SH degree, the SH rest dead
+/// zone, the step of each group but the SH bands, and each SH band's step, drop threshold and
+/// codebook size together (the search chooses them together). Named by the knob.
+pub fn between(from: &EncodeConfig, to: &EncodeConfig) -> Vec<(String, EncodeConfig)> {
+    let mut out: Vec<(String, EncodeConfig)> = Vec::new();
+    let mut push = |name: String, c: EncodeConfig| {
+        if c != *from && out.iter().all(|(_, o)| *o != c) {
+            out.push((name, c));
+        }
+    };
+    push("pruning".into(), EncodeConfig { min_opacity: to.min_opacity, min_significance: to.min_significance, ..*from });
+    let (a, b) = (from.min_significance, to.min_significance);
+    if a > 0.0 && b > 0.0 && a.is_finite() && b.is_finite() {
+        push("pruning midway".into(), EncodeConfig { min_significance: (a * b).sqrt(), ..*from });
+    }
+    push("SH degree".into(), EncodeConfig { max_sh_degree: to.max_sh_degree, ..*from });
+    let mut c = *from;
+    c.steps.rest_deadzone = to.steps.rest_deadzone;
+    push("SH dead zone".into(), c);
+    for g in [Group::Position, Group::Scale, Group::Rotation, Group::Opacity, Group::ShDc] {
+        let mut c = *from;
+        *c.steps.of_mut(g) = to.steps.of(g);
+        push(format!("{} step", g.name()), c);
+    }
+    for band in 0..3 {
+        let mut c = *from;
+        c.steps.sh_rest[band] = to.steps.sh_rest[band];
+        c.sh_drop[band] = to.sh_drop[band];
+        c.sh_vq[band] = to.sh_vq[band];
+        push(format!("SH band {}", band + 1), c);
+    }
+    out
+}
+
 /// Opacity thresholds (× 1/255) [`pruning_opacity`] tries.
 const PRUNE_OPACITIES: [f32; 11] = [2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0];
 
@@ -676,5 +718,30 @@ mod tests {
             assert_eq!(super::super::encode(&scene, &a).unwrap().0, super::super::encode(&scene, &b).unwrap().0);
         }
         assert!(added[1] < added[0] && added[2] < added[0], "configurations evaluated per search: {added:?}");
+    }
+
+    #[test]
+    fn between_changes_one_knob_at_a_time_towards_the_other_choice() {
+        let from = EncodeConfig { min_significance: 0.5, ..EncodeConfig::default() };
+        let mut to = EncodeConfig { min_significance: 2.0, max_sh_degree: 2, ..from };
+        to.steps.opacity *= 2.0;
+        to.steps.sh_rest[1] *= 0.5;
+        to.sh_vq[1] = 256;
+        let cands = between(&from, &to);
+        let names: Vec<&str> = cands.iter().map(|c| c.0.as_str()).collect();
+        assert_eq!(names, ["pruning", "pruning midway", "SH degree", "opacity step", "SH band 2"]);
+        let get = |n: &str| cands.iter().find(|c| c.0 == n).unwrap().1;
+        assert_eq!(get("pruning"), EncodeConfig { min_significance: 2.0, ..from });
+        assert_eq!(get("pruning midway").min_significance, 1.0);
+        assert_eq!(get("SH degree"), EncodeConfig { max_sh_degree: 2, ..from });
+        assert_eq!(get("opacity step").steps.opacity, to.steps.opacity);
+        let band = get("SH band 2");
+        assert_eq!((band.steps.sh_rest, band.sh_vq), (to.steps.sh_rest, to.sh_vq));
+        // Every knob of `to` applied in turn gives `to`; equal choices give nothing between.
+        let all = ["pruning", "SH degree", "opacity step", "SH band 2"]
+            .iter()
+            .fold(from, |c, n| between(&c, &to).into_iter().find(|x| x.0 == *n).unwrap().1);
+        assert_eq!(all, to);
+        assert!(between(&to, &to).is_empty());
     }
 }
