@@ -35,7 +35,7 @@ pub use crate::rate::Lambda;
 pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, TrainJob};
 pub use config::{EncoderConfig, InvalidConfig, DEFAULT_DATASET_ITERS, MAX_ITERS};
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
-pub use target::{Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
+pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 
 use crate::io::{Dataset, Split};
 use crate::rate::group::Group;
