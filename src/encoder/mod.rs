@@ -35,7 +35,7 @@ pub use crate::rate::Lambda;
 pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, TrainJob};
 pub use config::{EncoderConfig, InvalidConfig, DEFAULT_DATASET_ITERS, MAX_ITERS};
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
-pub use target::{Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
+pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 
 use crate::io::{Dataset, Split};
 use crate::rate::group::Group;
@@ -119,6 +119,7 @@ impl Encoder {
         })
         .map_err(|e| Error::Input(e.to_string()))?;
         stages.rd_search_s = start.elapsed().as_secs_f64();
+        let searched = config;
         let mut trained = None;
         let mut train_report = None;
         // Fine-tune what the search chose to code (pruned, SH bands dropped), so that the
@@ -148,8 +149,30 @@ impl Encoder {
             trained = Some(s);
             train_report = Some(r);
         }
-        let coded = trained.as_ref().unwrap_or(scene);
-        self.finish(scene, coded, &config, iters, start, stages, series, train_report, None)
+        let Some(trained) = trained else {
+            return self.finish(scene, scene, &config, iters, start, stages, series, None, None);
+        };
+        let tuned = self.finish(scene, &trained, &config, iters, start, stages, series, train_report, None)?;
+        // Fine-tuning must pay: where the RD search's own file has the lower J on the orbit
+        // views (D at 256², what the report's PSNR measures), that file is the output.
+        let plain = self.finish(scene, scene, &searched, 0, Instant::now(), EncodeStages::default(), Vec::new(), None, None)?;
+        let orbit = Orbit::new(scene);
+        let j = |e: &Encoded| orbit.distortion(&e.decoded) + self.config.lambda.rate_cost(e.bytes.len());
+        if j(&plain) < j(&tuned) {
+            let r = tuned.report;
+            let report = EncodeReport {
+                loss: r.loss,
+                iters,
+                backend: r.backend,
+                stages: r.stages,
+                train: r.train,
+                series: r.series,
+                fine_tuning_kept: Some(false),
+                ..plain.report
+            };
+            return Ok(Encoded { report, ..plain });
+        }
+        Ok(Encoded { report: EncodeReport { fine_tuning_kept: Some(true), ..tuned.report }, ..tuned })
     }
 
     /// Trains a scene from a posed-image dataset under `D + λ·R` (the rate term from half way,
@@ -287,6 +310,7 @@ impl Encoder {
             train,
             series,
             target: None,
+            fine_tuning_kept: None,
         };
         Ok(Encoded { bytes, decoded, report, config: *config })
     }
@@ -324,10 +348,21 @@ impl Orbit {
         Orbit { cams, refs }
     }
 
-    /// [`orbit_psnr`] of `b` (the views summed in order).
+    /// `D` of `b` as the RD search defines it, on these views: 255² × the mean squared error.
+    pub(crate) fn distortion(&self, b: &Splats) -> f64 {
+        self.mean(b, crate::metrics::mse) * 255.0 * 255.0
+    }
+
+    /// [`orbit_psnr`] of `b`.
     pub(crate) fn psnr(&self, b: &Splats) -> f64 {
+        self.mean(b, crate::metrics::psnr)
+    }
+
+    /// The mean over the views of `metric(reference, render of b)` (views rendered in parallel,
+    /// summed in order).
+    fn mean(&self, b: &Splats, metric: fn(&gscodec_decoder::Image, &gscodec_decoder::Image) -> f64) -> f64 {
         let opts = RenderOptions::default();
-        let per_view: Vec<f64> = self.cams.par_iter().zip(&self.refs).map(|(c, r)| crate::metrics::psnr(r, &render(b, c, &opts))).collect();
+        let per_view: Vec<f64> = self.cams.par_iter().zip(&self.refs).map(|(c, r)| metric(r, &render(b, c, &opts))).collect();
         per_view.iter().sum::<f64>() / self.cams.len() as f64
     }
 }
@@ -354,5 +389,28 @@ mod tests {
             "{:?}",
             (e.report.gaussians, e.report.input_gaussians)
         );
+    }
+
+    /// Fine-tuning never gives a file whose `J` on the orbit views is above the RD search's own
+    /// file; where it would, the search's file is the output, byte for byte.
+    #[test]
+    fn fine_tuning_is_kept_only_when_it_lowers_j() {
+        let scene = crate::sample::scene(300, 7);
+        let orbit = Orbit::new(&scene);
+        for l in [5.0, 200.0] {
+            let lambda = Lambda::new(l).unwrap();
+            let config = EncoderConfig { lambda, iters: Some(0), backend: Backend::Cpu, ..EncoderConfig::default() };
+            let plain = Encoder::new(config.clone()).unwrap().encode_scene(&scene, &mut |_| {}).unwrap();
+            assert_eq!(plain.report.fine_tuning_kept, None);
+            let tuned = Encoder::new(EncoderConfig { iters: Some(30), ..config }).unwrap().encode_scene(&scene, &mut |_| {}).unwrap();
+            let j = |e: &Encoded| orbit.distortion(&e.decoded) + lambda.rate_cost(e.bytes.len());
+            assert!(j(&tuned) <= j(&plain), "λ {l}: {} > {}", j(&tuned), j(&plain));
+            assert!(tuned.report.train.is_some() && tuned.report.iters == 30);
+            match tuned.report.fine_tuning_kept {
+                Some(false) => assert_eq!(tuned.bytes, plain.bytes, "λ {l}"),
+                Some(true) => assert_ne!(tuned.bytes, plain.bytes, "λ {l}"),
+                None => panic!("λ {l}: fine-tuned without saying whether it was kept"),
+            }
+        }
     }
 }

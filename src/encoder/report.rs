@@ -87,4 +87,8 @@ pub struct EncodeReport {
     pub series: Vec<SeriesPoint>,
     /// With a target (`--target-psnr`, `--target-bytes`): the target and every λ tried.
     pub target: Option<TargetSearch>,
+    /// Fine-tuning a scene (`iters` > 0): whether the fine-tuned file is the output (`false`:
+    /// the RD search's own file had the lower `J = D + λ·R`, D on the orbit views at 256², and
+    /// is the output; `train` still reports the run). `None` without fine-tuning.
+    pub fine_tuning_kept: Option<bool>,
 }
