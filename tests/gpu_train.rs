@@ -356,6 +356,10 @@ fn a_resumed_gpu_run_continues() {
     // The CPU trainer reads the GPU's checkpoint (the same format and run fingerprint).
     let cpu = gscodec::train::train_with(&ds, None, &cfg, Box::new(L1Ssim::default()), None, &mut |_| {}, &resume).unwrap();
     assert!((cpu.1.test_psnr.unwrap() - pw).abs() <= 0.5, "CPU resume of the GPU checkpoint: {:?}", cpu.1.test_psnr);
+    // A run with another loss is another run: its resume is refused.
+    let wdr = GpuLoss::from(gscodec::loss::LossKind::Wdr);
+    let e = gpu::train_with(&gpu, &ds, None, &cfg, &wdr, None, &mut |_| {}, &resume).unwrap_err();
+    assert!(e.to_string().contains("the checkpoint is of another run"), "{e}");
 }
 
 #[test]

@@ -117,11 +117,7 @@ impl LossSpec {
 
     /// Short name (`l1ssim`, `wd`, `wdr`).
     pub fn name(&self) -> &'static str {
-        match self.kind {
-            LossKind::L1ssim => "l1ssim",
-            LossKind::Wd => "wd",
-            LossKind::Wdr => "wdr",
-        }
+        self.kind.name()
     }
 
     /// The CPU loss for a run of `iters` iterations.

@@ -38,6 +38,17 @@ pub enum LossKind {
     Wdr,
 }
 
+impl LossKind {
+    /// Short name for reports and checkpoints (`l1ssim`, `wd`, `wdr`).
+    pub fn name(self) -> &'static str {
+        match self {
+            LossKind::L1ssim => "l1ssim",
+            LossKind::Wd => "wd",
+            LossKind::Wdr => "wdr",
+        }
+    }
+}
+
 /// The loss options shared by `train` and `encode`.
 #[derive(clap::Args, Clone, Debug, PartialEq, Default)]
 pub struct LossArgs {

@@ -97,11 +97,7 @@ impl GpuLoss {
 
     /// Short name for the report (`l1ssim`, `wd`, `wdr`).
     pub fn name(&self) -> &'static str {
-        match self.kind {
-            LossKind::L1ssim => "l1ssim",
-            LossKind::Wd => "wd",
-            LossKind::Wdr => "wdr",
-        }
+        self.kind.name()
     }
 }
 
@@ -290,7 +286,8 @@ pub fn train_with(
     let super::RunStart { train_frames, test_frames, mut rng, extent, mut params, mut degree, sched } =
         super::RunStart::new(dataset, init, cfg, rate.is_some(), run)?;
     let max_degree = cfg.sh_degree_max.min(3);
-    let print = super::fingerprint(cfg, dataset, "l1ssim");
+    // The same run identity as the CPU trainer's (`ImageLoss::name`), so either resumes the other.
+    let print = super::fingerprint(cfg, dataset, loss.name());
     let mut order: Vec<usize> = Vec::new();
     let mut first = 1;
     let mut train_seconds = 0.0;
