@@ -94,12 +94,18 @@ impl Encoder {
     /// [`Error::Failure`] when training diverges.
     pub fn encode_scene(&self, scene: &Splats, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
         let mut trials = rate::rd::Trials::new(scene).map_err(|e| Error::Input(e.to_string()))?;
-        self.encode_scene_with(&mut trials, progress)
+        self.encode_scene_with(&mut trials, &Orbit::new(scene), progress)
     }
 
     /// [`Encoder::encode_scene`] of `trials`' scene, reusing (and adding to) the RD search's
-    /// evaluated configurations, which do not depend on λ (`--target-psnr`'s probes share them).
-    pub(crate) fn encode_scene_with(&self, trials: &mut rate::rd::Trials, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
+    /// evaluated configurations, which do not depend on λ (`--target-psnr`'s probes share them),
+    /// and measuring against `orbit`, the orbit views of that scene.
+    pub(crate) fn encode_scene_with(
+        &self,
+        trials: &mut rate::rd::Trials,
+        orbit: &Orbit,
+        progress: &mut dyn FnMut(&Progress),
+    ) -> Result<Encoded> {
         let start = Instant::now();
         let scene = trials.scene();
         let iters = self.config.iters_for(false);
@@ -150,13 +156,12 @@ impl Encoder {
             train_report = Some(r);
         }
         let Some(trained) = trained else {
-            return self.finish(scene, scene, &config, iters, start, stages, series, None, None);
+            return self.finish(orbit, scene, &config, iters, start, stages, series, None, None);
         };
-        let tuned = self.finish(scene, &trained, &config, iters, start, stages, series, train_report, None)?;
+        let tuned = self.finish(orbit, &trained, &config, iters, start, stages, series, train_report, None)?;
         // Fine-tuning must pay: where the RD search's own file has the lower J on the orbit
         // views (D at 256², what the report's PSNR measures), that file is the output.
-        let plain = self.finish(scene, scene, &searched, 0, Instant::now(), EncodeStages::default(), Vec::new(), None, None)?;
-        let orbit = Orbit::new(scene);
+        let plain = self.finish(orbit, scene, &searched, 0, Instant::now(), EncodeStages::default(), Vec::new(), None, None)?;
         let j = |e: &Encoded| orbit.distortion(&e.decoded) + self.config.lambda.rate_cost(e.bytes.len());
         if j(&plain) < j(&tuned) {
             let r = tuned.report;
@@ -201,7 +206,7 @@ impl Encoder {
         let (config, _) = rate::rd::search_from(&trained, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
             .map_err(|e| Error::Input(e.to_string()))?;
         stages.rd_search_s = t.elapsed().as_secs_f64();
-        self.finish(&trained, &trained, &config, iters, start, stages, series, Some(r), Some(dataset))
+        self.finish(&Orbit::new(&trained), &trained, &config, iters, start, stages, series, Some(r), Some(dataset))
     }
 
     /// Runs the configured backend on one training job with the rate objective.
@@ -252,11 +257,12 @@ impl Encoder {
         Ok((s, r))
     }
 
-    /// Codes `coded` with `config`, measures the result against `reference` and builds the report.
+    /// Codes `coded` with `config`, measures the result against `reference`'s orbit views and
+    /// builds the report.
     #[allow(clippy::too_many_arguments)]
     fn finish(
         &self,
-        reference: &Splats,
+        reference: &Orbit,
         coded: &Splats,
         config: &EncodeConfig,
         iters: usize,
@@ -285,7 +291,7 @@ impl Encoder {
                 });
             }
         }
-        let orbit_psnr = orbit_psnr(reference, &decoded);
+        let orbit_psnr = reference.psnr(&decoded);
         stages.evaluate_s = t.elapsed().as_secs_f64();
         stages.total_s = start.elapsed().as_secs_f64();
         let report = EncodeReport {
@@ -298,7 +304,7 @@ impl Encoder {
             file_bytes: bytes.len(),
             estimated_bytes: r.estimated_bits() / 8.0,
             gaussians: r.gaussians,
-            input_gaussians: reference.len(),
+            input_gaussians: reference.scene.len(),
             sh_degree: r.sh_degree,
             position_bits: r.position_bits,
             groups: r.groups,
@@ -336,16 +342,17 @@ pub fn orbit_psnr(a: &Splats, b: &Splats) -> f64 {
 
 /// The orbit views of [`orbit_psnr`]'s reference scene, rendered once, for measuring many scenes
 /// against it.
-pub(crate) struct Orbit {
+pub(crate) struct Orbit<'a> {
+    scene: &'a Splats,
     cams: Vec<gscodec_decoder::Camera>,
     refs: Vec<gscodec_decoder::Image>,
 }
 
-impl Orbit {
-    pub(crate) fn new(reference: &Splats) -> Orbit {
+impl<'a> Orbit<'a> {
+    pub(crate) fn new(reference: &'a Splats) -> Orbit<'a> {
         let cams = orbit_cameras(reference, ORBIT_VIEWS, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
         let refs = cams.iter().map(|c| render(reference, c, &RenderOptions::default())).collect();
-        Orbit { cams, refs }
+        Orbit { scene: reference, cams, refs }
     }
 
     /// `D` of `b` as the RD search defines it, on these views: 255² × the mean squared error.

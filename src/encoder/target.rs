@@ -145,7 +145,8 @@ impl Encoder {
         target.validate()?;
         // The probes share the RD search's trials: a configuration's size and distortion do not
         // depend on λ, so each is coded and rendered once for all probes.
-        let mut trials = crate::rate::rd::Trials::new(scene).map_err(|e| crate::Error::Input(e.to_string()))?;
+        let mut trials = Trials::new(scene).map_err(|e| crate::Error::Input(e.to_string()))?;
+        let orbit = Orbit::new(scene);
         let mut probes = Vec::new();
         let mut best: Option<Encoded> = None;
         // The configuration and `t` of every probe that missed the target.
@@ -154,7 +155,7 @@ impl Encoder {
         let mut probe = |t: f64, best: &mut Option<Encoded>| -> Result<f64> {
             let lambda = Lambda::new(t.exp_m1().max(0.0)).unwrap_or(Lambda::ZERO);
             let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
-            let e = enc.encode_scene_with(&mut trials, progress)?;
+            let e = enc.encode_scene_with(&mut trials, &orbit, progress)?;
             let outcome = (e.bytes.len(), e.report.orbit_psnr);
             probes.push(Probe { lambda, bytes: outcome.0, psnr: outcome.1 });
             let met = target.met(outcome);
@@ -179,7 +180,7 @@ impl Encoder {
         let mut between = Vec::new();
         let nearest_miss = missed.iter().min_by(|a, b| (a.0 - best_t).abs().total_cmp(&(b.0 - best_t).abs()));
         if let (Some(e), Some((_, bad)), 0) = (&best, nearest_miss, self.config.iters_for(false)) {
-            if let Some(filled) = self.fill(&trials, target, e, bad, &mut between)? {
+            if let Some(filled) = self.fill(&trials, &orbit, target, e, bad, &mut between)? {
                 best = Some(filled);
             }
         }
@@ -201,9 +202,7 @@ impl Encoder {
             }
         }
     }
-}
 
-impl Encoder {
     /// Between `good` (the best encode meeting `target`, from an RD search alone) and `bad`
     /// (the choices of the nearest probe that missed it), up to [`FILL_ROUNDS`] rounds from the
     /// best so far: the best with each one of its knobs set as in `bad` ([`rd::between`]); of
@@ -214,6 +213,7 @@ impl Encoder {
     fn fill(
         &self,
         trials: &Trials,
+        orbit: &Orbit,
         target: Target,
         good: &Encoded,
         bad: &EncodeConfig,
@@ -221,7 +221,6 @@ impl Encoder {
     ) -> Result<Option<Encoded>> {
         let scene = trials.scene();
         let began = Instant::now();
-        let orbit = Orbit::new(scene);
         let eval = |c: &EncodeConfig| -> Result<(usize, f64)> {
             let c = EncodeConfig { learned_tables: false, progressive: self.config.progressive, ..*c };
             let (bytes, _, q) =
@@ -266,7 +265,7 @@ impl Encoder {
         // Its search: the best probe's RD search, then this one.
         let searched = good.report.stages.rd_search_s + began.elapsed().as_secs_f64();
         let stages = EncodeStages { rd_search_s: searched, ..EncodeStages::default() };
-        let mut e = enc.finish(scene, scene, &config, 0, Instant::now(), stages, good.report.series.clone(), None, None)?;
+        let mut e = enc.finish(orbit, scene, &config, 0, Instant::now(), stages, good.report.series.clone(), None, None)?;
         e.report.stages.total_s += searched;
         // The decoded scene, hence the PSNR, is the trial's; learned tables only shrink the file.
         Ok(target.met((e.bytes.len(), e.report.orbit_psnr)).then_some(e))

@@ -101,13 +101,20 @@ impl<'a> Evaluator<'a> {
 
     /// (bytes, D, encoder report) of `config`.
     pub fn eval_report(&self, config: &EncodeConfig) -> Result<(usize, f64, super::EncodeReport), SceneError> {
+        let (bytes, report, dec) = self.code(config)?;
+        let t = Instant::now();
+        let d = self.distortion(&dec);
+        self.render_ns.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        Ok((bytes, d, report))
+    }
+
+    /// (bytes, encoder report, decoded scene) of `config`, its encode time counted for [`Clock`].
+    fn code(&self, config: &EncodeConfig) -> Result<(usize, super::EncodeReport, Splats), SceneError> {
         let t = Instant::now();
         let (bytes, report, q) = encode_cached(self.scene, config, Some(&self.significance), Some(&self.cache))?;
-        let t1 = Instant::now();
-        let d = self.distortion(&dequantise(&q));
-        self.encode_ns.fetch_add((t1 - t).as_nanos() as u64, Ordering::Relaxed);
-        self.render_ns.fetch_add(t1.elapsed().as_nanos() as u64, Ordering::Relaxed);
-        Ok((bytes.len(), d, report))
+        let dec = dequantise(&q);
+        self.encode_ns.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        Ok((bytes.len(), report, dec))
     }
 
     /// `D` of a decoded scene: 255² × the mean squared error of its views against the input's.
@@ -126,16 +133,13 @@ impl<'a> Evaluator<'a> {
     /// [`Evaluator::eval_report`] of `config`, recording its frames as the base that later trials
     /// changing only colours replay (the same outcome: [`record`] draws what [`render`] draws).
     fn eval_as_base(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
+        let (bytes, report, dec) = self.code(config)?;
         let t = Instant::now();
-        let (bytes, report, q) = encode_cached(self.scene, config, Some(&self.significance), Some(&self.cache))?;
-        let t1 = Instant::now();
-        let dec = dequantise(&q);
         let (frames, recordings): (Vec<Image>, Vec<Recording>) = self.cams.par_iter().map(|c| record(&dec, c, &self.opts)).unzip();
         let mse = self.refs.iter().zip(&frames).map(|(r, f)| crate::metrics::mse(r, f)).sum::<f64>() / self.cams.len() as f64;
         self.base = Some((dec, recordings));
-        self.encode_ns.fetch_add((t1 - t).as_nanos() as u64, Ordering::Relaxed);
-        self.render_ns.fetch_add(t1.elapsed().as_nanos() as u64, Ordering::Relaxed);
-        Ok((bytes.len(), mse * 255.0 * 255.0, report))
+        self.render_ns.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        Ok((bytes, mse * 255.0 * 255.0, report))
     }
 }
 
