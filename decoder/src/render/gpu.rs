@@ -63,6 +63,11 @@ pub struct GpuRenderer {
 }
 
 /// Floats per input record before the SH rest coefficients.
+/// Waits on the device before a buffer read-back is given up ("did not complete"): the map
+/// callback normally runs within the first; it can be late when another thread polls the same
+/// device at once.
+pub const MAP_POLLS: usize = 1000;
+
 const RECORD_BASE: usize = 14;
 const PROJECTED_BYTES: u64 = 48;
 const SCAN_BLOCK: u32 = 1024;
@@ -378,9 +383,19 @@ impl GpuRenderer {
         let result: Arc<Mutex<Option<Result<(), wgpu::BufferAsyncError>>>> = Arc::new(Mutex::new(None));
         let slot = result.clone();
         staging.slice(..).map_async(wgpu::MapMode::Read, move |r| *slot.lock().unwrap() = Some(r));
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Backend(e.to_string()))?;
+        // The callback may run on another thread that polls the same device, just after this
+        // thread's wait returns: wait again until it has run.
+        let mut outcome = None;
+        for _ in 0..MAP_POLLS {
+            self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Backend(e.to_string()))?;
+            outcome = result.lock().unwrap().take();
+            if outcome.is_some() {
+                break;
+            }
+            std::thread::yield_now();
+        }
         self.check()?;
-        match result.lock().unwrap().take() {
+        match outcome {
             Some(Ok(())) => {}
             Some(Err(e)) => return Err(GpuError::Backend(format!("readback failed: {e}"))),
             None => return Err(GpuError::Backend("readback did not complete".into())),

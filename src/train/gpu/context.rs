@@ -7,7 +7,7 @@
 
 use crate::{Error, Result};
 use gscodec_decoder::math::TILE;
-use gscodec_decoder::render::gpu::{block_on, GpuRenderer};
+use gscodec_decoder::render::gpu::{block_on, GpuRenderer, MAP_POLLS};
 use gscodec_decoder::Camera;
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
@@ -374,9 +374,19 @@ impl Gpu {
         let result: Arc<Mutex<Option<std::result::Result<(), wgpu::BufferAsyncError>>>> = Arc::new(Mutex::new(None));
         let slot = result.clone();
         staging.slice(..).map_async(wgpu::MapMode::Read, move |r| *slot.lock().unwrap() = Some(r));
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| Error::Failure(format!("GPU error: {e}")))?;
+        // The callback may run on another thread that polls the same device, just after this
+        // thread's wait returns: wait again until it has run.
+        let mut outcome = None;
+        for _ in 0..MAP_POLLS {
+            self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| Error::Failure(format!("GPU error: {e}")))?;
+            outcome = result.lock().unwrap().take();
+            if outcome.is_some() {
+                break;
+            }
+            std::thread::yield_now();
+        }
         self.check()?;
-        match result.lock().unwrap().take() {
+        match outcome {
             Some(Ok(())) => {}
             Some(Err(e)) => return Err(Error::Failure(format!("GPU readback failed: {e}"))),
             None => return Err(Error::Failure("GPU readback did not complete".into())),
