@@ -2,8 +2,9 @@
 """Writes the bad conformance vectors `vectors/bad/bad-*.gsc` and `vectors/bad/EXPECTED`
 (SPEC §9.2), and the good vector `vectors/quirks.gsc` with its `quirks.ply` (SPEC §9.3),
 deterministically from the good vectors `vectors/hand.gsc`, (for the levels section of
-format 4.0, SPEC §3.1) `vectors/levels.gsc` and (for the codebooks of format 5.0, SPEC §3.2)
-`vectors/vq.gsc`.
+format 4.0, SPEC §3.1) `vectors/levels.gsc`, (for the codebooks of format 5.0, SPEC §3.2)
+`vectors/vq.gsc` and (for the parameter sections per level of format 6.0, SPEC §4)
+`vectors/classes.gsc`.
 
 Each bad vector breaks exactly one rule of SPEC.md; every other byte, including every CRC that
 is not the point of the vector, is kept valid, so that a decoder has to reach the broken rule
@@ -181,8 +182,8 @@ def make(good):
     add("truncated", good[: len(good) - 7], "format", "the file ends 7 bytes before the last payload does")
     add("magic", b"\x8aGSD" + good[4:], "format", "magic is 8A 47 53 44, not 8A 47 53 43")
     f = edit()
-    f.major = 6
-    add("version", f.write(), "unsupported", "version_major 6 (header CRC valid)")
+    f.major = 7
+    add("version", f.write(), "unsupported", "version_major 7 (header CRC valid)")
     add("header-crc", edit().write(header_crc_xor=1), "checksum", "header CRC off by one bit")
     f = edit()
     s = f.section(0x24)
@@ -396,6 +397,28 @@ def make_codebooks(good):
     return out
 
 
+def make_classes(good):
+    """{name: (bytes, class, reason)}: the parameter sections per level (SPEC §4), from
+    classes.gsc (6.0: two levels, each with its own parameter sections)."""
+    out = {}
+
+    def add(name, data, cls, reason):
+        out[name] = (data, cls, reason)
+
+    f0 = File(good)
+    assert f0.major == 6 and f0.section(0x11, 1)
+    f = File(good)
+    f.remove(0x11, 1)
+    add("level-params-missing", f.write(), "format", "level 1's scale parameter section (0x11, chunk 1) is absent")
+    f = File(good)
+    f.sections.append([0x11, 2, 0, f.section(0x11, 1)[3], None])
+    add("level-params-beyond", f.write(), "format", "a scale parameter section for level 2 in a file of two levels")
+    f = File(good)
+    f.major = 5
+    add("level-params-in-5", f.write(), "unsupported", "a 5.0 file with parameter sections of chunk 1 (unknown in 5.0) without the optional bit")
+    return out
+
+
 def make_quirks(good):
     """quirks.gsc: a valid file that uses what the SPEC allows and our encoder never writes, so
     a decoder MUST accept it and decode it to quirks.ply."""
@@ -441,11 +464,12 @@ def main(argv):
     vectors = make(good)
     vectors.update(make_levels(open(os.path.join(VECTORS, "levels.gsc"), "rb").read(), good))
     vectors.update(make_codebooks(open(os.path.join(VECTORS, "vq.gsc"), "rb").read()))
+    vectors.update(make_classes(open(os.path.join(VECTORS, "classes.gsc"), "rb").read()))
     os.makedirs(out_dir, exist_ok=True)
     for old in os.listdir(out_dir):
         if old.startswith("bad-") and old.endswith(".gsc"):
             os.remove(os.path.join(out_dir, old))
-    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc, levels.gsc and vq.gsc"]
+    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc, levels.gsc, vq.gsc and classes.gsc"]
     for name, (data, cls, reason) in sorted(vectors.items()):
         with open(os.path.join(out_dir, f"bad-{name}.gsc"), "wb") as fh:
             fh.write(data)

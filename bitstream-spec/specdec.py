@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Independent decoder for the gscodec `.gsc` bitstream, versions 3.x, 4.x and 5.x, written
+"""Independent decoder for the gscodec `.gsc` bitstream, versions 3.x to 6.x, written
 from bitstream-spec/SPEC.md alone (without reading the Rust decoder), as a check
 that the spec is complete.  Usage: python3 specdec.py IN.gsc OUT.ply
 
@@ -14,7 +14,8 @@ import zlib
 import numpy as np
 
 MAGIC = b"\x8aGSC"
-VERSION_MAJORS = (3, 4, 5)  # §2, §11: 4.x adds the levels section (§3.1), 5.x codebooks (§3.2)
+VERSION_MAJORS = (3, 4, 5, 6)  # §2, §11: 4.x adds the levels section (§3.1), 5.x codebooks (§3.2),
+# 6.x parameter sections per level (§4)
 MAX_SECTIONS = 4096
 MAX_N = 1 << 26
 MAX_TABLE_N = 4096
@@ -309,10 +310,11 @@ def parse_container(data):
 
 
 def read_levels(payload, n):
-    """§3.1: the levels section; returns the chunk sizes in file order."""
+    """§3.1: the levels section; returns the chunk sizes in file order and each chunk's level."""
     rd = Reader(payload, "levels")
     sizes = []
-    for _ in range(rd.varint()):
+    level_of = []
+    for level in range(rd.varint()):
         c = rd.varint()
         if c == 0:
             raise corrupt("level of zero chunks")
@@ -321,25 +323,27 @@ def read_levels(payload, n):
             if not 1 <= k <= CHUNK:
                 raise corrupt(f"chunk size {k}")
             sizes.append(k)
+            level_of.append(level)
     rd.expect_end()
     if len(sizes) > CHUNK:
         raise corrupt(f"{len(sizes)} chunks")
     if sum(sizes) != n:
         raise corrupt(f"chunk sizes sum to {sum(sizes)}, N = {n}")
-    return sizes
+    return sizes, level_of
 
 
 def classify_sections(major, n, degree, sections):
-    """Check known/unknown sections; return {(kind, chunk): payload} for known ones and
-    the chunk sizes (§3, §3.1)."""
+    """Check known/unknown sections; return {(kind, chunk): payload} for known ones, the
+    chunk sizes and, per chunk, the chunk of the parameter sections it uses (§3, §3.1, §4)."""
     groups = (5 + degree) if n > 0 else 0
     levels = major >= 4
     codebooks = major >= 5
+    level_params = major >= 6
     chunks = (n + CHUNK - 1) // CHUNK
     known = {}
     for (kind, chunk), (sflags, payload) in sections.items():
         is_known = (
-            (0x10 <= kind < 0x10 + groups and chunk == 0)
+            (0x10 <= kind < 0x10 + groups and (chunk == 0 or level_params))
             or (0x20 <= kind < 0x20 + groups and (levels or chunk < chunks))
             or (kind in (KIND_INFO, KIND_PADDING) and chunk == 0)
             or (levels and n > 0 and kind == KIND_LEVELS and chunk == 0)
@@ -352,20 +356,27 @@ def classify_sections(major, n, degree, sections):
     if levels and n > 0:
         if (KIND_LEVELS, 0) not in known:
             raise DecodeError("missing section", "levels")
-        sizes = read_levels(known[(KIND_LEVELS, 0)], n)
+        sizes, level_of = read_levels(known[(KIND_LEVELS, 0)], n)
+        nlevels = level_of[-1] + 1
         for kind, chunk in known:
             if 0x20 <= kind < 0x28 and chunk >= len(sizes):
                 raise corrupt(f"data section {kind:#x}/{chunk} beyond the {len(sizes)} chunks of the levels")
+            if 0x10 <= kind < 0x18 and chunk >= nlevels:
+                raise corrupt(f"parameter section {kind:#x}/{chunk} beyond the {nlevels} levels")
     else:
         sizes = [min(n, CHUNK * (c + 1)) - CHUNK * c for c in range(chunks)]
+        level_of = [0] * len(sizes)
+    # §4: before 6.0 every chunk uses the parameter sections of chunk 0; in 6.0 those of its level.
+    params_of = level_of if level_params else [0] * len(sizes)
     for g in range(groups):
-        if (0x10 + g, 0) not in known:
-            raise DecodeError("missing section", f"parameters of group {g}")
+        for p in sorted(set(params_of)) or [0]:
+            if (0x10 + g, p) not in known:
+                raise DecodeError("missing section", f"parameters of group {g}, chunk {p}")
     for kind, chunk in known:
         if kind == KIND_CODEBOOK and chunk > degree:
             raise corrupt(f"codebook of SH band {chunk} in a file of degree {degree}")
     # The info section is informative (§3): its content is never a reason to reject a file.
-    return known, groups, sizes
+    return known, groups, sizes, params_of
 
 
 # ----------------------------------------------------------------------------
@@ -479,48 +490,59 @@ def check_finite(arr, what):
 
 def decode(data):
     major, n, degree, sections = parse_container(data)
-    known, groups, sizes = classify_sections(major, n, degree, sections)
+    known, groups, sizes, params_of = classify_sections(major, n, degree, sections)
 
     cols = {}
     if n > 0:
-        origin, pstep, bits, ltable = parse_position_params(known[(0x10, 0)])
         books = {g: parse_codebook(g, known[(KIND_CODEBOOK, g - 4)], n) for g in range(5, groups) if (KIND_CODEBOOK, g - 4) in known}
-        params = {g: parse_group_params(g, known[(0x10 + g, 0)], 1 if g in books else None) for g in range(1, groups)}
+        # §4: one set of parameter sections per parameter chunk (per level in 6.0, else chunk 0).
+        params = {}
+        for p in sorted(set(params_of)):
+            position = parse_position_params(known[(0x10, p)])
+            params[p] = (position, {g: parse_group_params(g, known[(0x10 + g, p)], 1 if g in books else None) for g in range(1, groups)})
         ints = {g: [] for g in range(groups)}
         for c, k in enumerate(sizes):
+            (_, _, bits, ltable), group_params = params[params_of[c]]
             for g in range(groups):
                 payload = known.get((0x20 + g, c), b"")
                 what = f"data group {g} chunk {c}"
                 if g == 0:
                     ints[0].append(decode_positions(payload, k, bits, ltable, what))
                 else:
-                    ints[g].append(decode_channels(payload, k, params[g], what))
-        ints = {g: np.concatenate(v) for g, v in ints.items()}
+                    ints[g].append(decode_channels(payload, k, group_params[g], what))
 
         with np.errstate(all="ignore"):
-            pos = np.asarray(origin, np.float32) + (ints[0].astype(np.float32) * np.asarray(pstep, np.float32))
-            pos = pos.astype(np.float32)
+            # §8, chunk by chunk with the steps of the chunk's parameter sections.
+            pos_parts, deq_parts = [], {g: [] for g in range(1, groups)}
+            for c in range(len(sizes)):
+                (origin, pstep, _, _), group_params = params[params_of[c]]
+                p = np.asarray(origin, np.float32) + (ints[0][c].astype(np.float32) * np.asarray(pstep, np.float32))
+                pos_parts.append(p.astype(np.float32))
+                for g in range(1, groups):
+                    steps = [s for s, _ in group_params[g]]
+                    v = ints[g][c]
+                    if g == 2:
+                        idx = v[:, 0]
+                        if np.any((idx < 0) | (idx > 3)):
+                            raise corrupt("rotation index out of 0..3")
+                        deq_parts[g].append(dequant(v[:, 1:], steps[1:]))
+                    elif g in books:
+                        # §3.2, §8: row index i of the band's codebook, dequantised with its steps.
+                        bchannels, rows = books[g]
+                        book = dequant(rows, [s for s, _ in bchannels])
+                        check_finite(book, f"codebook of group {g}")
+                        idx = v[:, 0]
+                        if np.any((idx < 0) | (idx >= len(rows))):
+                            raise corrupt(f"group {g}: codebook index out of range")
+                        deq_parts[g].append(book[idx])
+                    else:
+                        deq_parts[g].append(dequant(v, steps))
+            pos = np.concatenate(pos_parts)
             check_finite(pos, "position")
-            deq = {}
+            deq = {g: np.concatenate(v) for g, v in deq_parts.items()}
             for g in range(1, groups):
-                steps = [s for s, _ in params[g]]
-                if g == 2:
-                    idx = ints[2][:, 0]
-                    if np.any((idx < 0) | (idx > 3)):
-                        raise corrupt("rotation index out of 0..3")
-                    deq[g] = dequant(ints[2][:, 1:], steps[1:])
-                elif g in books:
-                    # §3.2, §8: row index i of the band's codebook, dequantised with its steps.
-                    bchannels, rows = books[g]
-                    book = dequant(rows, [s for s, _ in bchannels])
-                    check_finite(book, f"codebook of group {g}")
-                    idx = ints[g][:, 0]
-                    if np.any((idx < 0) | (idx >= len(rows))):
-                        raise corrupt(f"group {g}: codebook index out of range")
-                    deq[g] = book[idx]
-                else:
-                    deq[g] = dequant(ints[g], steps)
                 check_finite(deq[g], f"group {g}")
+            ints[2] = np.concatenate(ints[2])
             c0, c1, c2 = (deq[2][:, i] for i in range(3))
             t = (c0 * c0 + c1 * c1) + c2 * c2
             big = np.sqrt(np.maximum(np.float32(1) - t, np.float32(0))).astype(np.float32)

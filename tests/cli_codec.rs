@@ -43,6 +43,23 @@ fn info_shows_each_sh_band_mode() {
     assert!(text.contains("sh_band1    codebook of 16 rows") && text.contains("sh_band2    per coefficient"), "{text}");
 }
 
+/// `info` of a 6.0 file with importance classes (SPEC §4): its two levels and how much coarser
+/// the second is; a file without them has no factors.
+#[test]
+fn info_shows_importance_classes() {
+    let json = |name: &str| -> serde_json::Value {
+        let o = gscodec(&["info", vectors().join(name).to_str().unwrap(), "--json"]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let v = json("classes.gsc");
+    assert_eq!((&v["version"], &v["levels"]), (&"6.0".into(), &serde_json::json!([500, 500])));
+    assert_eq!(v["level_step_factors"], serde_json::json!([1.0, 2.0]));
+    assert_eq!(json("vq.gsc")["level_step_factors"], serde_json::json!([]));
+    let text = String::from_utf8_lossy(&gscodec(&["info", vectors().join("classes.gsc").to_str().unwrap()]).stdout).into_owned();
+    assert!(text.contains("classes     steps per level (scale step over level 0's): ×1, ×2"), "{text}");
+}
+
 #[test]
 fn progressive_encode_writes_levels_that_info_shows() {
     let dir = tempfile::tempdir().unwrap();

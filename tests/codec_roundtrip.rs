@@ -318,6 +318,72 @@ fn codebook_bands_round_trip_bit_exactly() {
     assert_eq!(rate::encode(&s, &EncodeConfig::default()).unwrap().0[4], 3);
 }
 
+/// Importance classes (format 6.0, SPEC §4): the less significant Gaussians in a level of their
+/// own with coarser steps. Decode is the encoder's scene bit-exactly — whole, with fewer SH
+/// bands, progressive and by prefix — the tail level's steps are the factor times the others'
+/// (not the rotation index's, nor a codebook band's), its Gaussians are the less significant
+/// ones, and the file is smaller than without the tail.
+#[test]
+fn importance_classes_round_trip_bit_exactly() {
+    use gscodec::rate::CoarseTail;
+    use gscodec_decoder::bitstream::{layout::Group, params::read_all_params, parse};
+    let s = scene(3000, 3, 1.0, 31);
+    let config = EncodeConfig { sh_vq: [16, 0, 0], tail: CoarseTail { share: 0.5, factor: 2.0 }, ..EncodeConfig::default() };
+    let (bytes, _, q) = rate::encode(&s, &config).unwrap();
+    assert_eq!(bytes[4], 6, "parameters per level make a 6.0 file");
+    let decoded = decode(&bytes).unwrap();
+    assert_eq!(decoded, quantise::dequantise(&q));
+    let n = decoded.len();
+    assert_eq!(q.levels, vec![n - n / 2, n / 2]);
+    // Level 1's steps: twice level 0's, but the rotation index and the codebook band 1.
+    let c = parse(&bytes).unwrap();
+    let params = read_all_params(&c, 3, 2).unwrap();
+    for ((g, p0), (_, p1)) in params.of_level(0).iter().zip(params.of_level(1)) {
+        for (j, (s0, s1)) in p0.steps.iter().zip(&p1.steps).enumerate() {
+            let same = (*g == Group::Rotation && j == 0) || *g == Group::Sh1 || *g == Group::Position;
+            assert_eq!(*s1, if same { *s0 } else { 2.0 * s0 }, "{} channel {j}", g.name());
+        }
+    }
+    let (g1, p1) = &params.of_level(1)[5];
+    assert!(*g1 == Group::Sh1 && p1.codebook.is_some(), "the codebook is shared by both levels");
+    // The tail is the less significant half.
+    let sig = gscodec::rate::importance::significance(&decoded);
+    let mean = |r: std::ops::Range<usize>| sig[r.clone()].iter().map(|&v| v as f64).sum::<f64>() / r.len() as f64;
+    assert!(mean(0..n - n / 2) > 2.0 * mean(n - n / 2..n), "{} vs {}", mean(0..n - n / 2), mean(n - n / 2..n));
+    let (plain, _, _) = rate::encode(&s, &EncodeConfig { tail: CoarseTail::OFF, ..config }).unwrap();
+    assert!(bytes.len() < plain.len(), "{} bytes with the tail, {} without", bytes.len(), plain.len());
+    assert_eq!(plain[4], 5);
+    // Fewer SH bands: the same scene truncated.
+    let two = decode_with(&bytes, &Limits { max_sh_degree: 2, ..Limits::default() }).unwrap();
+    assert_eq!(two, decoded.with_sh_degree(2));
+    // Progressive: the levels wholly in the tail (the last two, 1/4 + 1/2) take the factor; every
+    // prefix decodes to a prefix of the scene.
+    let progressive = EncodeConfig { progressive: true, tail: CoarseTail { share: 0.75, factor: 2.0 }, ..config };
+    let (pb, _, pq) = rate::encode(&s, &progressive).unwrap();
+    assert_eq!((pb[4], pq.level_factors.clone()), (6, vec![1.0, 1.0, 1.0, 2.0, 2.0]));
+    let full = decode(&pb).unwrap();
+    assert_eq!(full, quantise::dequantise(&pq));
+    let mut last = 0;
+    for arrived in (0..=pb.len()).step_by(997).chain([pb.len()]) {
+        if let Some(p) = gscodec_decoder::decode_prefix(&pb[..arrived], &Limits::default()).unwrap() {
+            assert!(p.len() >= last);
+            last = p.len();
+            assert_eq!(p.log_scales[..], full.log_scales[..p.len()]);
+        }
+    }
+    assert_eq!(gscodec_decoder::decode_prefix(&pb, &Limits::default()).unwrap().unwrap(), full);
+    // Random mutations are refused (or decode), never panic.
+    let mut rng = Rng::new(9);
+    for _ in 0..1000 {
+        let mut b = bytes.clone();
+        for _ in 0..1 + rng.below(3) {
+            let i = rng.below(b.len());
+            b[i] ^= 1 << rng.below(8);
+        }
+        let _ = decode(&b);
+    }
+}
+
 /// Random mutations of a 5.0 file with codebooks are refused (or decode), never panic.
 #[test]
 fn mutated_codebook_files_never_panic() {

@@ -7,13 +7,13 @@
 
 use std::path::{Path, PathBuf};
 
-use gscodec::rate::{self, EncodeConfig};
+use gscodec::rate::{self, CoarseTail, EncodeConfig};
 use gscodec::rng::Rng;
 use gscodec_decoder::bitstream::{self, Header, VERSION_MAJOR_UNIFORM, VERSION_MINOR};
 use gscodec_decoder::{decode, Decoder, Limits, Splats};
 use sha2::{Digest, Sha256};
 
-const NAMES: [&str; 10] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels", "vq"];
+const NAMES: [&str; 11] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels", "vq", "classes"];
 /// Vectors made by `bitstream-spec/make_bad_vectors.py`, not by our encoder.
 const SCRIPTED: [&str; 1] = ["quirks"];
 /// Vectors whose expected `.ply` is given by its SHA-256 only.
@@ -125,7 +125,9 @@ fn vector_scene(name: &str) -> Splats {
         "one" => one_scene(),
         "hand" => hand_scene(),
         "edge" => edge_scene(),
-        "tiny" | "levels" | "vq" => gscodec::io::read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap(),
+        "tiny" | "levels" | "vq" | "classes" => {
+            gscodec::io::read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap()
+        }
         "chunks" => chunks_scene(),
         _ => unreachable!("{name}"),
     }
@@ -144,10 +146,17 @@ fn regenerate() {
         } else {
             // `levels`: the tiny scene in importance levels (format 4.0, SPEC §3.1). `vq`: the tiny
             // scene to SH degree 2, band 1 by a codebook of 16 rows, band 2 per coefficient
-            // (format 5.0, SPEC §3.2).
+            // (format 5.0, SPEC §3.2). `classes`: `vq` with its less significant half in a level
+            // of its own, coded with twice the steps (format 6.0: parameters per level, SPEC §4).
             let config = match name {
                 "levels" => EncodeConfig { progressive: true, ..EncodeConfig::default() },
                 "vq" => EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], ..EncodeConfig::default() },
+                "classes" => EncodeConfig {
+                    max_sh_degree: 2,
+                    sh_vq: [16, 0, 0],
+                    tail: CoarseTail { share: 0.5, factor: 2.0 },
+                    ..EncodeConfig::default()
+                },
                 _ => EncodeConfig::default(),
             };
             rate::encode(&vector_scene(name), &config).unwrap().0

@@ -60,21 +60,23 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
         assemble(0, degree, &[], out);
         return Ok(());
     }
-    let params = read_all_params(c, degree)?;
+    // The level of each chunk: its data sections use that level's parameters (SPEC §4).
+    let level_of: Vec<usize> = layout.level_ranges().iter().enumerate().flat_map(|(l, r)| r.clone().map(move |_| l)).take(chunks).collect();
+    let params = read_all_params(c, degree, level_of.last().map_or(0, |l| l + 1))?;
     // One job per (group, chunk); SH bands are split further into channel ranges of about
     // JOB_CHANNELS so that the work balances over the threads even for a one-chunk scene.
     let mut jobs: Vec<(usize, usize, Range<usize>)> = Vec::new();
-    for (gi, (g, p)) in params.iter().enumerate() {
-        let c = g.channels();
-        let pieces = if g.sh_band() > 0 && p.codebook.is_none() { c.div_ceil(JOB_CHANNELS) } else { 1 };
-        for ch in 0..chunks {
+    for ch in 0..chunks {
+        for (gi, (g, p)) in params.of_level(level_of[ch]).iter().enumerate() {
+            let c = g.channels();
+            let pieces = if g.sh_band() > 0 && p.codebook.is_none() { c.div_ceil(JOB_CHANNELS) } else { 1 };
             jobs.extend((0..pieces).map(|i| (gi, ch, i * c / pieces..(i + 1) * c / pieces)));
         }
     }
     let results: Vec<Vec<f32>> = jobs
         .par_iter()
         .map(|(gi, ch, channels)| {
-            let (g, p) = &params[*gi];
+            let (g, p) = &params.of_level(level_of[*ch])[*gi];
             decode_data_section(*g, p, &mut c.reader(g.data_kind(), *ch as u16), ranges[*ch].len(), channels.clone())
         })
         .collect::<Result<_, _>>()?;
@@ -82,7 +84,7 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
         .iter()
         .zip(&results)
         .map(|((gi, ch, channels), values)| {
-            let group = params[*gi].0;
+            let group = params.of_level(level_of[*ch])[*gi].0;
             let columns = match group {
                 Group::Position => 0..3,
                 Group::Rotation => 0..4,

@@ -120,6 +120,9 @@ pub struct FileInfo {
     pub context_channels: Vec<String>,
     /// SH bands coded by vector quantisation (SPEC §3.2): (band, codebook rows K).
     pub codebooks: Vec<(u8, usize)>,
+    /// A 6.0 file's parameters per level (SPEC §4): per level, its scale step over level 0's
+    /// (importance classes: how much coarser the level is coded). Empty before 6.0.
+    pub level_step_factors: Vec<f32>,
 }
 
 /// Configures a decode of a `.gsc` file from any [`Read`] (a file, a socket, a decompressor, a
@@ -350,7 +353,7 @@ pub fn peek_header(bytes: &[u8]) -> Result<Header, DecodeError> {
 pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
     let c = sections::parse(bytes)?;
     let layout = c.layout()?;
-    let params = read_all_params(&c, c.header.sh_degree)?;
+    let params = read_all_params(&c, c.header.sh_degree, layout.level_chunks.len())?;
     let mut info = FileInfo {
         info: Info { header: c.header, file_bytes: bytes.len() as u64, sections: Vec::new() },
         encoder: None,
@@ -359,6 +362,7 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
         constant_channels: Vec::new(),
         context_channels: Vec::new(),
         codebooks: Vec::new(),
+        level_step_factors: Vec::new(),
     };
     for s in &c.sections {
         info.info.sections.push(SectionInfo::new(s.id(), s.flags, s.data.len()));
@@ -366,15 +370,24 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
             info.encoder = read_info(s.data);
         }
     }
-    for (g, p) in &params {
-        if let Some(cb) = &p.codebook {
-            info.codebooks.push((g.sh_band(), cb.rows));
-        }
-        for (i, t) in p.tables.iter().enumerate() {
-            match t {
-                ChannelTable::Constant(_) => info.constant_channels.push(format!("{}/{}", g.name(), i)),
-                ChannelTable::Context { .. } => info.context_channels.push(format!("{}/{}", g.name(), i)),
-                ChannelTable::Coded { .. } => {}
+    if c.header.has_level_params() {
+        let scale =
+            |set: &[(Group, crate::bitstream::params::GroupParams)]| set.iter().find(|g| g.0 == Group::Scale).map_or(1.0, |g| g.1.steps[0]);
+        info.level_step_factors = params.sets.iter().map(|set| scale(set) / scale(&params.sets[0])).collect();
+    }
+    for (l, set) in params.sets.iter().enumerate() {
+        for (g, p) in set {
+            if let Some(cb) = p.codebook.as_ref().filter(|_| l == 0) {
+                info.codebooks.push((g.sh_band(), cb.rows));
+            }
+            // Channel names carry the level of a 6.0 file's later parameter sets.
+            let name = |i: usize| if l == 0 { format!("{}/{}", g.name(), i) } else { format!("{}/{}@{}", g.name(), i, l) };
+            for (i, t) in p.tables.iter().enumerate() {
+                match t {
+                    ChannelTable::Constant(_) => info.constant_channels.push(name(i)),
+                    ChannelTable::Context { .. } => info.context_channels.push(name(i)),
+                    ChannelTable::Coded { .. } => {}
+                }
             }
         }
     }
@@ -452,18 +465,22 @@ fn arrived_prefix<'a>(bytes: &'a [u8], limits: &Limits) -> Result<Option<Prefix<
         return Ok(None);
     }
     let layout = c.layout()?;
-    // An SH band's codebook (SPEC §3.2) comes with its parameter section.
-    let arrived = |g: Group, chunks: std::ops::Range<usize>| {
-        !pending(g.params_kind(), 0)
+    // A level needs its parameter sections (SPEC §4: chunk 0 before 6.0), and an SH band's
+    // codebook (SPEC §3.2) comes with its parameter section.
+    let arrived = |g: Group, level: usize, chunks: std::ops::Range<usize>| {
+        !pending(g.params_kind(), c.header.params_chunk(level))
             && !pending(CODEBOOK_KIND, usize::from(g.sh_band()))
             && chunks.into_iter().all(|ch| !pending(g.data_kind(), ch))
     };
     let levels = layout.level_ranges();
-    let complete = levels.iter().take_while(|r| Group::present(0).all(|g| arrived(g, (*r).clone()))).count();
+    let complete = levels.iter().enumerate().take_while(|(l, r)| Group::present(0).all(|g| arrived(g, *l, (*r).clone()))).count();
     if complete == 0 && !levels.is_empty() {
         return Ok(None);
     }
     let chunks = levels[..complete].last().map_or(0, |r| r.end);
-    let degree = (1..=wanted).take_while(|&b| arrived(Group::for_band(b), 0..chunks)).last().unwrap_or(0);
+    let degree = (1..=wanted)
+        .take_while(|&b| levels[..complete].iter().enumerate().all(|(l, r)| arrived(Group::for_band(b), l, r.clone())))
+        .last()
+        .unwrap_or(0);
     Ok(Some(Prefix { container: c, layout, chunks, degree }))
 }

@@ -228,9 +228,8 @@ impl fmt::Display for UnsupportedError {
             Unsupported::Version { major, minor } => {
                 write!(
                     f,
-                    "unsupported format version {major}.{minor} (this decoder reads {}.x, {}.x and {}.x)",
+                    "unsupported format version {major}.{minor} (this decoder reads {}.x to {}.x)",
                     crate::bitstream::VERSION_MAJOR_UNIFORM,
-                    crate::bitstream::VERSION_MAJOR_LEVELS,
                     crate::bitstream::VERSION_MAJOR
                 )
             }

@@ -50,6 +50,7 @@ pub fn run(args: Args) -> crate::Result<()> {
             "bytes": info.info.file_bytes,
             "sections": sections,
             "levels": info.levels,
+            "level_step_factors": info.level_step_factors,
             "group_bytes": groups.iter().map(|(n, b)| (n.clone(), json!(b))).collect::<serde_json::Map<_, _>>(),
             "left_out": {
                 "pruned_gaussians": pruned,
@@ -73,6 +74,10 @@ pub fn run(args: Args) -> crate::Result<()> {
         if info.levels.len() > 1 {
             let sizes: Vec<String> = info.levels.iter().map(|k| k.to_string()).collect();
             println!("levels      {}: {} Gaussians", info.levels.len(), sizes.join(" + "));
+        }
+        if !info.level_step_factors.is_empty() {
+            let f: Vec<String> = info.level_step_factors.iter().map(|f| format!("×{f}")).collect();
+            println!("classes     steps per level (scale step over level 0's): {}", f.join(", "));
         }
         for (name, b) in &groups {
             println!("  {name:<10} {b:>10} bytes");

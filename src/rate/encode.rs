@@ -3,6 +3,7 @@
 
 use rayon::prelude::*;
 use serde::Serialize;
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::hash::{Hash, Hasher};
 use std::sync::{Arc, Mutex};
@@ -16,7 +17,7 @@ use gscodec_decoder::bitstream::positions::{delta_length, delta_raw_bits, morton
 use gscodec_decoder::bitstream::sections::write_padded;
 use gscodec_decoder::bitstream::stream::write_channel_streams;
 use gscodec_decoder::bitstream::{
-    Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MAJOR_LEVELS, VERSION_MAJOR_UNIFORM, VERSION_MINOR,
+    Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MAJOR_CODEBOOKS, VERSION_MAJOR_LEVELS, VERSION_MAJOR_UNIFORM, VERSION_MINOR,
 };
 use gscodec_decoder::entropy::ChannelTable;
 
@@ -222,6 +223,29 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], range: Range<usize
     }
 }
 
+/// Level `l` of `q` (its Gaussians `r`) as a scene of its own, with that level's steps: what
+/// its parameter sections and data sections code in a 6.0 file (SPEC §4). SH codebooks are
+/// shared: the level keeps the rows and takes its own indices.
+fn level_part(q: &Quantised, l: usize, r: Range<usize>) -> Quantised {
+    let groups = (0..q.groups.len())
+        .map(|gi| (q.groups[gi].0, q.level_steps(gi, l), q.groups[gi].2.iter().map(|c| c[r.clone()].to_vec()).collect()))
+        .collect();
+    let codebooks = q
+        .codebooks
+        .iter()
+        .map(|(g, cb)| (*g, super::vq::Codebook { channels: cb.channels, rows: cb.rows.clone(), index: cb.index[r.clone()].to_vec() }))
+        .collect();
+    Quantised {
+        sh_degree: q.sh_degree,
+        grid: q.grid,
+        levels: Vec::new(),
+        morton: q.morton[r].to_vec(),
+        groups,
+        codebooks,
+        level_factors: Vec::new(),
+    }
+}
+
 /// Encodes a quantised scene. `input` = (Gaussians, SH degree) of the encoder's input, for `info`.
 ///
 /// A scene with levels ([`Quantised::levels`]) is written as format 4.0 with a levels section,
@@ -240,10 +264,12 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
     let n = q.len();
     let progressive = !q.levels.is_empty();
     let codebooks = n > 0 && !q.codebooks.is_empty();
-    let version_major = match (codebooks, progressive) {
-        (true, _) => VERSION_MAJOR,
-        (false, true) => VERSION_MAJOR_LEVELS,
-        (false, false) => VERSION_MAJOR_UNIFORM,
+    let per_level = n > 0 && !q.level_factors.is_empty();
+    let version_major = match (per_level, codebooks, progressive) {
+        (true, ..) => VERSION_MAJOR,
+        (false, true, _) => VERSION_MAJOR_CODEBOOKS,
+        (false, false, true) => VERSION_MAJOR_LEVELS,
+        (false, false, false) => VERSION_MAJOR_UNIFORM,
     };
     let header = Header { version_major, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
     let info = write_info(&EncoderInfo { input_gaussians: input.0.min(u32::MAX as usize) as u32, input_sh_degree: input.1 });
@@ -254,44 +280,75 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
     if n > 0 {
         let layout = q.layout();
         levels = layout.write();
-        if progressive || codebooks {
+        if progressive || codebooks || per_level {
             payloads.push((LEVELS_KIND, 0, 0, &levels));
         }
         let chunks = layout.chunk_ranges();
-        let deltas = morton_deltas(&q.morton, &chunks);
-        coded = code_groups(q, &chunks, &deltas, learned_tables, cache);
+        // The parts coded with one set of parameter sections each (SPEC §4): every level of a
+        // 6.0 file, else the whole scene. Per part: the scene, its first chunk and its chunks.
+        let parts: Vec<(Cow<Quantised>, usize, Vec<Range<usize>>)> = if per_level {
+            layout
+                .level_ranges()
+                .into_iter()
+                .enumerate()
+                .map(|(l, cr)| {
+                    let r = chunks[cr.start].start..chunks[cr.end - 1].end;
+                    let local = chunks[cr.clone()].iter().map(|c| c.start - r.start..c.end - r.start).collect();
+                    (Cow::Owned(level_part(q, l, r)), cr.start, local)
+                })
+                .collect()
+        } else {
+            vec![(Cow::Borrowed(q), 0, chunks.clone())]
+        };
+        coded = parts
+            .iter()
+            .map(|(pq, _, ch)| {
+                let deltas = morton_deltas(&pq.morton, ch);
+                (code_groups(pq, ch, &deltas, learned_tables, cache), deltas)
+            })
+            .collect::<Vec<_>>();
+        // Global chunk c → (part, chunk within the part).
+        let chunk_of: Vec<(usize, usize)> =
+            parts.iter().enumerate().flat_map(|(p, (_, _, ch))| (0..ch.len()).map(move |j| (p, j))).collect();
         // Chunk-major for the base groups, then band-major for SH (groups are in group order).
-        let base = coded.iter().take_while(|g| g.plan.group.sh_band() == 0).count();
+        let groups = coded[0].0.len();
+        let base = coded[0].0.iter().take_while(|g| g.plan.group.sh_band() == 0).count();
         let jobs: Vec<(usize, usize)> = (0..chunks.len())
-            .flat_map(|c| (0..base).map(move |p| (p, c)))
-            .chain((base..coded.len()).flat_map(|p| (0..chunks.len()).map(move |c| (p, c))))
+            .flat_map(|c| (0..base).map(move |g| (g, c)))
+            .chain((base..groups).flat_map(|g| (0..chunks.len()).map(move |c| (g, c))))
             .collect();
-        for p in coded.iter().map(|g| &g.plan) {
-            payloads.push((p.group.params_kind(), 0, 0, &p.params));
-            report.groups.push(GroupReport {
-                group: p.group.name().into(),
-                table_bytes: p.params.len() + p.codebook.as_ref().map_or(0, |c| c.0.len()),
-                codebook_rows: p.codebook.as_ref().map_or(0, |c| c.1),
-                stream_bytes: 0,
-                estimated_bits: p.tables.iter().map(|t| t.bits).sum::<f64>()
-                    + if p.group == Group::Position { deltas.iter().map(|&d| delta_raw_bits(d) as f64).sum() } else { 0.0 },
-                constant_channels: p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Constant(_))).count(),
-                histogram_bits: p.histogram_bits,
-                learned_bits: p.learned_bits,
-                context_bits: p.context_bits,
-                context_channels: p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Context { .. })).count(),
-            });
+        for (part, (gs, deltas)) in coded.iter().enumerate() {
+            for (gi, p) in gs.iter().map(|g| &g.plan).enumerate() {
+                payloads.push((p.group.params_kind(), part as u16, 0, &p.params));
+                if part == 0 {
+                    report.groups.push(GroupReport { group: p.group.name().into(), ..GroupReport::default() });
+                }
+                let r = &mut report.groups[gi];
+                // A codebook is shared by every level: written (and counted) once.
+                let book = p.codebook.as_ref().filter(|_| part == 0);
+                r.table_bytes += p.params.len() + book.map_or(0, |c| c.0.len());
+                r.codebook_rows = p.codebook.as_ref().map_or(0, |c| c.1);
+                r.estimated_bits += p.tables.iter().map(|t| t.bits).sum::<f64>()
+                    + if p.group == Group::Position { deltas.iter().map(|&d| delta_raw_bits(d) as f64).sum() } else { 0.0 };
+                r.constant_channels += p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Constant(_))).count();
+                r.histogram_bits += p.histogram_bits;
+                r.learned_bits += p.learned_bits;
+                r.context_bits += p.context_bits;
+                r.context_channels += p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Context { .. })).count();
+            }
         }
-        for p in coded.iter().map(|g| &g.plan) {
+        for p in coded[0].0.iter().map(|g| &g.plan) {
             if let Some((book, _)) = &p.codebook {
                 payloads.push((CODEBOOK_KIND, u16::from(p.group.sh_band()), 0, book));
             }
         }
-        for &(p, c) in &jobs {
-            let s = &coded[p].streams[c];
-            report.groups[p].stream_bytes += s.len();
+        for &(g, c) in &jobs {
+            let (part, j) = chunk_of[c];
+            let coded_group = &coded[part].0[g];
+            let s = &coded_group.streams[j];
+            report.groups[g].stream_bytes += s.len();
             if !s.is_empty() {
-                payloads.push((coded[p].plan.group.data_kind(), c as u16, 0, s));
+                payloads.push((coded_group.plan.group.data_kind(), c as u16, 0, s));
             }
         }
     }

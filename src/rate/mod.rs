@@ -51,6 +51,64 @@ pub struct EncodeConfig {
     /// so that a player can draw the most important ones from a prefix of the file; off = one
     /// level (format 3.0).
     pub progressive: bool,
+    /// Importance classes: the least significant Gaussians coded with coarser steps
+    /// ([`CoarseTail`]; the RD search sets it).
+    pub tail: CoarseTail,
+}
+
+/// Importance classes (format 6.0, SPEC §4): the least significant `share` of the Gaussians kept
+/// (by the input's significance, [`importance::significance`]) go into a level of their own,
+/// coded with every step but position's `factor` times the others' (its own parameter
+/// sections). With `--progressive`, the importance levels that lie wholly within that share
+/// take the factor instead.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct CoarseTail {
+    /// Share of the kept Gaussians, in (0, 1); 0 = off.
+    pub share: f32,
+    /// Step factor of the tail (1 = off).
+    pub factor: f32,
+}
+
+impl CoarseTail {
+    /// No tail: one set of steps for every Gaussian.
+    pub const OFF: CoarseTail = CoarseTail { share: 0.0, factor: 1.0 };
+
+    pub fn is_off(&self) -> bool {
+        !(self.share > 0.0 && self.share < 1.0) || self.factor == 1.0
+    }
+
+    /// Per Gaussian of a scene with significance `sig`: 1 for the ⌊share·n⌋ least significant
+    /// (ties: the later index first), else 0. Empty when the tail is off or either level would
+    /// be empty.
+    pub fn levels(&self, sig: &[f32]) -> Vec<u8> {
+        let n = sig.len();
+        let cut = (f64::from(self.share) * n as f64) as usize;
+        if self.is_off() || cut == 0 || cut >= n {
+            return Vec::new();
+        }
+        let mut rank: Vec<usize> = (0..n).collect();
+        rank.sort_by(|&a, &b| sig[a].total_cmp(&sig[b]).then(b.cmp(&a)));
+        let mut level = vec![0u8; n];
+        rank[..cut].iter().for_each(|&i| level[i] = 1);
+        level
+    }
+
+    /// The factor of each of `levels` (Gaussian counts, most important first): `factor` for the
+    /// levels that lie wholly within the least significant `share` of them, else 1. `None` when
+    /// no level does (the tail changes nothing).
+    pub fn level_factors(&self, levels: &[usize]) -> Option<Vec<f32>> {
+        let n: usize = levels.iter().sum();
+        let mut below = n; // Gaussians in this level and the ones after it
+        let factors: Vec<f32> = levels
+            .iter()
+            .map(|&k| {
+                let f = if !self.is_off() && below as f64 <= f64::from(self.share) * n as f64 { self.factor } else { 1.0 };
+                below -= k;
+                f
+            })
+            .collect();
+        factors.iter().any(|&f| f != 1.0).then_some(factors)
+    }
 }
 
 impl Default for EncodeConfig {
@@ -64,6 +122,7 @@ impl Default for EncodeConfig {
             max_sh_degree: 3,
             learned_tables: true,
             progressive: false,
+            tail: CoarseTail::OFF,
         }
     }
 }
@@ -83,7 +142,7 @@ impl EncodeConfig {
     /// Whether coding with this config needs the input's significance (significance pruning, SH
     /// band dropping, or SH vector quantisation, whose k-means weighs rows by it).
     pub fn needs_significance(&self) -> bool {
-        self.min_significance > 0.0 || self.sh_drop.iter().any(|&t| t > 0.0) || self.sh_vq.iter().any(|&k| k > 0)
+        self.min_significance > 0.0 || self.sh_drop.iter().any(|&t| t > 0.0) || self.sh_vq.iter().any(|&k| k > 0) || !self.tail.is_off()
     }
 }
 
@@ -159,11 +218,18 @@ pub fn encode_cached(
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
     let (s, sig) = prepared_with_significance(splats, config, significance);
-    let level = if config.progressive { importance::levels(&importance::significance(&s)) } else { Vec::new() };
+    let level = match &sig {
+        _ if config.progressive => importance::levels(&importance::significance(&s)),
+        Some(sig) => config.tail.levels(sig),
+        None => Vec::new(),
+    };
     let (mut q, order) = quantise::quantise_ordered(&s, &config.steps, &level);
     if config.sh_vq.iter().any(|&k| k > 0) {
         let w: Vec<f32> = order.iter().map(|&i| sig.as_ref().map_or(1.0, |w| w[i])).collect();
         quantise::apply_codebooks(&mut q, &w, config.sh_vq);
+    }
+    if let Some(factors) = config.tail.level_factors(&q.levels) {
+        quantise::apply_level_factors(&mut q, &s, &order, &config.steps, &factors);
     }
     let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, cache);
     Ok((bytes, report, q))
@@ -194,6 +260,27 @@ mod tests {
         let order: Vec<usize> = (0..s.len()).filter(|&i| sig[i] >= t).collect();
         assert_eq!(kept.positions, order.iter().map(|&i| s.positions[i]).collect::<Vec<_>>());
         assert_eq!(kept_sig, order.iter().map(|&i| sig[i]).collect::<Vec<_>>());
+    }
+
+    /// The tail is exactly the ⌊share·n⌋ least significant Gaussians (ties: later ones first), and
+    /// takes its factor only in the levels wholly inside it.
+    #[test]
+    fn the_tail_is_the_least_significant_share() {
+        let sig = [5.0, 1.0, 3.0, 1.0, 9.0, 0.0, 2.0, 7.0];
+        let tail = CoarseTail { share: 0.5, factor: 2.0 };
+        assert_eq!(tail.levels(&sig), vec![0, 1, 0, 1, 0, 1, 1, 0]);
+        // ⌊0.25·8⌋ = 2: the 0.0 and, of the two 1.0, the later one.
+        assert_eq!(CoarseTail { share: 0.25, ..tail }.levels(&sig), vec![0, 0, 0, 1, 0, 1, 0, 0]);
+        for off in [CoarseTail::OFF, CoarseTail { share: 0.5, factor: 1.0 }, CoarseTail { share: 1.0, factor: 2.0 }] {
+            assert!(off.is_off() && off.levels(&sig).is_empty());
+        }
+        assert!(CoarseTail { share: 0.1, ..tail }.levels(&sig).is_empty(), "⌊0.8⌋ = 0: no tail");
+        assert_eq!(tail.level_factors(&[4, 4]), Some(vec![1.0, 2.0]));
+        // Progressive levels 1/16, 1/16, 1/8, 1/4, 1/2 of 64: a share of 3/4 covers the last two.
+        let levels = [4, 4, 8, 16, 32];
+        assert_eq!(CoarseTail { share: 0.75, ..tail }.level_factors(&levels), Some(vec![1.0, 1.0, 1.0, 2.0, 2.0]));
+        assert_eq!(CoarseTail { share: 0.25, ..tail }.level_factors(&levels), None, "no level lies within the last quarter");
+        assert_eq!(CoarseTail::OFF.level_factors(&levels), None);
     }
 
     /// `encode` computes the significance a config needs; given precomputed, the same bytes.

@@ -79,6 +79,11 @@ pub struct Quantised {
     /// SH bands coded by vector quantisation (SPEC §3.2, format 5.0): the band's codebook, whose
     /// rows at its indices are the band's channels in [`Quantised::groups`].
     pub codebooks: Vec<(Group, super::vq::Codebook)>,
+    /// Importance classes (SPEC §4, format 6.0: each level has its own parameter sections): per
+    /// level, the factor its steps are [`Quantised::groups`]' steps multiplied by
+    /// ([`Quantised::level_steps`]). Empty: every level uses those steps, and the file has one
+    /// set of parameter sections.
+    pub level_factors: Vec<f32>,
 }
 
 impl Quantised {
@@ -91,6 +96,32 @@ impl Quantised {
     }
 
     /// The file's chunks and levels.
+    /// The Gaussians of each level, in file order (one level of all of them without levels).
+    pub fn level_ranges(&self) -> Vec<std::ops::Range<usize>> {
+        let sizes = if self.levels.is_empty() { vec![self.len()] } else { self.levels.clone() };
+        let mut start = 0;
+        sizes
+            .into_iter()
+            .map(|k| {
+                start += k;
+                start - k..start
+            })
+            .collect()
+    }
+
+    /// The steps of group `gi` (an index into [`Quantised::groups`]) in level `level`: the
+    /// group's steps times the level's factor, except the rotation index (step 1) and an SH band
+    /// coded by a codebook, whose rows are shared by every level.
+    pub fn level_steps(&self, gi: usize, level: usize) -> Vec<f32> {
+        let (g, steps, _) = &self.groups[gi];
+        let f = self.level_factors.get(level).copied().unwrap_or(1.0);
+        if f == 1.0 || self.codebooks.iter().any(|c| c.0 == *g) {
+            return steps.clone();
+        }
+        let scaled = |(c, &s): (usize, &f32)| if *g == Group::Rotation && c == 0 { s } else { s * f };
+        steps.iter().enumerate().map(scaled).collect()
+    }
+
     pub fn layout(&self) -> Layout {
         if self.levels.is_empty() {
             Layout::uniform(self.len())
@@ -173,25 +204,10 @@ pub fn quantise_ordered(splats: &Splats, steps: &Steps, level: &[u8]) -> (Quanti
         levels.retain(|&k| k > 0);
     }
 
-    let mut groups = Vec::new();
-    let per = |f: &dyn Fn(usize) -> i32| order.iter().map(|&i| f(i)).collect::<Vec<i32>>();
-    groups.push((Group::Scale, vec![steps.scale; 3], (0..3).map(|c| per(&|i| q(splats.log_scales[i][c], steps.scale))).collect()));
-    let rot: Vec<(usize, [i32; 3])> = order.iter().map(|&i| smallest_three(splats.rotations[i], steps.rotation)).collect();
-    let mut rot_ch = vec![rot.iter().map(|r| r.0 as i32).collect::<Vec<_>>()];
-    for j in 0..3 {
-        rot_ch.push(rot.iter().map(|r| r.1[j]).collect());
-    }
-    groups.push((Group::Rotation, vec![1.0, steps.rotation, steps.rotation, steps.rotation], rot_ch));
-    groups.push((Group::Opacity, vec![steps.opacity], vec![per(&|i| q(splats.opacity_logits[i], steps.opacity))]));
-    groups.push((Group::ShDc, vec![steps.sh_dc; 3], (0..3).map(|c| per(&|i| q(splats.sh_dc[i][c], steps.sh_dc))).collect()));
-    let k = splats.rest_coeffs();
-    for b in 1..=splats.sh_degree {
-        let first = (b as usize) * (b as usize) - 1;
-        let w = (2 * b as usize + 1) * 3;
-        let s = steps.sh_rest[b as usize - 1];
-        let chans = (0..w).map(|j| per(&|i| q_dz(splats.sh_rest[(i * k + first) * 3 + j], s, steps.rest_deadzone))).collect();
-        groups.push((Group::for_band(b), vec![s; w], chans));
-    }
+    let groups = Group::present(splats.sh_degree)
+        .skip(1)
+        .map(|g| (g, group_steps(g, steps), quantise_group(splats, &order, g, steps, &|_| 1.0)))
+        .collect();
     let mut out = Quantised {
         sh_degree: splats.sh_degree,
         grid: (lo, step, bits),
@@ -199,6 +215,7 @@ pub fn quantise_ordered(splats: &Splats, steps: &Steps, level: &[u8]) -> (Quanti
         morton: keyed.iter().map(|&(_, m, _)| m).collect(),
         groups,
         codebooks: Vec::new(),
+        level_factors: Vec::new(),
     };
     // Leave out SH bands whose coefficients all quantise to zero.
     while out.sh_degree > 0 {
@@ -211,6 +228,60 @@ pub fn quantise_ordered(splats: &Splats, steps: &Steps, level: &[u8]) -> (Quanti
         out.sh_degree -= 1;
     }
     (out, order)
+}
+
+/// The base steps of group `g` (not position), one per channel.
+fn group_steps(g: Group, steps: &Steps) -> Vec<f32> {
+    match g {
+        Group::Rotation => vec![1.0, steps.rotation, steps.rotation, steps.rotation],
+        Group::Scale => vec![steps.scale; 3],
+        Group::Opacity => vec![steps.opacity],
+        Group::ShDc => vec![steps.sh_dc; 3],
+        _ => vec![steps.sh_rest[usize::from(g.sh_band()) - 1]; g.channels()],
+    }
+}
+
+/// The integer channels of group `g` (not position) of `splats`' Gaussians `order` (file order),
+/// Gaussian `order[j]` quantised with the base steps times `factor(j)` (the rotation index is
+/// not a step).
+fn quantise_group(splats: &Splats, order: &[usize], g: Group, steps: &Steps, factor: &dyn Fn(usize) -> f32) -> Vec<Vec<i32>> {
+    let per = |f: &dyn Fn(usize, f32) -> i32| order.iter().enumerate().map(|(j, &i)| f(i, factor(j))).collect::<Vec<i32>>();
+    match g {
+        Group::Scale => (0..3).map(|c| per(&|i, m| q(splats.log_scales[i][c], steps.scale * m))).collect(),
+        Group::Rotation => {
+            let rot: Vec<(usize, [i32; 3])> =
+                order.iter().enumerate().map(|(j, &i)| smallest_three(splats.rotations[i], steps.rotation * factor(j))).collect();
+            let mut ch = vec![rot.iter().map(|r| r.0 as i32).collect::<Vec<_>>()];
+            ch.extend((0..3).map(|c| rot.iter().map(|r| r.1[c]).collect()));
+            ch
+        }
+        Group::Opacity => vec![per(&|i, m| q(splats.opacity_logits[i], steps.opacity * m))],
+        Group::ShDc => (0..3).map(|c| per(&|i, m| q(splats.sh_dc[i][c], steps.sh_dc * m))).collect(),
+        _ => {
+            let b = usize::from(g.sh_band());
+            let (k, first, s) = (splats.rest_coeffs(), b * b - 1, steps.sh_rest[b - 1]);
+            (0..g.channels()).map(|j| per(&|i, m| q_dz(splats.sh_rest[(i * k + first) * 3 + j], s * m, steps.rest_deadzone))).collect()
+        }
+    }
+}
+
+/// Importance classes (SPEC §4, format 6.0): quantises level `l`'s Gaussians of every group of
+/// `q` with `steps` times `factors[l]` ([`Quantised::level_steps`]), except position (one grid
+/// for all) and SH bands coded by codebooks (their rows are shared). `order` is the file order
+/// of `q` in `splats` ([`quantise_ordered`]), and `steps` the steps `q` was quantised with.
+///
+/// # Panics
+/// If `factors` is not one factor per level of `q`.
+pub fn apply_level_factors(q: &mut Quantised, splats: &Splats, order: &[usize], steps: &Steps, factors: &[f32]) {
+    let ranges = q.level_ranges();
+    assert_eq!(factors.len(), ranges.len(), "one factor per level");
+    let level_of: Vec<usize> = ranges.iter().enumerate().flat_map(|(l, r)| r.clone().map(move |_| l)).collect();
+    let factor = |j: usize| factors[level_of[j]];
+    q.level_factors = factors.to_vec();
+    let vq: Vec<Group> = q.codebooks.iter().map(|c| c.0).collect();
+    for (g, _, chans) in q.groups.iter_mut().filter(|x| !vq.contains(&x.0)) {
+        *chans = quantise_group(splats, order, *g, steps, &factor);
+    }
 }
 
 /// Codes SH band b (1..=3) of `q` by vector quantisation where `ks[b − 1] > 0`: a codebook of at
@@ -296,15 +367,19 @@ pub fn drop_sh_bands(splats: &mut Splats, weights: &[f32], thresholds: [f32; 3])
 /// The scene a decoder will restore from `q`: the decoder's dequantisation and assembler.
 pub fn dequantise(q: &Quantised) -> Splats {
     let positions: Vec<f32> = q.morton.iter().flat_map(|&m| position_of(m, &q.grid)).collect();
-    let values: Vec<(Group, Vec<f32>)> = q
-        .groups
-        .iter()
-        .map(|(g, steps, ch)| (*g, dequantise_channels(*g, steps, ch).expect("the quantiser writes rotation indices 0..=3")))
-        .collect();
+    // Each level with its own steps (SPEC §4).
+    let mut values: Vec<(Group, usize, Vec<f32>)> = Vec::new();
+    for (l, r) in q.level_ranges().into_iter().enumerate() {
+        for (gi, (g, _, ch)) in q.groups.iter().enumerate() {
+            let ch: Vec<Vec<i32>> = ch.iter().map(|c| c[r.clone()].to_vec()).collect();
+            let v = dequantise_channels(*g, &q.level_steps(gi, l), &ch).expect("the quantiser writes rotation indices 0..=3");
+            values.push((*g, r.start, v));
+        }
+    }
     let mut pieces = vec![Piece { group: Group::Position, first: 0, columns: 0..3, values: &positions }];
-    pieces.extend(values.iter().map(|(g, v)| {
+    pieces.extend(values.iter().map(|(g, first, v)| {
         let columns = if *g == Group::Rotation { 0..4 } else { 0..g.channels() };
-        Piece { group: *g, first: 0, columns, values: v }
+        Piece { group: *g, first: *first, columns, values: v }
     }));
     let mut s = Splats::new(q.sh_degree);
     assemble(q.len(), q.sh_degree, &pieces, &mut s);

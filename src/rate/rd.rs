@@ -16,7 +16,7 @@ use super::encode::GroupCache;
 use super::group::Group;
 use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
-use super::{encode_cached, pruned, EncodeConfig};
+use super::{encode_cached, pruned, CoarseTail, EncodeConfig};
 use crate::views::{orbit_cameras, UpAxis};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
@@ -189,6 +189,10 @@ const VQ_ROWS: [u32; 4] = [64, 256, 1024, 4096];
 const VQ_STEPS: [f32; 2] = [1.0, std::f32::consts::FRAC_1_SQRT_2];
 /// SH rest dead zones tried after the steps are chosen (see `Steps::rest_deadzone`).
 const DEADZONES: [f32; 4] = [0.1, 0.2, 0.3, 0.4];
+/// Importance classes ([`CoarseTail`]) the search tries: the least significant share of the
+/// kept Gaussians, and the factor of its steps (docs/codec.md, "Importance classes").
+const TAIL_SHARES: [f32; 3] = [0.25, 0.5, 0.75];
+const TAIL_FACTORS: [f32; 4] = [1.5, 2.0, 3.0, 4.0];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
 /// Quarter-octave moves of the last pass.
 const REFINE_FINE: [f32; 3] = [0.840_896_4, 1.0, 1.189_207_1];
@@ -396,6 +400,18 @@ fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: Enco
     Ok(chosen)
 }
 
+/// Importance classes ([`CoarseTail`]): each of [`TAIL_SHARES`] × [`TAIL_FACTORS`], or none as
+/// in `start` (whole-file J; the start stays a candidate, so the result's J is never above it).
+fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: EncodeConfig) -> Result<EncodeConfig, SceneError> {
+    let (b, d, _) = trials.one(&start)?;
+    let cands = TAIL_SHARES
+        .iter()
+        .flat_map(|&share| TAIL_FACTORS.iter().map(move |&factor| CoarseTail { share, factor }))
+        .map(|tail| (format!("tail {}x{}", tail.share, tail.factor), EncodeConfig { tail, ..start }))
+        .collect();
+    Ok(log.stage(trials, (log.j(b, d), start), cands)?.1)
+}
+
 /// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the significance pruning threshold, then the SH degree and
@@ -507,6 +523,10 @@ pub fn search_with(
     }
     // 6. SH vector quantisation, band by band.
     let chosen = vq_stage(trials, &mut log, chosen, scene.sh_degree)?;
+    clock.lap(trials, "SH codebooks");
+    // 7. Importance classes: the least significant Gaussians with coarser steps.
+    let chosen = tail_stage(trials, &mut log, chosen)?;
+    clock.lap(trials, "importance classes");
     Ok((EncodeConfig { learned_tables: true, ..chosen }, log.path))
 }
 
@@ -537,6 +557,7 @@ pub fn between(from: &EncodeConfig, to: &EncodeConfig) -> Vec<(String, EncodeCon
         *c.steps.of_mut(g) = to.steps.of(g);
         push(format!("{} step", g.name()), c);
     }
+    push("importance classes".into(), EncodeConfig { tail: to.tail, ..*from });
     for band in 0..3 {
         let mut c = *from;
         c.steps.sh_rest[band] = to.steps.sh_rest[band];
@@ -654,6 +675,30 @@ mod tests {
             picked |= out.sh_vq != [0; 3];
         }
         assert!(picked, "no λ chose a codebook");
+    }
+
+    /// The tail stage picks importance classes only when they lower J, and then the candidate of
+    /// lowest J.
+    #[test]
+    fn the_search_picks_a_tail_only_when_j_is_lower() {
+        let scene = crate::sample::scene(600, 4);
+        let mut picked = false;
+        for l in [0.0, 50.0, 500.0] {
+            let lambda = Lambda::new(l).unwrap();
+            let mut trials = Trials::new(&scene).unwrap();
+            let mut on_step = |_: &Trial| {};
+            let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
+            let start = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
+            let (b0, d0, _) = trials.one(&start).unwrap();
+            let out = tail_stage(&mut trials, &mut log, start).unwrap();
+            let (b, d, _) = trials.one(&out).unwrap();
+            let j = log.j(b, d);
+            assert!(log.path.iter().all(|t| t.j >= j - 1e-9), "λ {l}: a candidate had a lower J than the choice");
+            assert!(out.tail.is_off() || j < log.j(b0, d0), "λ {l}: a tail chosen without lowering J");
+            assert_eq!(log.path.len(), TAIL_SHARES.len() * TAIL_FACTORS.len());
+            picked |= !out.tail.is_off();
+        }
+        assert!(picked, "no λ chose a tail");
     }
 
     /// The parallel search chooses the same configuration, records the same trials and writes

@@ -37,9 +37,13 @@ pub use sections::{parse, parse_prefix, write, Container, Section};
 
 /// First four bytes of every `.gsc` file.
 pub const MAGIC: [u8; 4] = [0x8A, b'G', b'S', b'C'];
-/// Newest format major version of this crate: files with SH codebooks (SPEC §3.2) are written as
-/// 5.0; files of [`VERSION_MAJOR_LEVELS`] and [`VERSION_MAJOR_UNIFORM`] are read too.
-pub const VERSION_MAJOR: u8 = 5;
+/// Newest format major version of this crate: files whose levels have their own parameter
+/// sections (SPEC §4, importance classes) are written as 6.0; files of [`VERSION_MAJOR_CODEBOOKS`],
+/// [`VERSION_MAJOR_LEVELS`] and [`VERSION_MAJOR_UNIFORM`] are read too.
+pub const VERSION_MAJOR: u8 = 6;
+/// Format 5.0: SH codebooks (SPEC §3.2), written for files with codebooks whose levels share one
+/// set of parameter sections.
+pub const VERSION_MAJOR_CODEBOOKS: u8 = 5;
 /// Format 4.0: importance levels (SPEC §3.1), written for progressive files without codebooks.
 pub const VERSION_MAJOR_LEVELS: u8 = 4;
 /// The previous major version (3.0: no levels section, chunks of 65,536), read by this crate and

@@ -4,6 +4,8 @@
 //! parameter section and a data section of K "Gaussians", and then the band's parameter section
 //! holds one channel, the row index.
 
+use std::sync::Arc;
+
 use rayon::prelude::*;
 
 use super::layout::{Group, MAX_CODEBOOK_ROWS, MAX_POSITION_BITS};
@@ -24,9 +26,10 @@ pub struct GroupParams {
     pub tables: Vec<ChannelTable>,
     /// Position only: the grid.
     pub grid: Option<Grid>,
-    /// SH bands coded by vector quantisation (SPEC §3.2): the codebook; `steps` and `tables`
-    /// then hold the one index channel.
-    pub codebook: Option<Codebook>,
+    /// SH bands coded by vector quantisation (SPEC §3.2): the codebook (one per band, shared by
+    /// the parameter sections of every level); `steps` and `tables` then hold the one index
+    /// channel.
+    pub codebook: Option<Arc<Codebook>>,
 }
 
 /// A decoded codebook (SPEC §3.2): `rows` rows of the band's channels, dequantised, row-major.
@@ -84,7 +87,7 @@ pub fn write_codebook(rows: usize, params: &[u8], streams: &[u8]) -> Vec<u8> {
 /// Reads the parameter section of group `g`; it must be consumed exactly. With `codebook` (an SH
 /// band coded by vector quantisation, SPEC §3.2) it holds one channel, the row index, whose
 /// step is ignored.
-pub fn read_params(g: Group, r: &mut ByteReader<'_>, codebook: Option<Codebook>) -> Result<GroupParams, DecodeError> {
+pub fn read_params(g: Group, r: &mut ByteReader<'_>, codebook: Option<Arc<Codebook>>) -> Result<GroupParams, DecodeError> {
     let channels = if codebook.is_some() { 1 } else { g.channels() };
     let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None, codebook };
     if g == Group::Position {
@@ -134,26 +137,53 @@ pub fn write_channel_params<'t>(steps: &[f32], tables: impl ExactSizeIterator<It
     w.buf
 }
 
-/// The parameter sections of the groups present up to SH degree `degree` (none for N = 0), with
-/// the codebooks of the SH bands that have one, read in parallel; a missing one is an error.
-pub fn read_all_params(c: &Container<'_>, degree: u8) -> Result<Vec<(Group, GroupParams)>, DecodeError> {
+/// The parameter sections of a file's first levels: one set per parameter chunk (SPEC §4: before
+/// 6.0 one set, chunk 0, for every level; in 6.0 one per level).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParamSets {
+    /// Per parameter chunk, the present groups' parameters in group order.
+    pub sets: Vec<Vec<(Group, GroupParams)>>,
+    per_level: bool,
+}
+
+impl ParamSets {
+    /// The parameters level `level`'s data sections are decoded with.
+    pub fn of_level(&self, level: usize) -> &[(Group, GroupParams)] {
+        &self.sets[if self.per_level { level } else { 0 }]
+    }
+}
+
+/// The parameter sections of the groups present up to SH degree `degree` for the first `levels`
+/// levels (none for N = 0), with the codebooks of the SH bands that have one (read once, shared by
+/// every level), read in parallel; a missing one is an error.
+pub fn read_all_params(c: &Container<'_>, degree: u8, levels: usize) -> Result<ParamSets, DecodeError> {
+    let per_level = c.header.has_level_params();
     if c.header.gaussians == 0 {
-        return Ok(Vec::new());
+        return Ok(ParamSets { sets: Vec::new(), per_level });
     }
     let groups: Vec<Group> = Group::present(degree).collect();
-    groups
-        .into_par_iter()
-        .map(|g| {
-            if c.section(g.params_kind(), 0).is_none() {
-                return Err(c.missing(SectionId { kind: g.params_kind(), chunk: 0 }, g.params_name()));
-            }
-            let codebook = match c.codebook(g)? {
-                Some(mut r) => Some(read_codebook(g, &mut r, c.header.gaussians as usize)?),
-                None => None,
-            };
-            Ok((g, read_params(g, &mut c.reader(g.params_kind(), 0), codebook)?))
+    let codebooks: Vec<Option<Arc<Codebook>>> = groups
+        .par_iter()
+        .map(|&g| match c.codebook(g)? {
+            Some(mut r) => Ok(Some(Arc::new(read_codebook(g, &mut r, c.header.gaussians as usize)?))),
+            None => Ok(None),
         })
-        .collect()
+        .collect::<Result<_, DecodeError>>()?;
+    let chunks = if per_level { levels } else { levels.min(1) };
+    let jobs: Vec<(usize, usize)> = (0..chunks).flat_map(|l| (0..groups.len()).map(move |gi| (l, gi))).collect();
+    let mut read = jobs
+        .into_par_iter()
+        .map(|(l, gi)| {
+            let (g, chunk) = (groups[gi], l as u16);
+            if c.section(g.params_kind(), chunk).is_none() {
+                return Err(c.missing(SectionId { kind: g.params_kind(), chunk }, g.params_name()));
+            }
+            Ok((g, read_params(g, &mut c.reader(g.params_kind(), chunk), codebooks[gi].clone())?))
+        })
+        .collect::<Result<Vec<_>, DecodeError>>()?
+        .into_iter();
+    let sets = (0..chunks).map(|_| read.by_ref().take(groups.len()).collect()).collect();
+    Ok(ParamSets { sets, per_level })
 }
 
 #[cfg(test)]

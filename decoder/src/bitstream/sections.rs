@@ -142,10 +142,12 @@ impl<'a> Container<'a> {
             return Err(self.missing(SectionId { kind: LEVELS_KIND, chunk: 0 }, "levels"));
         }
         let layout = Layout::read(&mut self.reader(LEVELS_KIND, 0), n)?;
+        // Data sections are numbered by chunk, a 6.0 file's parameter sections by level.
         let beyond = |id: &SectionId| {
-            Group::of_kind(id.kind).is_some_and(|g| g.data_kind() == id.kind)
-                && is_known(&self.header, id.kind, id.chunk)
-                && usize::from(id.chunk) >= layout.chunks()
+            Group::of_kind(id.kind).is_some_and(|g| {
+                (g.data_kind() == id.kind && usize::from(id.chunk) >= layout.chunks())
+                    || (g.params_kind() == id.kind && usize::from(id.chunk) >= layout.level_chunks.len())
+            }) && is_known(&self.header, id.kind, id.chunk)
         };
         let listed = self
             .sections
@@ -154,7 +156,12 @@ impl<'a> Container<'a> {
             .zip(self.offsets.iter().copied())
             .chain(self.pending.iter().map(|&id| (id, self.payloads_start)));
         if let Some((id, offset)) = listed.into_iter().find(|(id, _)| beyond(id)) {
-            return Err(Place { section: Some(id), offset }.corrupt("data section of a chunk the levels do not list"));
+            let what = if Group::of_kind(id.kind).is_some_and(|g| g.data_kind() == id.kind) {
+                "data section of a chunk the levels do not list"
+            } else {
+                "parameter section of a level the levels do not list"
+            };
+            return Err(Place { section: Some(id), offset }.corrupt(what));
         }
         Ok(layout)
     }
@@ -256,12 +263,13 @@ fn check_entry(c: &Container<'_>, e: &TableEntry, data: &[u8], at: Place, entry_
 }
 
 /// Whether (kind, chunk) is a section the file's version defines for a file with `header`'s
-/// Gaussian count and SH degree (SPEC §3): parameters (chunk 0) and data of a present group, info
-/// and padding (chunk 0), in 4.0 and 5.0 the levels section (chunk 0, N > 0), in 5.0 the
-/// codebooks (chunk 1..=3, N > 0; one of a band above D is corrupt, [`Container::codebook`]). A 3.0 data section must
-/// have a chunk < ⌈N / 65536⌉; a 4.0 one may have any chunk here, and one beyond the levels'
-/// last chunk is corrupt ([`Container::layout`]). Anything else is unknown: skipped when
-/// OPTIONAL, else an error.
+/// Gaussian count and SH degree (SPEC §3): parameters (chunk 0; in 6.0 any chunk, one per level)
+/// and data of a present group, info and padding (chunk 0), from 4.0 on the levels section
+/// (chunk 0, N > 0), from 5.0 on the codebooks (chunk 1..=3, N > 0; one of a band above D is
+/// corrupt, [`Container::codebook`]). A 3.0 data section must have a chunk < ⌈N / 65536⌉; from
+/// 4.0 on one may have any chunk here, and one beyond the levels' last chunk (a 6.0 parameter
+/// section: beyond the last level) is corrupt ([`Container::layout`]). Anything else is unknown:
+/// skipped when OPTIONAL, else an error.
 pub fn is_known(header: &Header, kind: u16, chunk: u16) -> bool {
     if kind == INFO_KIND || kind == PADDING_KIND {
         return chunk == 0;
@@ -275,7 +283,8 @@ pub fn is_known(header: &Header, kind: u16, chunk: u16) -> bool {
     }
     let data_chunk = |c: u16| header.has_levels() || usize::from(c) < layout::chunk_count(n);
     n > 0
-        && Group::present(header.sh_degree).any(|g| (kind == g.params_kind() && chunk == 0) || (kind == g.data_kind() && data_chunk(chunk)))
+        && Group::present(header.sh_degree)
+            .any(|g| (kind == g.params_kind() && (chunk == 0 || header.has_level_params())) || (kind == g.data_kind() && data_chunk(chunk)))
 }
 
 /// Serialises a file: header, section table with each payload's CRC, header CRC, then the
