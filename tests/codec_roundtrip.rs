@@ -321,8 +321,8 @@ fn codebook_bands_round_trip_bit_exactly() {
 /// Importance classes (format 6.0, SPEC §4): the less significant Gaussians in a level of their
 /// own with coarser steps. Decode is the encoder's scene bit-exactly — whole, with fewer SH
 /// bands, progressive and by prefix — the tail level's steps are the factor times the others'
-/// (not the rotation index's, nor a codebook band's), its Gaussians are the less significant
-/// ones, and the file is smaller than without the tail.
+/// (not the rotation index's, nor a codebook band's) and its position grid coarser, its
+/// Gaussians are the less significant ones, and the file is smaller than without the tail.
 #[test]
 fn importance_classes_round_trip_bit_exactly() {
     use gscodec::rate::CoarseTail;
@@ -344,6 +344,10 @@ fn importance_classes_round_trip_bit_exactly() {
             assert_eq!(*s1, if same { *s0 } else { 2.0 * s0 }, "{} channel {j}", g.name());
         }
     }
+    // Its position grid has one bit per axis fewer (⌊log₂ 2⌋), over the same bounds.
+    let (grid0, grid1) = (params.of_level(0)[0].1.grid.unwrap(), params.of_level(1)[0].1.grid.unwrap());
+    assert_eq!((grid1.0, grid1.2), (grid0.0, grid0.2 - 1));
+    assert!((0..3).all(|a| grid1.1[a] > 1.9 * grid0.1[a]), "{grid0:?} {grid1:?}");
     let (g1, p1) = &params.of_level(1)[5];
     assert!(*g1 == Group::Sh1 && p1.codebook.is_some(), "the codebook is shared by both levels");
     // The tail is the less significant half.

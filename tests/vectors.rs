@@ -147,7 +147,8 @@ fn regenerate() {
             // `levels`: the tiny scene in importance levels (format 4.0, SPEC §3.1). `vq`: the tiny
             // scene to SH degree 2, band 1 by a codebook of 16 rows, band 2 per coefficient
             // (format 5.0, SPEC §3.2). `classes`: `vq` with its less significant half in a level
-            // of its own, coded with twice the steps (format 6.0: parameters per level, SPEC §4).
+            // of its own, coded with twice the steps and a grid of one bit less (format 6.0:
+            // parameters per level, SPEC §4).
             let config = match name {
                 "levels" => EncodeConfig { progressive: true, ..EncodeConfig::default() },
                 "vq" => EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], ..EncodeConfig::default() },

@@ -237,12 +237,13 @@ fn level_part(q: &Quantised, l: usize, r: Range<usize>) -> Quantised {
         .collect();
     Quantised {
         sh_degree: q.sh_degree,
-        grid: q.grid,
+        grid: q.level_grid(l),
         levels: Vec::new(),
         morton: q.morton[r].to_vec(),
         groups,
         codebooks,
         level_factors: Vec::new(),
+        level_grids: Vec::new(),
     }
 }
 

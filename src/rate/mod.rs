@@ -58,8 +58,8 @@ pub struct EncodeConfig {
 
 /// Importance classes (format 6.0, SPEC §4): the least significant `share` of the Gaussians kept
 /// (by the input's significance, [`importance::significance`]) go into a level of their own,
-/// coded with every step but position's `factor` times the others' (its own parameter
-/// sections). With `--progressive`, the importance levels that lie wholly within that share
+/// coded with every step `factor` times the others' and a position grid of
+/// [`CoarseTail::coarser_grid_bits`] fewer bits per axis (its own parameter sections). With `--progressive`, the importance levels that lie wholly within that share
 /// take the factor instead.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct CoarseTail {
@@ -91,6 +91,12 @@ impl CoarseTail {
         let mut level = vec![0u8; n];
         rank[..cut].iter().for_each(|&i| level[i] = 1);
         level
+    }
+
+    /// Bits per axis fewer in the position grid of a level whose steps are `factor` times
+    /// coarser: ⌊log₂ factor⌋ (1.5 → 0, 2 and 3 → 1, 4 → 2).
+    pub fn coarser_grid_bits(factor: f32) -> u8 {
+        factor.max(1.0).log2().floor() as u8
     }
 
     /// The factor of each of `levels` (Gaussian counts, most important first): `factor` for the
@@ -223,13 +229,19 @@ pub fn encode_cached(
         Some(sig) => config.tail.levels(sig),
         None => Vec::new(),
     };
-    let (mut q, order) = quantise::quantise_ordered(&s, &config.steps, &level);
+    // Importance classes: the step factor of each level value, and its coarser position grid.
+    let mut counts = vec![0usize; level.iter().max().map_or(0, |&l| usize::from(l) + 1)];
+    level.iter().for_each(|&l| counts[usize::from(l)] += 1);
+    let factors = config.tail.level_factors(&counts);
+    let coarser: Vec<u8> = factors.iter().flatten().map(|&f| CoarseTail::coarser_grid_bits(f)).collect();
+    let (mut q, order) = quantise::quantise_coarser_grids(&s, &config.steps, &level, &coarser);
     if config.sh_vq.iter().any(|&k| k > 0) {
         let w: Vec<f32> = order.iter().map(|&i| sig.as_ref().map_or(1.0, |w| w[i])).collect();
         quantise::apply_codebooks(&mut q, &w, config.sh_vq);
     }
-    if let Some(factors) = config.tail.level_factors(&q.levels) {
-        quantise::apply_level_factors(&mut q, &s, &order, &config.steps, &factors);
+    if let Some(factors) = factors {
+        let nonempty: Vec<f32> = factors.into_iter().zip(&counts).filter(|x| *x.1 > 0).map(|x| x.0).collect();
+        quantise::apply_level_factors(&mut q, &s, &order, &config.steps, &nonempty);
     }
     let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, cache);
     Ok((bytes, report, q))

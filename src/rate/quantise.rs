@@ -84,7 +84,13 @@ pub struct Quantised {
     /// ([`Quantised::level_steps`]). Empty: every level uses those steps, and the file has one
     /// set of parameter sections.
     pub level_factors: Vec<f32>,
+    /// Per level, its position grid ([`quantise_coarser_grids`]; [`Quantised::level_grid`]);
+    /// empty: [`Quantised::grid`] for every level.
+    pub level_grids: Vec<Grid>,
 }
+
+/// A position grid: origin and step per axis, bits per axis (SPEC §4, §6.1).
+pub type Grid = ([f32; 3], [f32; 3], u8);
 
 impl Quantised {
     pub fn len(&self) -> usize {
@@ -107,6 +113,11 @@ impl Quantised {
                 start - k..start
             })
             .collect()
+    }
+
+    /// The position grid of level `level`.
+    pub fn level_grid(&self, level: usize) -> Grid {
+        self.level_grids.get(level).copied().unwrap_or(self.grid)
     }
 
     /// The steps of group `gi` (an index into [`Quantised::groups`]) in level `level`: the
@@ -170,9 +181,11 @@ pub fn quantise(splats: &Splats, steps: &Steps, level: &[u8]) -> Quantised {
 
 /// [`quantise`], with the file order: Gaussian `i` of the result is `splats`' Gaussian `order[i]`.
 pub fn quantise_ordered(splats: &Splats, steps: &Steps, level: &[u8]) -> (Quantised, Vec<usize>) {
-    let n = splats.len();
-    let bits = steps.position_bits.unwrap_or_else(|| position_bits(splats, steps.position_rel)).min(MAX_POSITION_BITS);
-    let (lo, hi) = splats.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
+    quantise_coarser_grids(splats, steps, level, &[])
+}
+
+/// The position grid of `bits` bits per axis over the bounds `lo..hi`: (origin, step, bits).
+fn grid(lo: [f32; 3], hi: [f32; 3], bits: u8) -> Grid {
     let cells = ((1u64 << bits) - 1) as f64;
     let mut step = [1.0f32; 3];
     for a in 0..3 {
@@ -182,12 +195,26 @@ pub fn quantise_ordered(splats: &Splats, steps: &Steps, level: &[u8]) -> (Quanti
             step[a] = ((ext / cells) * (1.0 + 1e-6)) as f32;
         }
     }
-    let max_q = (1u64 << bits) - 1;
+    (lo, step, bits)
+}
+
+/// [`quantise_ordered`] with the positions of level value `l` on a grid of `coarser[l]` fewer
+/// bits per axis (importance classes, SPEC §4: each level has its own position grid; missing
+/// entries are 0). [`Quantised::level_grids`] then holds each level's grid.
+pub fn quantise_coarser_grids(splats: &Splats, steps: &Steps, level: &[u8], coarser: &[u8]) -> (Quantised, Vec<usize>) {
+    let n = splats.len();
+    let bits = steps.position_bits.unwrap_or_else(|| position_bits(splats, steps.position_rel)).min(MAX_POSITION_BITS);
+    let (lo, hi) = splats.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
+    let base = grid(lo, hi, bits);
+    let grids: Vec<Grid> =
+        (0..=255u8).map(|l| coarser.get(usize::from(l)).map_or(base, |&c| grid(lo, hi, bits.saturating_sub(c)))).collect();
     let level_of = |i: usize| level.get(i).copied().unwrap_or(0);
     let mut keyed: Vec<(u8, u64, usize)> = (0..n)
         .map(|i| {
+            let (origin, step, bits) = grids[usize::from(level_of(i))];
+            let max_q = (1u64 << bits) - 1;
             let qs: [u32; 3] = std::array::from_fn(|a| {
-                let t = (f64::from(splats.positions[i][a]) - f64::from(lo[a])) / f64::from(step[a]);
+                let t = (f64::from(splats.positions[i][a]) - f64::from(origin[a])) / f64::from(step[a]);
                 t.round().clamp(0.0, max_q as f64) as u32
             });
             (level_of(i), morton_encode(qs, bits), i)
@@ -201,8 +228,11 @@ pub fn quantise_ordered(splats: &Splats, steps: &Steps, level: &[u8]) -> (Quanti
             levels.resize(levels.len().max(l as usize + 1), 0);
             levels[l as usize] += 1;
         }
-        levels.retain(|&k| k > 0);
     }
+    // The grids of the levels that have Gaussians, in order (none without coarser grids).
+    let level_grids =
+        if coarser.iter().any(|&c| c > 0) { (0..levels.len()).filter(|&l| levels[l] > 0).map(|l| grids[l]).collect() } else { Vec::new() };
+    levels.retain(|&k| k > 0);
 
     let groups = Group::present(splats.sh_degree)
         .skip(1)
@@ -210,12 +240,13 @@ pub fn quantise_ordered(splats: &Splats, steps: &Steps, level: &[u8]) -> (Quanti
         .collect();
     let mut out = Quantised {
         sh_degree: splats.sh_degree,
-        grid: (lo, step, bits),
+        grid: base,
         levels,
         morton: keyed.iter().map(|&(_, m, _)| m).collect(),
         groups,
         codebooks: Vec::new(),
         level_factors: Vec::new(),
+        level_grids,
     };
     // Leave out SH bands whose coefficients all quantise to zero.
     while out.sh_degree > 0 {
@@ -366,10 +397,12 @@ pub fn drop_sh_bands(splats: &mut Splats, weights: &[f32], thresholds: [f32; 3])
 
 /// The scene a decoder will restore from `q`: the decoder's dequantisation and assembler.
 pub fn dequantise(q: &Quantised) -> Splats {
-    let positions: Vec<f32> = q.morton.iter().flat_map(|&m| position_of(m, &q.grid)).collect();
-    // Each level with its own steps (SPEC §4).
+    // Each level with its own grid and steps (SPEC §4).
+    let mut positions: Vec<f32> = Vec::with_capacity(3 * q.len());
     let mut values: Vec<(Group, usize, Vec<f32>)> = Vec::new();
     for (l, r) in q.level_ranges().into_iter().enumerate() {
+        let g = q.level_grid(l);
+        positions.extend(q.morton[r.clone()].iter().flat_map(|&m| position_of(m, &g)));
         for (gi, (g, _, ch)) in q.groups.iter().enumerate() {
             let ch: Vec<Vec<i32>> = ch.iter().map(|c| c[r.clone()].to_vec()).collect();
             let v = dequantise_channels(*g, &q.level_steps(gi, l), &ch).expect("the quantiser writes rotation indices 0..=3");
