@@ -2,11 +2,13 @@
 //!
 //! `cargo run --release --example class_probe -- SCENE.ply LAMBDA`
 //!
-//! Runs the RD search at λ, then splits the chosen file's Gaussians by significance into a
+//! Runs the RD search at λ (its importance classes turned off: the probe measures what they
+//! could give), then splits the chosen file's Gaussians by significance into a
 //! "low" class (the least significant fraction p) and codes the low class with every non-position
 //! group's integer values coarsened by f (values round(v/f), decoded as f·round(v/f)). Bits are
 //! estimated per channel with static histograms (one table per class), the same estimator for the
-//! baseline. Prints ΔR, ΔD (the search's views), ΔJ and orbit PSNR.
+//! baseline ("one table": both classes under one table per channel). Prints ΔR, ΔD (the
+//! search's views), ΔJ and orbit PSNR. Positions are left alone (one grid).
 
 use gscodec::encoder::orbit_psnr;
 use gscodec::io::read_scene;
@@ -27,6 +29,7 @@ fn main() {
     let scene = read_scene(args[1].as_ref()).expect("scene");
     let lambda: Lambda = args[2].parse().expect("λ");
     let (chosen, _) = rate::rd::search(&scene, lambda, |_| {}).expect("search");
+    let chosen = rate::EncodeConfig { tail: rate::CoarseTail::OFF, ..chosen };
     let (bytes, _report, q) = rate::encode(&scene, &chosen).expect("encode");
     let ev = Evaluator::new(&scene);
 

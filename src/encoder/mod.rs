@@ -311,6 +311,7 @@ impl Encoder {
             steps: config.steps.map(),
             min_opacity: config.min_opacity,
             min_significance: config.min_significance,
+            tail: config.tail,
             orbit_psnr,
             stages,
             train,

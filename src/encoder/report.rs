@@ -76,6 +76,9 @@ pub struct EncodeReport {
     /// Pruning thresholds of the file: opacity, and significance (0: none).
     pub min_opacity: f32,
     pub min_significance: f32,
+    /// Importance classes of the file (format 6.0): the least significant `share` of the
+    /// Gaussians with every step × `factor` (share 0: none).
+    pub tail: crate::rate::CoarseTail,
     /// Mean PSNR of the decoded scene against the input scene (for a dataset: against the trained
     /// scene before coding) over the 8 orbit views at 256×256, as `eval --reference --orbit 8`.
     pub orbit_psnr: f64,

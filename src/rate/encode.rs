@@ -286,8 +286,8 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
         }
         let chunks = layout.chunk_ranges();
         // The parts coded with one set of parameter sections each (SPEC §4): every level of a
-        // 6.0 file, else the whole scene. Per part: the scene, its first chunk and its chunks.
-        let parts: Vec<(Cow<Quantised>, usize, Vec<Range<usize>>)> = if per_level {
+        // 6.0 file, else the whole scene. Per part: the scene and its chunks.
+        let parts: Vec<(Cow<Quantised>, Vec<Range<usize>>)> = if per_level {
             layout
                 .level_ranges()
                 .into_iter()
@@ -295,22 +295,21 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
                 .map(|(l, cr)| {
                     let r = chunks[cr.start].start..chunks[cr.end - 1].end;
                     let local = chunks[cr.clone()].iter().map(|c| c.start - r.start..c.end - r.start).collect();
-                    (Cow::Owned(level_part(q, l, r)), cr.start, local)
+                    (Cow::Owned(level_part(q, l, r)), local)
                 })
                 .collect()
         } else {
-            vec![(Cow::Borrowed(q), 0, chunks.clone())]
+            vec![(Cow::Borrowed(q), chunks.clone())]
         };
         coded = parts
             .iter()
-            .map(|(pq, _, ch)| {
+            .map(|(pq, ch)| {
                 let deltas = morton_deltas(&pq.morton, ch);
                 (code_groups(pq, ch, &deltas, learned_tables, cache), deltas)
             })
             .collect::<Vec<_>>();
         // Global chunk c → (part, chunk within the part).
-        let chunk_of: Vec<(usize, usize)> =
-            parts.iter().enumerate().flat_map(|(p, (_, _, ch))| (0..ch.len()).map(move |j| (p, j))).collect();
+        let chunk_of: Vec<(usize, usize)> = parts.iter().enumerate().flat_map(|(p, (_, ch))| (0..ch.len()).map(move |j| (p, j))).collect();
         // Chunk-major for the base groups, then band-major for SH (groups are in group order).
         let groups = coded[0].0.len();
         let base = coded[0].0.iter().take_while(|g| g.plan.group.sh_band() == 0).count();

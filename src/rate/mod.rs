@@ -59,8 +59,9 @@ pub struct EncodeConfig {
 /// Importance classes (format 6.0, SPEC §4): the least significant `share` of the Gaussians kept
 /// (by the input's significance, [`importance::significance`]) go into a level of their own,
 /// coded with every step `factor` times the others' and a position grid of
-/// [`CoarseTail::coarser_grid_bits`] fewer bits per axis (its own parameter sections). With `--progressive`, the importance levels that lie wholly within that share
-/// take the factor instead.
+/// [`CoarseTail::coarser_grid_bits`] fewer bits per axis (its own parameter sections). With
+/// `--progressive`, the importance levels that lie wholly within that share take the factor
+/// instead.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct CoarseTail {
     /// Share of the kept Gaussians, in (0, 1); 0 = off.

@@ -4,6 +4,7 @@
 use gscodec_decoder::bitstream::assemble::{assemble, dequantise_channels, Piece};
 use gscodec_decoder::bitstream::layout::{Group, MAX_POSITION_BITS};
 use gscodec_decoder::bitstream::levels::Layout;
+use gscodec_decoder::bitstream::params::Grid;
 use gscodec_decoder::bitstream::positions::{morton_encode, position_of};
 use gscodec_decoder::math::sigmoid;
 use gscodec_decoder::Splats;
@@ -89,9 +90,6 @@ pub struct Quantised {
     pub level_grids: Vec<Grid>,
 }
 
-/// A position grid: origin and step per axis, bits per axis (SPEC §4, §6.1).
-pub type Grid = ([f32; 3], [f32; 3], u8);
-
 impl Quantised {
     pub fn len(&self) -> usize {
         self.morton.len()
@@ -101,7 +99,6 @@ impl Quantised {
         self.morton.is_empty()
     }
 
-    /// The file's chunks and levels.
     /// The Gaussians of each level, in file order (one level of all of them without levels).
     pub fn level_ranges(&self) -> Vec<std::ops::Range<usize>> {
         let sizes = if self.levels.is_empty() { vec![self.len()] } else { self.levels.clone() };
@@ -133,6 +130,7 @@ impl Quantised {
         steps.iter().enumerate().map(scaled).collect()
     }
 
+    /// The file's chunks and levels.
     pub fn layout(&self) -> Layout {
         if self.levels.is_empty() {
             Layout::uniform(self.len())
@@ -206,8 +204,9 @@ pub fn quantise_coarser_grids(splats: &Splats, steps: &Steps, level: &[u8], coar
     let bits = steps.position_bits.unwrap_or_else(|| position_bits(splats, steps.position_rel)).min(MAX_POSITION_BITS);
     let (lo, hi) = splats.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
     let base = grid(lo, hi, bits);
-    let grids: Vec<Grid> =
-        (0..=255u8).map(|l| coarser.get(usize::from(l)).map_or(base, |&c| grid(lo, hi, bits.saturating_sub(c)))).collect();
+    let grids: Vec<Grid> = (0..=level.iter().copied().max().unwrap_or(0))
+        .map(|l| coarser.get(usize::from(l)).map_or(base, |&c| grid(lo, hi, bits.saturating_sub(c))))
+        .collect();
     let level_of = |i: usize| level.get(i).copied().unwrap_or(0);
     let mut keyed: Vec<(u8, u64, usize)> = (0..n)
         .map(|i| {
