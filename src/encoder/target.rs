@@ -205,7 +205,8 @@ impl Encoder {
 
     /// Between `good` (the best encode meeting `target`, from an RD search alone) and `bad`
     /// (the choices of the nearest probe that missed it), up to [`FILL_ROUNDS`] rounds from the
-    /// best so far: the best with each one of its knobs set as in `bad` ([`rd::between`]); of
+    /// best so far: the best with each one of its knobs set as in `bad` ([`rd::between`]) or
+    /// with another choice of importance classes ([`rd::tail_variants`]); of
     /// those that meet the target and beat the best, the best one, then the others added one
     /// after another (most bytes saved, or PSNR gained, first), each kept if the result still
     /// meets the target and is better. A round that finds nothing better ends the search. Every
@@ -231,7 +232,11 @@ impl Encoder {
         let start = (good.config, eval(&good.config)?);
         let mut cur = start;
         for round in 1..=FILL_ROUNDS {
-            let alone = rd::between(&cur.0, bad);
+            // One knob as in the miss, or another choice of importance classes (finer than the
+            // search's steps between the two).
+            let mut alone = rd::between(&cur.0, bad);
+            let others: Vec<_> = rd::tail_variants(&cur.0).into_iter().filter(|v| alone.iter().all(|a| a.1 != v.1)).collect();
+            alone.extend(others);
             let outcomes = alone.par_iter().map(|(_, c)| eval(c)).collect::<Result<Vec<_>>>()?;
             let mut pays = Vec::new();
             for ((knob, c), &o) in alone.iter().zip(&outcomes) {

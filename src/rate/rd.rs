@@ -400,16 +400,22 @@ fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: Enco
     Ok(chosen)
 }
 
-/// Importance classes ([`CoarseTail`]): each of [`TAIL_SHARES`] × [`TAIL_FACTORS`], or none as
-/// in `start` (whole-file J; the start stays a candidate, so the result's J is never above it).
-fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: EncodeConfig) -> Result<EncodeConfig, SceneError> {
-    let (b, d, _) = trials.one(&start)?;
-    let cands = TAIL_SHARES
+/// `from` with each importance class choice the search tries ([`TAIL_SHARES`] ×
+/// [`TAIL_FACTORS`]) but its own, named by it.
+pub fn tail_variants(from: &EncodeConfig) -> Vec<(String, EncodeConfig)> {
+    TAIL_SHARES
         .iter()
         .flat_map(|&share| TAIL_FACTORS.iter().map(move |&factor| CoarseTail { share, factor }))
-        .map(|tail| (format!("tail {}x{}", tail.share, tail.factor), EncodeConfig { tail, ..start }))
-        .collect();
-    Ok(log.stage(trials, (log.j(b, d), start), cands)?.1)
+        .filter(|&tail| tail != from.tail)
+        .map(|tail| (format!("tail {}x{}", tail.share, tail.factor), EncodeConfig { tail, ..*from }))
+        .collect()
+}
+
+/// Importance classes ([`CoarseTail`]): each of [`tail_variants`], or none as in `start`
+/// (whole-file J; the start stays a candidate, so the result's J is never above it).
+fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: EncodeConfig) -> Result<EncodeConfig, SceneError> {
+    let (b, d, _) = trials.one(&start)?;
+    Ok(log.stage(trials, (log.j(b, d), start), tail_variants(&start))?.1)
 }
 
 /// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
