@@ -272,6 +272,25 @@ fn progressive_file_is_the_same_scene_most_significant_first() {
     assert!(means.windows(2).all(|w| w[0] > w[1]), "mean significance per level {means:?}");
 }
 
+/// Every prefix of the progressive file `pb` (every 997 bytes) decodes to a growing prefix of
+/// `full`, its decode: the same Gaussians, and the same SH where the prefix has every band; the
+/// whole file decodes to `full`.
+fn prefixes_decode_to_prefixes(pb: &[u8], full: &Splats) {
+    let mut last = 0;
+    for arrived in (0..=pb.len()).step_by(997).chain([pb.len()]) {
+        if let Some(p) = gscodec_decoder::decode_prefix(&pb[..arrived], &Limits::default()).unwrap() {
+            assert!(p.len() >= last);
+            last = p.len();
+            assert_eq!(p.positions[..], full.positions[..p.len()]);
+            assert_eq!(p.log_scales[..], full.log_scales[..p.len()]);
+            if p.sh_degree == full.sh_degree {
+                assert_eq!(p.sh_rest[..], full.sh_rest[..p.sh_rest.len()]);
+            }
+        }
+    }
+    assert_eq!(gscodec_decoder::decode_prefix(pb, &Limits::default()).unwrap().unwrap(), *full);
+}
+
 /// SH bands coded by vector quantisation (format 5.0, SPEC §3.2): decode is the encoder's scene
 /// bit-exactly — every band row one of its codebook's — whole, progressive, by prefix, and with
 /// fewer SH bands; a file without codebooks stays 3.0.
@@ -302,18 +321,7 @@ fn codebook_bands_round_trip_bit_exactly() {
     assert_eq!(pb[4], 5);
     let full = decode(&pb).unwrap();
     assert_eq!(full, quantise::dequantise(&pq));
-    let mut last = 0;
-    for arrived in (0..=pb.len()).step_by(997).chain([pb.len()]) {
-        if let Some(p) = gscodec_decoder::decode_prefix(&pb[..arrived], &Limits::default()).unwrap() {
-            assert!(p.len() >= last);
-            last = p.len();
-            assert_eq!(p.positions[..], full.positions[..p.len()]);
-            if p.sh_degree == 3 {
-                assert_eq!(p.sh_rest[..], full.sh_rest[..p.sh_rest.len()]);
-            }
-        }
-    }
-    assert_eq!(gscodec_decoder::decode_prefix(&pb, &Limits::default()).unwrap().unwrap(), full);
+    prefixes_decode_to_prefixes(&pb, &full);
     // No codebook: 3.0, as before.
     assert_eq!(rate::encode(&s, &EncodeConfig::default()).unwrap().0[4], 3);
 }
@@ -367,15 +375,7 @@ fn importance_classes_round_trip_bit_exactly() {
     assert_eq!((pb[4], pq.level_factors.clone()), (6, vec![1.0, 1.0, 1.0, 2.0, 2.0]));
     let full = decode(&pb).unwrap();
     assert_eq!(full, quantise::dequantise(&pq));
-    let mut last = 0;
-    for arrived in (0..=pb.len()).step_by(997).chain([pb.len()]) {
-        if let Some(p) = gscodec_decoder::decode_prefix(&pb[..arrived], &Limits::default()).unwrap() {
-            assert!(p.len() >= last);
-            last = p.len();
-            assert_eq!(p.log_scales[..], full.log_scales[..p.len()]);
-        }
-    }
-    assert_eq!(gscodec_decoder::decode_prefix(&pb, &Limits::default()).unwrap().unwrap(), full);
+    prefixes_decode_to_prefixes(&pb, &full);
     // Random mutations are refused (or decode), never panic.
     let mut rng = Rng::new(9);
     for _ in 0..1000 {

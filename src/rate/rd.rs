@@ -657,53 +657,56 @@ mod tests {
         assert!(replayed >= 7, "{replayed} trials replayed"); // SH DC, 3 bands, degree, dead zone, 2 codebooks
     }
 
-    /// The codebook stage keeps per-coefficient coding unless a codebook lowers J: the result's J
-    /// is the lowest of the start's and every candidate's, and it is a codebook for some λ.
-    #[test]
-    fn the_search_picks_codebooks_only_when_j_is_lower() {
-        let scene = crate::sample::scene(600, 3);
-        assert!(scene.sh_degree > 0);
+    /// Runs `stage` from the default configuration at each of `lambdas` on `scene`: it tries
+    /// `candidates` configurations, its choice's J is the lowest of the start's and every
+    /// candidate's, and it leaves the start (`changed` false) unless that lowers J. Returns
+    /// whether some λ changed it.
+    fn stage_lowers_j(
+        scene: &Splats,
+        lambdas: [f64; 3],
+        candidates: usize,
+        changed: impl Fn(&EncodeConfig) -> bool,
+        stage: impl Fn(&mut Trials, &mut Log<fn(&Trial)>, EncodeConfig) -> Result<EncodeConfig, SceneError>,
+    ) -> bool {
         let mut picked = false;
-        for l in [0.0, 50.0, 2000.0] {
+        for l in lambdas {
             let lambda = Lambda::new(l).unwrap();
-            let mut trials = Trials::new(&scene).unwrap();
-            let mut on_step = |_: &Trial| {};
+            let mut trials = Trials::new(scene).unwrap();
+            let mut on_step: fn(&Trial) = |_| {};
             let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
             let start = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
             let (b0, d0, _) = trials.one(&start).unwrap();
-            let out = vq_stage(&mut trials, &mut log, start, scene.sh_degree).unwrap();
+            let out = stage(&mut trials, &mut log, start).unwrap();
             let (b, d, _) = trials.one(&out).unwrap();
             let j = log.j(b, d);
             assert!(j <= log.j(b0, d0));
             assert!(log.path.iter().all(|t| t.j >= j - 1e-9), "λ {l}: a candidate had a lower J than the choice");
-            assert!(out.sh_vq == [0; 3] || j < log.j(b0, d0), "λ {l}: a codebook chosen without lowering J");
-            assert_eq!(log.path.len(), usize::from(scene.sh_degree) * VQ_ROWS.len() * VQ_STEPS.len());
-            picked |= out.sh_vq != [0; 3];
+            assert!(!changed(&out) || j < log.j(b0, d0), "λ {l}: changed without lowering J");
+            assert_eq!(log.path.len(), candidates);
+            picked |= changed(&out);
         }
+        picked
+    }
+
+    /// The codebook stage keeps per-coefficient coding unless a codebook lowers J, and chooses a
+    /// codebook for some λ.
+    #[test]
+    fn the_search_picks_codebooks_only_when_j_is_lower() {
+        let scene = crate::sample::scene(600, 3);
+        assert!(scene.sh_degree > 0);
+        let candidates = usize::from(scene.sh_degree) * VQ_ROWS.len() * VQ_STEPS.len();
+        let vq = |c: &EncodeConfig| c.sh_vq != [0; 3];
+        let picked = stage_lowers_j(&scene, [0.0, 50.0, 2000.0], candidates, vq, |t, log, start| vq_stage(t, log, start, scene.sh_degree));
         assert!(picked, "no λ chose a codebook");
     }
 
-    /// The tail stage picks importance classes only when they lower J, and then the candidate of
-    /// lowest J.
+    /// The tail stage picks importance classes only when they lower J (then the candidate of
+    /// lowest J), and picks them for some λ.
     #[test]
     fn the_search_picks_a_tail_only_when_j_is_lower() {
         let scene = crate::sample::scene(600, 4);
-        let mut picked = false;
-        for l in [0.0, 50.0, 500.0] {
-            let lambda = Lambda::new(l).unwrap();
-            let mut trials = Trials::new(&scene).unwrap();
-            let mut on_step = |_: &Trial| {};
-            let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
-            let start = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
-            let (b0, d0, _) = trials.one(&start).unwrap();
-            let out = tail_stage(&mut trials, &mut log, start).unwrap();
-            let (b, d, _) = trials.one(&out).unwrap();
-            let j = log.j(b, d);
-            assert!(log.path.iter().all(|t| t.j >= j - 1e-9), "λ {l}: a candidate had a lower J than the choice");
-            assert!(out.tail.is_off() || j < log.j(b0, d0), "λ {l}: a tail chosen without lowering J");
-            assert_eq!(log.path.len(), TAIL_SHARES.len() * TAIL_FACTORS.len());
-            picked |= !out.tail.is_off();
-        }
+        let tail = |c: &EncodeConfig| !c.tail.is_off();
+        let picked = stage_lowers_j(&scene, [0.0, 50.0, 500.0], TAIL_SHARES.len() * TAIL_FACTORS.len(), tail, tail_stage);
         assert!(picked, "no λ chose a tail");
     }
 
