@@ -95,7 +95,7 @@ impl CoarseTail {
     }
 
     /// Bits per axis fewer in the position grid of a level whose steps are `factor` times
-    /// coarser: ⌊log₂ factor⌋ (1.5 → 0, 2 and 3 → 1, 4 → 2).
+    /// coarser: ⌊log₂ factor⌋ (1.5 → 0, 2 and 3 → 1, 4 and 6 → 2).
     pub fn coarser_grid_bits(factor: f32) -> u8 {
         factor.max(1.0).log2().floor() as u8
     }

@@ -192,7 +192,7 @@ const DEADZONES: [f32; 4] = [0.1, 0.2, 0.3, 0.4];
 /// Importance classes ([`CoarseTail`]) the search tries: the least significant share of the
 /// kept Gaussians, and the factor of its steps (docs/codec.md, "Importance classes").
 const TAIL_SHARES: [f32; 3] = [0.25, 0.5, 0.75];
-const TAIL_FACTORS: [f32; 4] = [1.5, 2.0, 3.0, 4.0];
+const TAIL_FACTORS: [f32; 5] = [1.5, 2.0, 3.0, 4.0, 6.0];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
 /// Quarter-octave moves of the last pass.
 const REFINE_FINE: [f32; 3] = [0.840_896_4, 1.0, 1.189_207_1];
