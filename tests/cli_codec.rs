@@ -74,15 +74,26 @@ fn progressive_encode_writes_levels_that_info_shows() {
     let info =
         |gsc: &Path| serde_json::from_slice::<serde_json::Value>(&gscodec(&["info", gsc.to_str().unwrap(), "--json"]).stdout).unwrap();
     let (a, b) = (info(&one), info(&levels));
-    // 3.0 for one level, 4.0 with levels; 5.0 (levels too) when the search coded a band by a codebook.
+    // 3.0 for one level, 4.0 with levels; 5.0 (levels too) when the search coded a band by a
+    // codebook; 6.0 when it chose importance classes (parameters per level).
     let codebooks = |v: &serde_json::Value| v["sh_bands"].as_array().unwrap().iter().any(|b| b["mode"] == "codebook");
-    let version = |v: &serde_json::Value, plain: &str| if codebooks(v) { "5.0".to_string() } else { plain.to_string() };
+    let classes = |v: &serde_json::Value| !v["level_step_factors"].as_array().unwrap().is_empty();
+    let version = |v: &serde_json::Value, plain: &str| {
+        if classes(v) {
+            "6.0".to_string()
+        } else if codebooks(v) {
+            "5.0".to_string()
+        } else {
+            plain.to_string()
+        }
+    };
     assert_eq!((a["version"].as_str().unwrap(), b["version"].as_str().unwrap()), (&version(&a, "3.0")[..], &version(&b, "4.0")[..]));
     assert_eq!(a["gaussians"], b["gaussians"]);
     let n = b["gaussians"].as_u64().unwrap();
     let sizes: Vec<u64> = b["levels"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
     assert_eq!((sizes.len(), sizes.iter().sum::<u64>(), sizes[0]), (5, n, n.div_ceil(16)));
-    assert_eq!(a["levels"].as_array().unwrap().len(), 1);
+    // One level, or two: the classes' tail.
+    assert_eq!(a["levels"].as_array().unwrap().len(), if classes(&a) { 2 } else { 1 });
     let text = String::from_utf8_lossy(&gscodec(&["info", levels.to_str().unwrap()]).stdout).into_owned();
     assert!(text.contains("levels      5: "), "{text}");
 }

@@ -58,12 +58,15 @@ pub struct EncodeReport {
     pub position_bits: u8,
     pub file_bytes: usize,
     pub groups: Vec<GroupReport>,
+    /// Bytes outside the groups' sections: header, section table, levels, info and padding
+    /// (exact; a 6.0 file's extra parameter sections each add a table entry).
+    pub container_bytes: usize,
 }
 
 impl EncodeReport {
-    /// Estimated total bits (tables counted exactly, streams by ideal code length).
+    /// Estimated total bits (tables and container counted exactly, streams by ideal code length).
     pub fn estimated_bits(&self) -> f64 {
-        self.groups.iter().map(|g| g.estimated_bits + 8.0 * g.table_bytes as f64).sum()
+        self.groups.iter().map(|g| g.estimated_bits + 8.0 * g.table_bytes as f64).sum::<f64>() + 8.0 * self.container_bytes as f64
     }
 }
 
@@ -274,7 +277,14 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
     };
     let header = Header { version_major, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
     let info = write_info(&EncoderInfo { input_gaussians: input.0.min(u32::MAX as usize) as u32, input_sh_degree: input.1 });
-    let mut report = EncodeReport { gaussians: n, sh_degree: q.sh_degree, position_bits: q.grid.2, file_bytes: 0, groups: Vec::new() };
+    let mut report = EncodeReport {
+        gaussians: n,
+        sh_degree: q.sh_degree,
+        position_bits: q.grid.2,
+        file_bytes: 0,
+        groups: Vec::new(),
+        container_bytes: 0,
+    };
     let mut payloads: Vec<(u16, u16, u32, &[u8])> = Vec::new();
     let levels;
     let coded;
@@ -356,5 +366,6 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
     let sections: Vec<Section> = payloads.iter().map(|(k, c, f, d)| Section { kind: *k, chunk: *c, flags: *f, data: d }).collect();
     let bytes = write_padded(&header, &sections);
     report.file_bytes = bytes.len();
+    report.container_bytes = bytes.len() - report.groups.iter().map(|g| g.table_bytes + g.stream_bytes).sum::<usize>();
     (bytes, report)
 }
