@@ -1,7 +1,7 @@
 //! Rate–distortion search over the encoder's choices by rendering: per-group step sizes, the
-//! significance pruning threshold, the SH degree, per-Gaussian SH band dropping and per-band SH
-//! vector quantisation, greedily chosen while `J = D + λ·R` falls; the trials of each stage run
-//! in parallel.
+//! significance pruning threshold, the SH degree, per-Gaussian SH band dropping, per-band SH
+//! vector quantisation and the importance classes, greedily chosen while `J = D + λ·R` falls;
+//! the trials of each stage run in parallel.
 //!
 //! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
 //!   ([`crate::views::orbit_cameras`], up −y as `eval --orbit`, 8 views at 96×96) against the views of the input scene.
@@ -423,7 +423,8 @@ fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: En
 /// step is chosen separately: first the significance pruning threshold, then the SH degree and
 /// the per-Gaussian SH band dropping (whole-file J), then per group the multiplier of the fine
 /// step minimising `ΔD_g + λ·R_g`, then the SH rest dead zone, then per SH band a codebook
-/// (vector quantisation) or none. `on_step` sees each trial.
+/// (vector quantisation) or none, then the importance classes ([`CoarseTail`]) or none.
+/// `on_step` sees each trial.
 ///
 /// The trials of each stage are independent and run in parallel; the result (and the trial
 /// list) is the same for any number of threads.
