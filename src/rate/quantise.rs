@@ -403,7 +403,7 @@ pub fn dequantise(q: &Quantised) -> Splats {
         let g = q.level_grid(l);
         positions.extend(q.morton[r.clone()].iter().flat_map(|&m| position_of(m, &g)));
         for (gi, (g, _, ch)) in q.groups.iter().enumerate() {
-            let ch: Vec<Vec<i32>> = ch.iter().map(|c| c[r.clone()].to_vec()).collect();
+            let ch: Vec<&[i32]> = ch.iter().map(|c| &c[r.clone()]).collect();
             let v = dequantise_channels(*g, &q.level_steps(gi, l), &ch).expect("the quantiser writes rotation indices 0..=3");
             values.push((*g, r.start, v));
         }

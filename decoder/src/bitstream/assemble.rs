@@ -56,8 +56,8 @@ pub fn rotation_rows(rows: &[f32]) -> Result<Vec<f32>, &'static str> {
 /// Integer channels of a group other than position (`channels[c][i]`: channel c of Gaussian i)
 /// dequantised with `steps`, in the assembler's layout: Gaussian-major values, quaternions for
 /// rotation.
-pub fn dequantise_channels(group: Group, steps: &[f32], channels: &[Vec<i32>]) -> Result<Vec<f32>, &'static str> {
-    let n = channels.first().map_or(0, Vec::len);
+pub fn dequantise_channels(group: Group, steps: &[f32], channels: &[&[i32]]) -> Result<Vec<f32>, &'static str> {
+    let n = channels.first().map_or(0, |c| c.len());
     let mut vals = Vec::with_capacity(n * channels.len());
     for i in 0..n {
         vals.extend(channels.iter().zip(steps).map(|(c, &s)| dequantise_value(c[i], s)));

@@ -8,6 +8,7 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use super::header::Header;
 use super::layout::{Group, MAX_CODEBOOK_ROWS, MAX_POSITION_BITS};
 use super::sections::Container;
 use super::tables::ChannelTable;
@@ -143,13 +144,13 @@ pub fn write_channel_params<'t>(steps: &[f32], tables: impl ExactSizeIterator<It
 pub struct ParamSets {
     /// Per parameter chunk, the present groups' parameters in group order.
     pub sets: Vec<Vec<(Group, GroupParams)>>,
-    per_level: bool,
+    header: Header,
 }
 
 impl ParamSets {
     /// The parameters level `level`'s data sections are decoded with.
     pub fn of_level(&self, level: usize) -> &[(Group, GroupParams)] {
-        &self.sets[if self.per_level { level } else { 0 }]
+        &self.sets[self.header.params_chunk(level)]
     }
 }
 
@@ -157,9 +158,9 @@ impl ParamSets {
 /// levels (none for N = 0), with the codebooks of the SH bands that have one (read once, shared by
 /// every level), read in parallel; a missing one is an error.
 pub fn read_all_params(c: &Container<'_>, degree: u8, levels: usize) -> Result<ParamSets, DecodeError> {
-    let per_level = c.header.has_level_params();
-    if c.header.gaussians == 0 {
-        return Ok(ParamSets { sets: Vec::new(), per_level });
+    let header = c.header;
+    if header.gaussians == 0 {
+        return Ok(ParamSets { sets: Vec::new(), header });
     }
     let groups: Vec<Group> = Group::present(degree).collect();
     let codebooks: Vec<Option<Arc<Codebook>>> = groups
@@ -169,7 +170,8 @@ pub fn read_all_params(c: &Container<'_>, degree: u8, levels: usize) -> Result<P
             None => Ok(None),
         })
         .collect::<Result<_, DecodeError>>()?;
-    let chunks = if per_level { levels } else { levels.min(1) };
+    // The parameter chunks those levels use: 0 … that of the last level.
+    let chunks = levels.checked_sub(1).map_or(0, |l| header.params_chunk(l) + 1);
     let jobs: Vec<(usize, usize)> = (0..chunks).flat_map(|l| (0..groups.len()).map(move |gi| (l, gi))).collect();
     let mut read = jobs
         .into_par_iter()
@@ -183,7 +185,7 @@ pub fn read_all_params(c: &Container<'_>, degree: u8, levels: usize) -> Result<P
         .collect::<Result<Vec<_>, DecodeError>>()?
         .into_iter();
     let sets = (0..chunks).map(|_| read.by_ref().take(groups.len()).collect()).collect();
-    Ok(ParamSets { sets, per_level })
+    Ok(ParamSets { sets, header })
 }
 
 #[cfg(test)]
