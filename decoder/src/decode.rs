@@ -6,11 +6,11 @@ use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
-use crate::bitstream::assemble::{assemble, Piece};
+use crate::bitstream::assemble::{assemble, scatter_sh, Piece};
 use crate::bitstream::layout::Group;
 use crate::bitstream::levels::Layout;
 use crate::bitstream::params::read_all_params;
-use crate::bitstream::stream::decode_data_section;
+use crate::bitstream::stream::{decode_data_section, row_width};
 use crate::bitstream::Container;
 use crate::error::DecodeError;
 use crate::Splats;
@@ -73,26 +73,66 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
             jobs.extend((0..pieces).map(|i| (gi, ch, i * c / pieces..(i + 1) * c / pieces)));
         }
     }
-    let results: Vec<Vec<f32>> = jobs
+    // The base groups decode straight into the scene's arrays (each job its chunk's run of
+    // rows); an SH job decodes its channels into a buffer of its own, scattered into the rows
+    // afterwards. The scene is new and replaces `out` only when every job succeeded.
+    let mut s = Splats::new(degree);
+    s.positions = vec![[0.0; 3]; n];
+    s.log_scales = vec![[0.0; 3]; n];
+    s.rotations = vec![[0.0; 4]; n];
+    s.opacity_logits = vec![0.0; n];
+    s.sh_dc = vec![[0.0; 3]; n];
+    let Splats { positions, log_scales, rotations, opacity_logits, sh_dc, sh_rest, .. } = &mut s;
+    let mut base = [
+        (Group::Position, by_chunk(positions.as_flattened_mut(), ranges, 3)),
+        (Group::Scale, by_chunk(log_scales.as_flattened_mut(), ranges, 3)),
+        (Group::Rotation, by_chunk(rotations.as_flattened_mut(), ranges, 4)),
+        (Group::Opacity, by_chunk(opacity_logits, ranges, 1)),
+        (Group::ShDc, by_chunk(sh_dc.as_flattened_mut(), ranges, 3)),
+    ];
+    let outputs: Vec<Option<&mut [f32]>> = jobs
+        .iter()
+        .map(|&(gi, ch, _)| {
+            let g = params.of_level(level_of[ch])[gi].0;
+            base.iter_mut().find(|(b, _)| *b == g).and_then(|(_, runs)| runs[ch].take())
+        })
+        .collect();
+    let buffers: Vec<Option<Vec<f32>>> = jobs
         .par_iter()
-        .map(|(gi, ch, channels)| {
+        .zip(outputs)
+        .map(|((gi, ch, channels), dst)| {
             let (g, p) = &params.of_level(level_of[*ch])[*gi];
-            decode_data_section(*g, p, &mut c.reader(g.data_kind(), *ch as u16), ranges[*ch].len(), channels.clone())
+            let mut r = c.reader(g.data_kind(), *ch as u16);
+            match dst {
+                Some(dst) => decode_data_section(*g, p, &mut r, channels.clone(), dst).map(|()| None),
+                None => {
+                    let mut buf = vec![0.0; ranges[*ch].len() * row_width(*g, p, channels)];
+                    decode_data_section(*g, p, &mut r, channels.clone(), &mut buf).map(|()| Some(buf))
+                }
+            }
         })
         .collect::<Result<_, _>>()?;
     let pieces: Vec<Piece> = jobs
         .iter()
-        .zip(&results)
-        .map(|((gi, ch, channels), values)| {
+        .zip(&buffers)
+        .filter_map(|((gi, ch, channels), buf)| {
             let group = params.of_level(level_of[*ch])[*gi].0;
-            let columns = match group {
-                Group::Position => 0..3,
-                Group::Rotation => 0..4,
-                _ => channels.clone(),
-            };
-            Piece { group, first: ranges[*ch].start, columns, values }
+            Some(Piece { group, first: ranges[*ch].start, columns: channels.clone(), values: buf.as_deref()? })
         })
         .collect();
-    assemble(n, degree, &pieces, out);
+    scatter_sh(n, degree, &pieces, sh_rest);
+    *out = s;
     Ok(())
+}
+
+/// `values` (`width` values per Gaussian) cut into the runs of rows of the chunks `ranges`.
+fn by_chunk<'a>(mut values: &'a mut [f32], ranges: &[Range<usize>], width: usize) -> Vec<Option<&'a mut [f32]>> {
+    ranges
+        .iter()
+        .map(|r| {
+            let (run, rest) = std::mem::take(&mut values).split_at_mut(r.len() * width);
+            values = rest;
+            Some(run)
+        })
+        .collect()
 }

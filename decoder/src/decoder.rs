@@ -232,8 +232,8 @@ impl<R: Read> Reader<R> {
         required_bytes(&self.table, self.degree)
     }
 
-    /// Reads the payloads and decodes them into `out`, reusing its allocations. On error `out`
-    /// is left as it was.
+    /// Reads the payloads and decodes them into `out` (the scene is decoded into new arrays that
+    /// replace `out`'s). On error `out` is left as it was.
     ///
     /// # Errors
     /// [`DecodeError::Io`] if the reader fails; otherwise what the bytes break (see

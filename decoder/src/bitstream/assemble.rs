@@ -40,17 +40,17 @@ pub fn rotation_from_smallest_three(largest: usize, c: [f32; 3]) -> [f32; 4] {
     out
 }
 
-/// Quaternions from rotation channel rows `(index, c0, c1, c2)` (the index as an exact f32,
-/// the components dequantised); an index outside 0..=3 is an error.
-pub fn rotation_rows(rows: &[f32]) -> Result<Vec<f32>, &'static str> {
-    let mut out = Vec::with_capacity(rows.len());
-    for v in rows.chunks_exact(4) {
+/// Turns rotation channel rows `(index, c0, c1, c2)` (the index as an exact f32, the
+/// components dequantised) into quaternions, in place; an index outside 0..=3 is an error.
+pub fn rotations_in_place(rows: &mut [f32]) -> Result<(), &'static str> {
+    for v in rows.chunks_exact_mut(4) {
         if !matches!(v[0], 0.0 | 1.0 | 2.0 | 3.0) {
             return Err("rotation index outside 0..4");
         }
-        out.extend_from_slice(&rotation_from_smallest_three(v[0] as usize, [v[1], v[2], v[3]]));
+        let q = rotation_from_smallest_three(v[0] as usize, [v[1], v[2], v[3]]);
+        v.copy_from_slice(&q);
     }
-    Ok(out)
+    Ok(())
 }
 
 /// Integer channels of a group other than position (`channels[c][i]`: channel c of Gaussian i)
@@ -63,10 +63,9 @@ pub fn dequantise_channels(group: Group, steps: &[f32], channels: &[&[i32]]) -> 
         vals.extend(channels.iter().zip(steps).map(|(c, &s)| dequantise_value(c[i], s)));
     }
     if group == Group::Rotation {
-        rotation_rows(&vals)
-    } else {
-        Ok(vals)
+        rotations_in_place(&mut vals)?;
     }
+    Ok(vals)
 }
 
 /// Dequantised values of one group for a run of Gaussians: `values` holds, for Gaussians
@@ -108,51 +107,8 @@ pub fn assemble(n: usize, degree: u8, pieces: &[Piece<'_>], out: &mut Splats) {
             dst.extend(p.values.chunks_exact(W).map(|v| std::array::from_fn(|i| v[i])));
         }
     }
-    let row = out.rest_coeffs() * 3;
     let Splats { positions, log_scales, rotations, opacity_logits, sh_dc, sh_rest, .. } = out;
-    let scatter_sh = || {
-        sh_rest.clear();
-        sh_rest.resize(n * row, 0.0);
-        if row == 0 {
-            return;
-        }
-        // SH channel j of band b is rest value (b²−1)·3 + j of its Gaussian.
-        let sh: Vec<(usize, &Piece)> = pieces
-            .iter()
-            .filter(|p| (1..=degree).contains(&p.group.sh_band()))
-            .map(|p| {
-                let b = p.group.sh_band() as usize;
-                ((b * b - 1) * 3 + p.columns.start, p)
-            })
-            .collect();
-        // Blocks of rows between consecutive piece boundaries: each piece covers whole blocks.
-        let mut cuts: Vec<usize> = sh.iter().flat_map(|(_, p)| [p.first, p.first + p.count()]).chain([0, n]).filter(|&c| c <= n).collect();
-        cuts.sort_unstable();
-        cuts.dedup();
-        let mut blocks: Vec<(usize, &mut [f32])> = Vec::with_capacity(cuts.len());
-        let mut rest = &mut sh_rest[..];
-        for w in cuts.windows(2) {
-            let (block, tail) = std::mem::take(&mut rest).split_at_mut((w[1] - w[0]) * row);
-            blocks.push((w[0], block));
-            rest = tail;
-        }
-        blocks.into_par_iter().for_each(|(start, rows)| {
-            let count = rows.len() / row;
-            let mine: Vec<(usize, usize, &[f32])> = sh
-                .iter()
-                .filter(|(_, p)| p.first <= start && p.first + p.count() >= start + count)
-                .map(|&(col, p)| {
-                    let w = p.columns.len();
-                    (col, w, &p.values[(start - p.first) * w..(start - p.first + count) * w])
-                })
-                .collect();
-            rows.par_chunks_mut(row).enumerate().with_min_len(1024).for_each(|(i, dst)| {
-                for &(col, w, vals) in &mine {
-                    dst[col..col + w].copy_from_slice(&vals[i * w..(i + 1) * w]);
-                }
-            });
-        });
-    };
+    let scatter_sh = || scatter_sh(n, degree, pieces, sh_rest);
     rayon::join(
         || rayon::join(|| rows(positions, &of(Group::Position), n), || rows(log_scales, &of(Group::Scale), n)),
         || {
@@ -172,6 +128,54 @@ pub fn assemble(n: usize, degree: u8, pieces: &[Piece<'_>], out: &mut Splats) {
     );
 }
 
+/// Writes the SH pieces among `pieces` into `sh_rest`, the rest coefficients of `n` Gaussians of
+/// SH degree `degree` (resized to them; values no piece covers are zero). SH pieces may cover
+/// any runs of Gaussians.
+pub fn scatter_sh(n: usize, degree: u8, pieces: &[Piece<'_>], sh_rest: &mut Vec<f32>) {
+    let row = crate::math::sh_rest_coeffs(degree) * 3;
+    sh_rest.clear();
+    sh_rest.resize(n * row, 0.0);
+    if row == 0 {
+        return;
+    }
+    // SH channel j of band b is rest value (b²−1)·3 + j of its Gaussian.
+    let sh: Vec<(usize, &Piece)> = pieces
+        .iter()
+        .filter(|p| (1..=degree).contains(&p.group.sh_band()))
+        .map(|p| {
+            let b = p.group.sh_band() as usize;
+            ((b * b - 1) * 3 + p.columns.start, p)
+        })
+        .collect();
+    // Blocks of rows between consecutive piece boundaries: each piece covers whole blocks.
+    let mut cuts: Vec<usize> = sh.iter().flat_map(|(_, p)| [p.first, p.first + p.count()]).chain([0, n]).filter(|&c| c <= n).collect();
+    cuts.sort_unstable();
+    cuts.dedup();
+    let mut blocks: Vec<(usize, &mut [f32])> = Vec::with_capacity(cuts.len());
+    let mut rest = &mut sh_rest[..];
+    for w in cuts.windows(2) {
+        let (block, tail) = std::mem::take(&mut rest).split_at_mut((w[1] - w[0]) * row);
+        blocks.push((w[0], block));
+        rest = tail;
+    }
+    blocks.into_par_iter().for_each(|(start, rows)| {
+        let count = rows.len() / row;
+        let mine: Vec<(usize, usize, &[f32])> = sh
+            .iter()
+            .filter(|(_, p)| p.first <= start && p.first + p.count() >= start + count)
+            .map(|&(col, p)| {
+                let w = p.columns.len();
+                (col, w, &p.values[(start - p.first) * w..(start - p.first + count) * w])
+            })
+            .collect();
+        rows.par_chunks_mut(row).enumerate().with_min_len(1024).for_each(|(i, dst)| {
+            for &(col, w, vals) in &mine {
+                dst[col..col + w].copy_from_slice(&vals[i * w..(i + 1) * w]);
+            }
+        });
+    });
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -180,8 +184,10 @@ mod tests {
     fn smallest_three_rebuilds_unit_quaternion() {
         let q = rotation_from_smallest_three(2, [0.5, -0.5, 0.5]);
         assert_eq!(q, [0.5, -0.5, 0.5, 0.5]);
-        assert_eq!(rotation_rows(&[2.0, 0.5, -0.5, 0.5]).unwrap(), q);
-        assert!(rotation_rows(&[4.0, 0.0, 0.0, 0.0]).is_err());
+        let mut rows = [2.0, 0.5, -0.5, 0.5];
+        rotations_in_place(&mut rows).unwrap();
+        assert_eq!(rows, q);
+        assert!(rotations_in_place(&mut [4.0, 0.0, 0.0, 0.0]).is_err());
     }
 
     #[test]

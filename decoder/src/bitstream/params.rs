@@ -68,7 +68,8 @@ pub fn read_codebook(g: Group, r: &mut ByteReader<'_>, n: usize) -> Result<Codeb
     }
     let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None, codebook: None };
     read_channel_tables(r, g.channels(), &mut p)?;
-    let values = super::stream::decode_channels(&p, r, k, &p.steps, 0..g.channels())?;
+    let mut values = vec![0.0; k * g.channels()];
+    super::stream::decode_channels(&p, r, &p.steps, 0..g.channels(), &mut values)?;
     if r.remaining() != 0 {
         return Err(r.corrupt("trailing bytes in a codebook section"));
     }

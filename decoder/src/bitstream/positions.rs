@@ -95,17 +95,16 @@ pub fn position_of(m: u64, grid: &Grid) -> [f32; 3] {
     std::array::from_fn(|a| dequantise_position(origin[a], step[a], q[a]))
 }
 
-/// Decodes the position stream of a chunk of `count` Gaussians: `count × 3` coordinates.
-pub(crate) fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, count: usize) -> Result<Vec<f32>, DecodeError> {
+/// Decodes the position stream of a chunk into `out`: 3 coordinates per Gaussian.
+pub(crate) fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, out: &mut [f32]) -> Result<(), DecodeError> {
     let Some(grid) = p.grid else { return Err(r.corrupt("position parameters without a grid")) };
     let bits = grid.2;
     let (data, at) = next_stream(r)?;
     let mut d = stream_decoder(data, at)?;
-    let mut out = Vec::with_capacity(count * 3);
     let max_len = 3 * u32::from(bits);
     let limit = 1u64 << max_len; // bits <= 21, so at most 2^63
     let mut m: u64 = 0;
-    for _ in 0..count {
+    for row in out.chunks_exact_mut(3) {
         let len = d.value(&p.tables[0], 0);
         if len < 0 || len as u32 > max_len {
             return Err(at.corrupt("position delta too long"));
@@ -128,10 +127,10 @@ pub(crate) fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, count: u
         if !xyz.iter().all(|x| x.is_finite()) {
             return Err(at.corrupt("dequantised value is not finite"));
         }
-        out.extend_from_slice(&xyz);
+        row.copy_from_slice(&xyz);
     }
     d.finish().map_err(|what| at.corrupt(what))?;
-    Ok(out)
+    Ok(())
 }
 
 #[cfg(test)]
@@ -185,10 +184,11 @@ mod tests {
         let table = ChannelTable::Coded { lo: 0, table: FreqTable::from_weights(&weights) };
         let section = write_position_stream(&table, &deltas);
         let p = GroupParams { steps: vec![], tables: vec![table], grid: Some(grid), codebook: None };
-        let xyz = decode_positions(&p, &mut ByteReader::new(&section), morton.len()).unwrap();
+        let mut xyz = vec![0.0; 3 * morton.len()];
+        decode_positions(&p, &mut ByteReader::new(&section), &mut xyz).unwrap();
         let expected: Vec<f32> = morton.iter().flat_map(|&m| position_of(m, &grid)).collect();
         assert_eq!(xyz, expected);
         // One Gaussian fewer leaves the stream unfinished: an error, not a panic.
-        assert_eq!(decode_positions(&p, &mut ByteReader::new(&section), morton.len() - 1).unwrap_err().class(), "format");
+        assert_eq!(decode_positions(&p, &mut ByteReader::new(&section), &mut xyz[3..]).unwrap_err().class(), "format");
     }
 }

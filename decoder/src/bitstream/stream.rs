@@ -4,7 +4,7 @@
 
 use std::ops::Range;
 
-use super::assemble::{dequantise_value, rotation_rows};
+use super::assemble::{dequantise_value, rotations_in_place};
 use super::layout::Group;
 use super::params::GroupParams;
 use super::tables::ChannelTable;
@@ -69,16 +69,16 @@ impl Lane<'_> {
     }
 }
 
-/// Channels `channels` of a (non-position) group chunk, Gaussian-major (`count × channels.len()`),
-/// each value dequantised with `scale[channel]`. Each coded channel has its own stream; decoding
-/// them side by side lets the independent coder states overlap in the CPU.
+/// Channels `channels` of a (non-position) group chunk into `vals`, Gaussian-major (`count ×
+/// channels.len()`), each value dequantised with `scale[channel]`. Each coded channel has its own
+/// stream; decoding them side by side lets the independent coder states overlap in the CPU.
 pub(crate) fn decode_channels(
     p: &GroupParams,
     r: &mut ByteReader<'_>,
-    count: usize,
     scale: &[f32],
     channels: Range<usize>,
-) -> Result<Vec<f32>, DecodeError> {
+    vals: &mut [f32],
+) -> Result<(), DecodeError> {
     // Every channel's stream is located (so the section's layout is checked), the wanted ones decoded.
     let mut streams = Vec::with_capacity(p.tables.len());
     for t in &p.tables {
@@ -88,7 +88,6 @@ pub(crate) fn decode_channels(
         });
     }
     let w = channels.len();
-    let mut vals = vec![0f32; count * w];
     // Channels with one table and context-coded ones decode in separate lanes, so that the former
     // skip the context computation.
     let (mut plain, mut contextual) = (Vec::with_capacity(w), Vec::new());
@@ -122,47 +121,57 @@ pub(crate) fn decode_channels(
     if !vals.iter().fold(true, |ok, x| ok & x.is_finite()) {
         return Err(r.corrupt("dequantised value is not finite"));
     }
-    Ok(vals)
+    Ok(())
 }
 
-/// Decodes channels `channels` of one data section of `count` Gaussians, dequantised
-/// (position: `count × 3` coordinates; rotation: `count × 4` quaternion components, always all
-/// channels; an SH band with a codebook: always all its channels; other groups: Gaussian-major
-/// channel values).
+/// How many values per Gaussian [`decode_data_section`] writes for channels `channels` of
+/// group `g`: position 3, rotation 4 (a quaternion), an SH band with a codebook all its
+/// channels, other groups the channels asked for.
+pub(crate) fn row_width(g: Group, p: &GroupParams, channels: &Range<usize>) -> usize {
+    match g {
+        Group::Position => 3,
+        Group::Rotation => 4,
+        _ if p.codebook.is_some() => g.channels(),
+        _ => channels.len(),
+    }
+}
+
+/// Decodes channels `channels` of one data section, dequantised, into `out`: [`row_width`]
+/// values per Gaussian, Gaussian-major (position: coordinates; rotation: quaternion components;
+/// others: channel values).
 pub(crate) fn decode_data_section(
     g: Group,
     p: &GroupParams,
     r: &mut ByteReader<'_>,
-    count: usize,
     channels: Range<usize>,
-) -> Result<Vec<f32>, DecodeError> {
-    let out = match g {
-        Group::Position => super::positions::decode_positions(p, r, count)?,
+    out: &mut [f32],
+) -> Result<(), DecodeError> {
+    match g {
+        Group::Position => super::positions::decode_positions(p, r, out)?,
         Group::Rotation => {
             // The index channel is read unscaled: f32 holds 0..=3 (and any escaped value) exactly enough.
-            let vals = decode_channels(p, r, count, &[1.0, p.steps[1], p.steps[2], p.steps[3]], 0..4)?;
-            rotation_rows(&vals).map_err(|what| r.corrupt(what))?
+            decode_channels(p, r, &[1.0, p.steps[1], p.steps[2], p.steps[3]], 0..4, out)?;
+            rotations_in_place(out).map_err(|what| r.corrupt(what))?;
         }
         _ => match &p.codebook {
             // Vector-quantised SH band (SPEC §3.2): one index channel, each row looked up.
             Some(cb) => {
-                let index = decode_channels(p, r, count, &[1.0], 0..1)?;
                 let w = g.channels();
-                let mut out = Vec::with_capacity(count * w);
-                for &i in &index {
+                let mut index = vec![0f32; out.len() / w];
+                decode_channels(p, r, &[1.0], 0..1, &mut index)?;
+                for (&i, row) in index.iter().zip(out.chunks_exact_mut(w)) {
                     // f32(v) < K exactly when v < K, for K ≤ 2^16 (exact in f32; rounding is monotonic).
                     if !(i >= 0.0 && i < cb.rows as f32) {
                         return Err(r.corrupt("codebook index out of range"));
                     }
-                    out.extend_from_slice(&cb.values[i as usize * w..][..w]);
+                    row.copy_from_slice(&cb.values[i as usize * w..][..w]);
                 }
-                out
             }
-            None => decode_channels(p, r, count, &p.steps, channels)?,
+            None => decode_channels(p, r, &p.steps, channels, out)?,
         },
-    };
+    }
     if r.remaining() != 0 {
         return Err(r.corrupt("trailing bytes in a data section"));
     }
-    Ok(out)
+    Ok(())
 }
