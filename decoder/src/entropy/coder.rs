@@ -1,18 +1,51 @@
-//! Symbol streams: a stack ANS coder (`u32` words, `u64` state, 16-bit probabilities; SPEC §5)
-//! with our integer tables as its models: constriction's coder encodes, [`SymbolDecoder`] is
-//! SPEC §5's decoder. Each stream is stored with
+//! Symbol streams: constriction's stack ANS coder (`u32` words, `u64` state, 16-bit
+//! probabilities) with our integer tables as its models (SPEC §5). Each stream is stored with
 //! its words in the order the decoder reads them, so a stream decodes front to back. Decoding
 //! untrusted words cannot panic: garbage decodes to garbage symbols, and [`SymbolDecoder::finish`]
 //! rejects a stream that does not end exactly where its encoder started.
 
 use std::num::NonZeroU32;
 
-use constriction::stream::model::{EncoderModel, EntropyModel};
-use constriction::stream::stack::DefaultAnsCoder;
-use constriction::stream::Encode;
+use constriction::backends::ReadWords;
+use constriction::stream::model::{DecoderModel, EncoderModel, EntropyModel};
+use constriction::stream::stack::{AnsCoder, DefaultAnsCoder};
+use constriction::stream::{Decode, Encode};
+use constriction::{CoderError, Stack};
 
 use super::{symbol_of, ChannelTable, FreqTable, Lookup, PRECISION};
 use crate::bitstream::bytes::{unzigzag, zigzag};
+
+impl EntropyModel<PRECISION> for Lookup<'_> {
+    type Symbol = usize;
+    type Probability = u32;
+}
+
+impl DecoderModel<PRECISION> for Lookup<'_> {
+    #[inline(always)]
+    fn quantile_function(&self, quantile: u32) -> (usize, u32, NonZeroU32) {
+        let (s, left, freq) = self.find(quantile);
+        // Tables are strictly increasing (`FreqTable::from_weights`), so `freq > 0`.
+        (s, left, NonZeroU32::new(freq).unwrap_or(NonZeroU32::MIN))
+    }
+}
+
+/// `k` raw bits (1..=16): the uniform distribution over `0..2^k`, each value with frequency `2^(16-k)`.
+#[derive(Clone, Copy)]
+struct RawBits(u32);
+
+impl EntropyModel<PRECISION> for RawBits {
+    type Symbol = u32;
+    type Probability = u32;
+}
+
+impl DecoderModel<PRECISION> for RawBits {
+    #[inline(always)]
+    fn quantile_function(&self, quantile: u32) -> (u32, u32, NonZeroU32) {
+        let shift = PRECISION as u32 - self.0;
+        let s = quantile >> shift;
+        (s, s << shift, NonZeroU32::new(1 << shift).expect("non-zero"))
+    }
+}
 
 /// One coded interval `(left cumulative, frequency)`: what the encoder needs of any symbol.
 #[derive(Clone, Copy)]
@@ -29,16 +62,36 @@ impl EncoderModel<PRECISION> for Interval {
     }
 }
 
-/// Decodes symbols from one independent stream: SPEC §5's decoder written out (constriction's
-/// stack ANS coder writes the streams; the tests decode its output). The refill is branch-free,
-/// so the symbol-dependent renormalisation costs no mispredicted branch.
+/// Little-endian `u32` words from a byte slice, front to back; `rest` is what is left to read.
+#[derive(Debug)]
+struct WordReader<'a> {
+    rest: &'a [u8],
+}
+
+impl ReadWords<u32, Stack> for WordReader<'_> {
+    type ReadError = std::convert::Infallible;
+
+    #[inline(always)]
+    fn read(&mut self) -> Result<Option<u32>, Self::ReadError> {
+        Ok(self.rest.split_first_chunk::<4>().map(|(word, rest)| {
+            self.rest = rest;
+            u32::from_le_bytes(*word)
+        }))
+    }
+}
+
+/// The value of a decode result whose error types are uninhabited.
+#[inline(always)]
+fn infallible<T>(r: Result<T, CoderError<std::convert::Infallible, std::convert::Infallible>>) -> T {
+    match r {
+        Ok(v) => v,
+        Err(CoderError::Frontend(e) | CoderError::Backend(e)) => match e {},
+    }
+}
+
+/// Decodes symbols from one independent stream.
 pub struct SymbolDecoder<'a> {
-    /// The stream's bytes (a whole number of words).
-    words: &'a [u8],
-    /// Bytes of `words` consumed.
-    next: usize,
-    /// The coder state `x`.
-    state: u64,
+    inner: AnsCoder<u32, u64, WordReader<'a>>,
 }
 
 impl<'a> SymbolDecoder<'a> {
@@ -48,56 +101,24 @@ impl<'a> SymbolDecoder<'a> {
         if data.len() % 4 != 0 {
             return Err("stream length is not a multiple of 4");
         }
-        let mut d = SymbolDecoder { words: data, next: 0, state: 0 };
-        if !data.is_empty() {
-            d.state = u64::from(d.word());
-            if d.state == 0 {
-                return Err("stream starts with a zero word");
-            }
-            d.next = 4;
-            if data.len() >= 8 {
-                d.state = (d.state << 32) | u64::from(d.word());
-                d.next = 8;
-            }
-        }
-        Ok(d)
-    }
-
-    /// The word at `next`, or 0 past the end.
-    #[inline(always)]
-    fn word(&self) -> u32 {
-        self.words.get(self.next..self.next + 4).map_or(0, |w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
-    }
-
-    /// Pops the interval `(left, freq)` holding the state's low 16 bits (SPEC §5 `decode`).
-    #[inline(always)]
-    fn pop(&mut self, left: u32, freq: u32) {
-        let q = (self.state & 0xFFFF) as u32;
-        self.state = (self.state >> 16) * u64::from(freq) + u64::from(q - left);
-        if self.state < 1 << 32 && self.next < self.words.len() {
-            self.state = (self.state << 32) | u64::from(self.word());
-            self.next += 4;
-        }
+        AnsCoder::from_compressed(WordReader { rest: data })
+            .map(|inner| SymbolDecoder { inner })
+            .map_err(|_| "stream starts with a zero word")
     }
 
     /// One symbol of `table`.
     #[inline(always)]
     pub fn symbol(&mut self, table: Lookup<'_>) -> usize {
-        let (s, left, freq) = table.find((self.state & 0xFFFF) as u32);
-        self.pop(left, freq);
-        s
+        infallible(self.inner.decode_symbol(table))
     }
 
-    /// `bits` (0..=32) raw bits in pieces of at most 16, most significant piece first: each
-    /// piece a symbol of the uniform table over `0..2^k` (SPEC §5.1).
+    /// `bits` (0..=32) raw bits in pieces of at most 16, most significant piece first.
     pub fn raw_bits(&mut self, bits: u32) -> u32 {
         let mut v: u64 = 0;
         let mut left = bits;
         while left > 0 {
             let take = left.min(16);
-            let shift = PRECISION as u32 - take;
-            let piece = (self.state & 0xFFFF) as u32 >> shift;
-            self.pop(piece << shift, 1 << shift);
+            let piece = infallible(self.inner.decode_symbol(RawBits(take)));
             v = (v << take) | u64::from(piece);
             left -= take;
         }
@@ -130,7 +151,8 @@ impl<'a> SymbolDecoder<'a> {
     /// Checks that the stream ended where its encoder began: every word read and the state back
     /// to zero. Anything else means the stream was not produced for the values decoded from it.
     pub fn finish(self) -> Result<(), &'static str> {
-        if self.next != self.words.len() || self.state != 0 {
+        let (reader, state) = self.inner.into_raw_parts();
+        if !reader.rest.is_empty() || state != 0 {
             return Err("symbol stream does not end where its values do");
         }
         Ok(())
@@ -274,51 +296,6 @@ mod tests {
                     _ = d.raw_bits(32);
                 }
                 _ = d.finish();
-            }
-        }
-    }
-
-    /// A table as a constriction model, for comparing with constriction's own decoder.
-    struct Model<'a>(&'a FreqTable);
-
-    impl EntropyModel<PRECISION> for Model<'_> {
-        type Symbol = usize;
-        type Probability = u32;
-    }
-
-    impl constriction::stream::model::DecoderModel<PRECISION> for Model<'_> {
-        fn quantile_function(&self, q: u32) -> (usize, u32, NonZeroU32) {
-            let s = (0..self.0.len()).find(|&s| self.0.left(s) + self.0.freq(s) > q).expect("q < 2^16");
-            (s, self.0.left(s), NonZeroU32::new(self.0.freq(s)).expect("non-zero"))
-        }
-    }
-
-    /// SPEC §5's decoder, written out, decodes any words as constriction's `AnsCoder<u32, u64>`
-    /// does (whose stack reads the words from the end: ours in reverse), state included.
-    #[test]
-    fn decodes_any_words_as_constriction_does() {
-        use constriction::stream::stack::AnsCoder;
-        use constriction::stream::Decode;
-        let t = FreqTable::from_weights(&[1, 100, 3, 0, 7, 40]);
-        let mut seed = 99u64;
-        for len in 0..40 {
-            let words: Vec<u32> = (0..len)
-                .map(|k| {
-                    seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                    if k == 0 {
-                        (seed >> 40) as u32 | 1
-                    } else {
-                        (seed >> 32) as u32
-                    }
-                })
-                .collect();
-            let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
-            let mut ours = SymbolDecoder::new(&bytes).unwrap();
-            let mut theirs: AnsCoder<u32, u64> = AnsCoder::from_compressed(words.iter().rev().copied().collect()).unwrap();
-            for _ in 0..200 {
-                let s = theirs.decode_symbol(Model(&t)).unwrap();
-                assert_eq!(ours.symbol(t.lookup_table()), s);
-                assert_eq!(ours.state, theirs.clone().into_raw_parts().1);
             }
         }
     }
