@@ -1,6 +1,7 @@
-//! Dequantisation (SPEC §8) and the one assembler from dequantised channel values to a
-//! [`Splats`] scene (SPEC §7), used by the decoder and by the encoder to see what a decoder
-//! will restore.
+//! Dequantisation (SPEC §8) and assembly of dequantised channel values into a [`Splats`] scene
+//! (SPEC §7): the decoder writes the base groups straight into the scene's rows and scatters the
+//! SH pieces with [`scatter_sh`]; the encoder builds what a decoder will restore with
+//! [`assemble`], which places every group the same way.
 
 use std::ops::Range;
 
