@@ -151,13 +151,19 @@ struct CodedGroup {
 /// choice) already coded. The key is a 128-bit hash (two SipHash-1-3 of the group's id, steps or
 /// grid, chunks, table choice, every value and its codebook if any); entries are never evicted (a search codes about
 /// a thousand groups).
+///
+/// It also holds the SH codebooks the trials computed ([`super::vq::Memo`]).
 #[derive(Default)]
-pub struct GroupCache(Mutex<HashMap<(u64, u64), Arc<CodedGroup>>>);
+pub struct GroupCache {
+    groups: Mutex<HashMap<(u64, u64), Arc<CodedGroup>>>,
+    /// The trials' SH codebooks.
+    pub codebooks: super::vq::Memo,
+}
 
 impl GroupCache {
     /// Groups held.
     pub fn len(&self) -> usize {
-        self.0.lock().expect("not poisoned").len()
+        self.groups.lock().expect("not poisoned").len()
     }
 
     pub fn is_empty(&self) -> bool {
@@ -192,7 +198,7 @@ fn code_groups(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: 
     let keys: Vec<Option<(u64, u64)>> = (0..count).map(|i| cache.map(|_| group_key(q, chunks, learned, i))).collect();
     let mut coded: Vec<Option<Arc<CodedGroup>>> = match cache {
         Some(c) => {
-            let map = c.0.lock().expect("not poisoned");
+            let map = c.groups.lock().expect("not poisoned");
             keys.iter().map(|k| k.and_then(|k| map.get(&k).cloned())).collect()
         }
         None => vec![None; count],
@@ -204,7 +210,7 @@ fn code_groups(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: 
     for (plan, i) in plans.into_iter().zip(todo) {
         let g = Arc::new(CodedGroup { plan, streams: streams.by_ref().take(chunks.len()).collect() });
         if let (Some(c), Some(k)) = (cache, keys[i]) {
-            c.0.lock().expect("not poisoned").insert(k, g.clone());
+            c.groups.lock().expect("not poisoned").insert(k, g.clone());
         }
         coded[i] = Some(g);
     }

@@ -237,8 +237,8 @@ pub fn encode_cached(
     let coarser: Vec<u8> = factors.iter().flatten().map(|&f| CoarseTail::coarser_grid_bits(f)).collect();
     let (mut q, order) = quantise::quantise_coarser_grids(&s, &config.steps, &level, &coarser);
     if config.sh_vq.iter().any(|&k| k > 0) {
-        let w: Vec<f32> = order.iter().map(|&i| sig.as_ref().map_or(1.0, |w| w[i])).collect();
-        quantise::apply_codebooks(&mut q, &w, config.sh_vq);
+        let w = sig.clone().unwrap_or_else(|| vec![1.0; s.len()]);
+        quantise::apply_codebooks(&mut q, &order, &w, config.sh_vq, cache.map(|c| &c.codebooks));
     }
     if let Some(factors) = factors {
         let nonempty: Vec<f32> = factors.into_iter().zip(&counts).filter(|x| *x.1 > 0).map(|x| x.0).collect();

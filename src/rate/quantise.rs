@@ -315,18 +315,29 @@ pub fn apply_level_factors(q: &mut Quantised, splats: &Splats, order: &[usize], 
 }
 
 /// Codes SH band b (1..=3) of `q` by vector quantisation where `ks[b − 1] > 0`: a codebook of at
-/// most that many rows ([`super::vq::kmeans`], rows weighted by `weights`, one per Gaussian in
-/// file order), and the band's channels become the rows the codebook restores.
+/// most that many rows ([`super::vq::kmeans`], from `memo` when it holds it), and the band's
+/// channels become the rows the codebook restores. k-means sees the rows in the order of the
+/// scene `q` was quantised from (`order[i]`: the scene index of file row `i`) with `weights[j]`
+/// the weight of scene row `j`, so the codebook does not depend on the file order (levels,
+/// importance classes).
 ///
 /// # Panics
-/// If `weights` is not one value per Gaussian of `q`.
-pub fn apply_codebooks(q: &mut Quantised, weights: &[f32], ks: [u32; 3]) {
+/// If `order` or `weights` is not one value per Gaussian of `q`.
+pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: [u32; 3], memo: Option<&super::vq::Memo>) {
+    assert_eq!((order.len(), weights.len()), (q.len(), q.len()), "one order entry and weight per Gaussian");
+    // File rows in scene order.
+    let mut by_scene: Vec<usize> = (0..order.len()).collect();
+    by_scene.sort_unstable_by_key(|&i| order[i]);
     for (g, _, chans) in q.groups.iter_mut() {
         let b = usize::from(g.sh_band());
         if b == 0 || ks[b - 1] == 0 {
             continue;
         }
-        let cb = super::vq::kmeans(chans, weights, ks[b - 1] as usize, b as u64);
+        let rows: Vec<Vec<i32>> = chans.iter().map(|c| by_scene.iter().map(|&i| c[i]).collect()).collect();
+        let cb = super::vq::kmeans_memo(memo, &rows, weights, ks[b - 1] as usize, b as u64);
+        let mut index = vec![0; cb.index.len()];
+        by_scene.iter().zip(&cb.index).for_each(|(&i, &k)| index[i] = k);
+        let cb = super::vq::Codebook { index, ..(*cb).clone() };
         *chans = cb.decoded_channels();
         q.codebooks.push((*g, cb));
     }
@@ -421,6 +432,30 @@ pub fn dequantise(q: &Quantised) -> Splats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A band's codebook is computed from the rows in the scene's order: a file order changed by
+    /// levels gives every Gaussian the same decoded row, and a memo hands the second call the
+    /// first call's codebook.
+    #[test]
+    fn codebooks_do_not_depend_on_the_file_order() {
+        let s = crate::sample::scene(600, 3);
+        let w: Vec<f32> = (0..s.len()).map(|i| (i % 7) as f32).collect();
+        let memo = crate::rate::vq::Memo::default();
+        let rows_by_scene = |level: &[u8]| {
+            let (mut q, order) = quantise_ordered(&s, &Steps::default(), level);
+            apply_codebooks(&mut q, &order, &w, [16, 0, 0], Some(&memo));
+            let (_, _, chans) = q.groups.iter().find(|g| g.0 == Group::Sh1).expect("band 1");
+            let mut rows = vec![Vec::new(); s.len()];
+            order.iter().enumerate().for_each(|(f, &i)| rows[i] = chans.iter().map(|c| c[f]).collect::<Vec<i32>>());
+            (rows, q.codebooks[0].1.rows.clone())
+        };
+        let plain = rows_by_scene(&[]);
+        let levels: Vec<u8> = (0..s.len()).map(|i| (i % 3 == 0) as u8).collect();
+        assert_eq!(rows_by_scene(&levels), plain);
+        assert_eq!(memo.len(), 1, "the second call reused the first codebook");
+        let distinct: std::collections::HashSet<&Vec<i32>> = plain.0.iter().collect();
+        assert!(distinct.len() > 1 && distinct.len() <= 16, "{} rows", distinct.len());
+    }
 
     #[test]
     fn dead_zone_rounds_small_values_to_zero_symmetrically() {

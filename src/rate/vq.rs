@@ -7,6 +7,10 @@
 //! assignments run in parallel (rayon, each row independent) and the centroid sums are
 //! accumulated sequentially in row order, so the codebook does not depend on the thread count.
 
+use std::collections::HashMap;
+use std::hash::{Hash, Hasher};
+use std::sync::{Arc, Mutex};
+
 use gscodec_decoder::rng::Rng;
 use rayon::prelude::*;
 
@@ -185,6 +189,42 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     let cen: Vec<f32> = int_rows.iter().map(|&x| x as f32).collect();
     let index: Vec<u32> = (0..n).into_par_iter().map(|i| nearest(row(i), &cen, c)).collect();
     compact(Codebook { channels: c, rows: int_rows, index })
+}
+
+/// Codebooks already computed, by their input ([`kmeans_memo`]): the RD search's trials that
+/// change anything but a band's rows, its weights or K (steps of other groups, pruning of
+/// nothing in the band, importance classes) find the band's codebook here instead of running
+/// k-means again. Entries are never evicted (a search computes a few dozen).
+#[derive(Default)]
+pub struct Memo(Mutex<HashMap<(u64, u64), Arc<Codebook>>>);
+
+impl Memo {
+    /// Codebooks held.
+    pub fn len(&self) -> usize {
+        self.0.lock().expect("not poisoned").len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// [`kmeans`] of the same arguments, taken from `memo` when it holds it (keyed by a 128-bit
+/// hash of every row value, weight bit pattern, `k` and `seed`) and added to it otherwise.
+pub fn kmeans_memo(memo: Option<&Memo>, chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Arc<Codebook> {
+    let Some(memo) = memo else { return Arc::new(kmeans(chans, weights, k, seed)) };
+    let hash = |salt: u8| {
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        (salt, chans, weights.iter().map(|w| w.to_bits()).collect::<Vec<_>>(), k, seed).hash(&mut h);
+        h.finish()
+    };
+    let key = (hash(1), hash(2));
+    if let Some(cb) = memo.0.lock().expect("not poisoned").get(&key) {
+        return cb.clone();
+    }
+    let cb = Arc::new(kmeans(chans, weights, k, seed));
+    memo.0.lock().expect("not poisoned").insert(key, cb.clone());
+    cb
 }
 
 /// Drops the codebook rows no index uses and duplicate rows, renumbering the indices (rows kept
