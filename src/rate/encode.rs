@@ -171,24 +171,32 @@ impl GroupCache {
     }
 }
 
-/// The cache key of group `i` of `q` (numbered as in [`plan`]).
-fn group_key(q: &Quantised, chunks: &[Range<usize>], learned: bool, i: usize) -> (u64, u64) {
+/// A 128-bit cache key: two SipHash-1-3 digests (salted 1 and 2) of what `feed` hashes.
+pub(crate) fn key128(feed: impl Fn(&mut std::collections::hash_map::DefaultHasher)) -> (u64, u64) {
     let hash = |salt: u8| {
         let mut h = std::collections::hash_map::DefaultHasher::new();
-        (salt, learned, chunks.iter().map(|r| (r.start, r.end)).collect::<Vec<_>>()).hash(&mut h);
-        if i == 0 {
-            let (lo, step, bits) = &q.grid;
-            (lo.map(f32::to_bits), step.map(f32::to_bits), bits, &q.morton).hash(&mut h);
-        } else {
-            let (g, steps, chans) = &q.groups[i - 1];
-            (g.name(), steps.iter().map(|s| s.to_bits()).collect::<Vec<_>>(), chans).hash(&mut h);
-            if let Some((_, cb)) = q.codebooks.iter().find(|c| c.0 == *g) {
-                (cb.channels, &cb.rows, &cb.index).hash(&mut h);
-            }
-        }
+        salt.hash(&mut h);
+        feed(&mut h);
         h.finish()
     };
     (hash(1), hash(2))
+}
+
+/// The cache key of group `i` of `q` (numbered as in [`plan`]).
+fn group_key(q: &Quantised, chunks: &[Range<usize>], learned: bool, i: usize) -> (u64, u64) {
+    key128(|h| {
+        (learned, chunks.iter().map(|r| (r.start, r.end)).collect::<Vec<_>>()).hash(h);
+        if i == 0 {
+            let (lo, step, bits) = &q.grid;
+            (lo.map(f32::to_bits), step.map(f32::to_bits), bits, &q.morton).hash(h);
+        } else {
+            let (g, steps, chans) = &q.groups[i - 1];
+            (g.name(), steps.iter().map(|s| s.to_bits()).collect::<Vec<_>>(), chans).hash(h);
+            if let Some((_, cb)) = q.codebooks.iter().find(|c| c.0 == *g) {
+                (cb.channels, &cb.rows, &cb.index).hash(h);
+            }
+        }
+    })
 }
 
 /// Plans and codes every group of `q` (numbered as in [`plan`]), taking those `cache` holds

@@ -8,7 +8,7 @@
 //! accumulated sequentially in row order, so the codebook does not depend on the thread count.
 
 use std::collections::HashMap;
-use std::hash::{Hash, Hasher};
+use std::hash::Hash;
 use std::sync::{Arc, Mutex};
 
 use gscodec_decoder::rng::Rng;
@@ -191,10 +191,10 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     compact(Codebook { channels: c, rows: int_rows, index })
 }
 
-/// Codebooks already computed, by their input ([`kmeans_memo`]): the RD search's trials that
-/// change anything but a band's rows, its weights or K (steps of other groups, pruning of
-/// nothing in the band, importance classes) find the band's codebook here instead of running
-/// k-means again. Entries are never evicted (a search computes a few dozen).
+/// Codebooks already computed, by their input ([`kmeans_memo`]): an RD-search trial that leaves
+/// a band's rows, weights and K as they were (another group's step, the importance classes)
+/// finds the band's codebook here instead of running k-means again. Entries are never evicted
+/// (a search computes a few dozen).
 #[derive(Default)]
 pub struct Memo(Mutex<HashMap<(u64, u64), Arc<Codebook>>>);
 
@@ -213,12 +213,7 @@ impl Memo {
 /// hash of every row value, weight bit pattern, `k` and `seed`) and added to it otherwise.
 pub fn kmeans_memo(memo: Option<&Memo>, chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Arc<Codebook> {
     let Some(memo) = memo else { return Arc::new(kmeans(chans, weights, k, seed)) };
-    let hash = |salt: u8| {
-        let mut h = std::collections::hash_map::DefaultHasher::new();
-        (salt, chans, weights.iter().map(|w| w.to_bits()).collect::<Vec<_>>(), k, seed).hash(&mut h);
-        h.finish()
-    };
-    let key = (hash(1), hash(2));
+    let key = super::encode::key128(|h| (chans, weights.iter().map(|w| w.to_bits()).collect::<Vec<_>>(), k, seed).hash(h));
     if let Some(cb) = memo.0.lock().expect("not poisoned").get(&key) {
         return cb.clone();
     }
