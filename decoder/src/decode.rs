@@ -10,7 +10,7 @@ use crate::bitstream::assemble::{assemble, scatter_sh, Piece};
 use crate::bitstream::layout::Group;
 use crate::bitstream::levels::Layout;
 use crate::bitstream::params::read_all_params;
-use crate::bitstream::stream::{decode_data_section, row_width};
+use crate::bitstream::stream::decode_data_section;
 use crate::bitstream::Container;
 use crate::error::DecodeError;
 use crate::Splats;
@@ -106,7 +106,8 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
             match dst {
                 Some(dst) => decode_data_section(*g, p, &mut r, channels.clone(), dst).map(|()| None),
                 None => {
-                    let mut buf = vec![0.0; ranges[*ch].len() * row_width(*g, p, channels)];
+                    // SH: a codebook band's one job asks for all its channels.
+                    let mut buf = vec![0.0; ranges[*ch].len() * channels.len()];
                     decode_data_section(*g, p, &mut r, channels.clone(), &mut buf).map(|()| Some(buf))
                 }
             }

@@ -337,7 +337,7 @@ pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: 
         let cb = super::vq::kmeans_memo(memo, &rows, weights, ks[b - 1] as usize, b as u64);
         let mut index = vec![0; cb.index.len()];
         by_scene.iter().zip(&cb.index).for_each(|(&i, &k)| index[i] = k);
-        let cb = super::vq::Codebook { index, ..(*cb).clone() };
+        let cb = super::vq::Codebook { channels: cb.channels, rows: cb.rows.clone(), index };
         *chans = cb.decoded_channels();
         q.codebooks.push((*g, cb));
     }

@@ -124,21 +124,9 @@ pub(crate) fn decode_channels(
     Ok(())
 }
 
-/// How many values per Gaussian [`decode_data_section`] writes for channels `channels` of
-/// group `g`: position 3, rotation 4 (a quaternion), an SH band with a codebook all its
-/// channels, other groups the channels asked for.
-pub(crate) fn row_width(g: Group, p: &GroupParams, channels: &Range<usize>) -> usize {
-    match g {
-        Group::Position => 3,
-        Group::Rotation => 4,
-        _ if p.codebook.is_some() => g.channels(),
-        _ => channels.len(),
-    }
-}
-
-/// Decodes channels `channels` of one data section, dequantised, into `out`: [`row_width`]
-/// values per Gaussian, Gaussian-major (position: coordinates; rotation: quaternion components;
-/// others: channel values).
+/// Decodes channels `channels` of one data section, dequantised, into `out`, Gaussian-major:
+/// position 3 coordinates, rotation 4 quaternion components, an SH band with a codebook all its
+/// channels (its one job asks for them all), other groups the channels asked for.
 pub(crate) fn decode_data_section(
     g: Group,
     p: &GroupParams,
