@@ -3,8 +3,8 @@
 (SPEC §9.2), and the good vector `vectors/quirks.gsc` with its `quirks.ply` (SPEC §9.3),
 deterministically from the good vectors `vectors/hand.gsc`, (for the levels section of
 format 4.0, SPEC §3.1) `vectors/levels.gsc`, (for the codebooks of format 5.0, SPEC §3.2)
-`vectors/vq.gsc` and (for the parameter sections per level of format 6.0, SPEC §4)
-`vectors/classes.gsc`.
+`vectors/vq.gsc`, (for the parameter sections per level of format 6.0, SPEC §4)
+`vectors/classes.gsc` and (for the anchor profile of format 7.0, SPEC §12) `vectors/anchor.gsc`.
 
 Each bad vector breaks exactly one rule of SPEC.md; every other byte, including every CRC that
 is not the point of the vector, is kept valid, so that a decoder has to reach the broken rule
@@ -182,8 +182,8 @@ def make(good):
     add("truncated", good[: len(good) - 7], "format", "the file ends 7 bytes before the last payload does")
     add("magic", b"\x8aGSD" + good[4:], "format", "magic is 8A 47 53 44, not 8A 47 53 43")
     f = edit()
-    f.major = 7
-    add("version", f.write(), "unsupported", "version_major 7 (header CRC valid)")
+    f.major = 8
+    add("version", f.write(), "unsupported", "version_major 8 (header CRC valid)")
     add("header-crc", edit().write(header_crc_xor=1), "checksum", "header CRC off by one bit")
     f = edit()
     s = f.section(0x24)
@@ -419,6 +419,109 @@ def make_classes(good):
     return out
 
 
+def anchor_layout(payload, n):
+    """The parts of a valid anchor section (SPEC §12.1): a dict of its header fields and the
+    byte offsets where each part ends (`layers`, `steps`, `weights`, `grid`, `positions`,
+    `features`, end of section)."""
+    rd = specdec.Reader(payload, "anchor")
+    out = {"F": rd.u8(), "s": rd.u8()}
+    layers = [(rd.varint(), rd.varint(), rd.u8()) for _ in range(rd.u8())]
+    out["layer_list"], out["layers"] = layers, rd.pos
+    rd.take(4 * layers[-1][1])
+    out["steps"] = rd.pos
+    for n_in, n_out, _ in layers:
+        specdec.read_block(rd, 1, n_out * (n_in + 1), "weights")
+    out["weights"] = rd.pos
+    _, _, out["bits"], table = specdec.read_grid(rd)
+    out["grid"] = rd.pos
+    _, codes = specdec.decode_position_stream(rd.take(rd.varint()), n, out["bits"], table, "positions")
+    out["positions"] = rd.pos
+    key = [int(m) >> (3 * out["s"]) for m in codes]
+    out["A"] = 1 + sum(a != b for a, b in zip(key, key[1:]))
+    specdec.read_block(rd, out["F"], out["A"], "features")
+    out["features"] = rd.pos
+    specdec.read_block(rd, 3, out["A"], "base")
+    rd.expect_end()
+    return out
+
+
+def make_anchor(good, six):
+    """{name: (bytes, class, reason)}: the anchor profile (SPEC §12), from anchor.gsc (7.0) and
+    classes.gsc (6.0)."""
+    out = {}
+
+    def add(name, data, cls, reason):
+        out[name] = (data, cls, reason)
+
+    f0 = File(good)
+    assert f0.major == 7 and f0.n > 0
+    section = f0.section(0x03)[3]
+    lay = anchor_layout(section, f0.n)
+    f, layers = lay["F"], lay["layer_list"]
+
+    def with_section(payload):
+        g = File(good)
+        g.section(0x03)[3] = payload
+        return g.write()
+
+    g = File(good)
+    g.remove(0x03)
+    # a padding section keeps N <= 8 * file length (§2), so only the missing section is wrong
+    g.sections.append([0x101, 0, 1, bytes(len(section)), None])
+    add("anchor-missing", g.write(), "format", "a 7.0 file with N > 0 without its anchor section (0x03, chunk 0)")
+    g = File(six)
+    assert g.major == 6
+    g.sections.append([0x03, 0, 0, section, None])
+    add("anchor-in-6", g.write(), "unsupported", "a 6.0 file with an anchor section (kind 0x03, unknown before 7.0) without the optional bit")
+    features = section[lay["positions"]:lay["features"]]
+    base = section[lay["features"]:]
+    # s = bits + 1 (s >= bits puts every Gaussian in one anchor: the feature and base blocks
+    # re-coded with anchor 0's row only, so that nothing but s is wrong)
+    one = recode_block(features, lay["A"], lambda j, v: v[:1]) + recode_block(base, lay["A"], lambda j, v: v[:1])
+    add("anchor-shift", with_section(bytes([f, lay["bits"] + 1]) + section[2:lay["positions"]] + one), "format",
+        f"anchor shift s = {lay['bits'] + 1} above the grid's {lay['bits']} bits")
+    # L = 0: no layer entries and no weight blocks; everything else as it was
+    add("anchor-layers", with_section(bytes([f, lay["s"], 0]) + section[lay["layers"]:lay["steps"]] + section[lay["weights"]:]),
+        "format", "an MLP of L = 0 layers (1 <= L <= 4)")
+    # valid shapes F+3 -> 4096 -> 4096 -> P, each weight block one constant channel (zero)
+    p = layers[-1][1]
+    shapes = [(f + 3, 4096), (4096, 4096), (4096, p)]
+    table = b"".join(varint(i) + varint(o) + b"\x00" for i, o in shapes)
+    blocks = (bytes([1]) + struct.pack("<f", 1.0) + bytes([0]) + varint(zigzag(0))) * len(shapes)
+    w = sum(o * (i + 1) for i, o in shapes)
+    add("anchor-work", with_section(bytes([f, lay["s"], len(shapes)]) + table + section[lay["layers"]:lay["steps"]] + blocks + section[lay["weights"]:]),
+        "limits", f"an MLP of layers {f + 3} -> 4096 -> 4096 -> {p}: W = {w} weights, above 2^18")
+    # one feature of anchor 0 escaped to 2^24 (|v| < 2^24), its stream re-coded
+    j, ftable = next((j, t) for j, (_, t) in enumerate(block_channels(features)) if t.mode != 0)
+    assert not 0 <= (1 << 24) - ftable.lo < ftable.n  # outside the table's range: escaped
+    add("anchor-feature", with_section(section[:lay["positions"]] + recode_block(features, lay["A"], lambda i, v: [1 << 24] + v[1:] if i == j else v) + base),
+        "format", f"feature {j} of anchor 0 escaped to 2^24 (|v| < 2^24)")
+    return out
+
+
+def block_channels(block):
+    """The (step bytes, table) of each channel of an anchor block (SPEC §12.1)."""
+    rd = specdec.Reader(block, "block")
+    return [(rd.take(4), specdec.read_channel_table(rd, allow_context=True)) for _ in range(rd.u8())]
+
+
+def recode_block(block, rows, change):
+    """An anchor block of `rows` rows (SPEC §12.1) with each coded channel j's values v
+    replaced by change(j, v) and its stream re-coded (§5.4); constant channels stay."""
+    rd = specdec.Reader(block, "block")
+    for _ in range(rd.u8()):
+        rd.take(4)
+        specdec.read_channel_table(rd, allow_context=True)
+    head = block[:rd.pos]
+    streams = []
+    for j, (_, table) in enumerate(block_channels(block)):
+        if table.mode != 0:
+            values = change(j, decoded_values(rd.take(rd.varint()), table, rows))
+            streams.append(ans_encode(value_intervals(table, values)))
+    rd.expect_end()
+    return head + section_of(streams)
+
+
 def make_quirks(good):
     """quirks.gsc: a valid file that uses what the SPEC allows and our encoder never writes, so
     a decoder MUST accept it and decode it to quirks.ply."""
@@ -465,11 +568,12 @@ def main(argv):
     vectors.update(make_levels(open(os.path.join(VECTORS, "levels.gsc"), "rb").read(), good))
     vectors.update(make_codebooks(open(os.path.join(VECTORS, "vq.gsc"), "rb").read()))
     vectors.update(make_classes(open(os.path.join(VECTORS, "classes.gsc"), "rb").read()))
+    vectors.update(make_anchor(open(os.path.join(VECTORS, "anchor.gsc"), "rb").read(), open(os.path.join(VECTORS, "classes.gsc"), "rb").read()))
     os.makedirs(out_dir, exist_ok=True)
     for old in os.listdir(out_dir):
         if old.startswith("bad-") and old.endswith(".gsc"):
             os.remove(os.path.join(out_dir, old))
-    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc, levels.gsc, vq.gsc and classes.gsc"]
+    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc, levels.gsc, vq.gsc, classes.gsc and anchor.gsc"]
     for name, (data, cls, reason) in sorted(vectors.items()):
         with open(os.path.join(out_dir, f"bad-{name}.gsc"), "wb") as fh:
             fh.write(data)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""Independent decoder for the gscodec `.gsc` bitstream, versions 3.x to 6.x, written
-from bitstream-spec/SPEC.md alone (without reading the Rust decoder), as a check
-that the spec is complete.  Usage: python3 specdec.py IN.gsc OUT.ply
+"""Independent decoder for the gscodec `.gsc` bitstream, versions 3.x to 7.x (7.x: the
+anchor profile of SPEC §12), written from bitstream-spec/SPEC.md alone (without reading the
+Rust decoder), as a check that the spec is complete.  Usage: python3 specdec.py IN.gsc OUT.ply
 
 Writes the reference .ply of SPEC §7.2.  For a file that breaks the SPEC: exit code 1,
 no output file, and one line on stderr, `specdec: error: IN: CLASS: error: detail`, with
@@ -14,8 +14,9 @@ import zlib
 import numpy as np
 
 MAGIC = b"\x8aGSC"
-VERSION_MAJORS = (3, 4, 5, 6)  # §2, §11: 4.x adds the levels section (§3.1), 5.x codebooks (§3.2),
-# 6.x parameter sections per level (§4)
+VERSION_MAJORS = (3, 4, 5, 6, 7)  # §2, §11: 4.x adds the levels section (§3.1), 5.x codebooks (§3.2),
+# 6.x parameter sections per level (§4), 7.x the anchor profile (§12)
+ANCHOR_MAJOR = 7
 MAX_SECTIONS = 4096
 MAX_N = 1 << 26
 MAX_TABLE_N = 4096
@@ -28,6 +29,7 @@ PROB_TOTAL = 1 << PROB_BITS
 GROUP_CHANNELS = [1, 3, 4, 1, 3, 9, 15, 21]
 KIND_LEVELS = 0x01
 KIND_CODEBOOK = 0x02
+KIND_ANCHOR = 0x03
 MAX_CODEBOOK_ROWS = 65536
 KIND_INFO = 0x100
 KIND_PADDING = 0x101
@@ -341,6 +343,16 @@ def classify_sections(major, n, degree, sections):
     level_params = major >= 6
     chunks = (n + CHUNK - 1) // CHUNK
     known = {}
+    if major == ANCHOR_MAJOR:
+        # §3: a 7.0 file knows the anchor section (when N > 0), info and padding; nothing else.
+        for (kind, chunk), (sflags, payload) in sections.items():
+            if (kind == KIND_ANCHOR and chunk == 0 and n > 0) or (kind in (KIND_INFO, KIND_PADDING) and chunk == 0):
+                known[(kind, chunk)] = payload
+            elif not sflags & 1:
+                raise DecodeError("unknown required section", f"{kind:#x}/{chunk}")
+        if n > 0 and (KIND_ANCHOR, 0) not in known:
+            raise DecodeError("missing section", "anchor")
+        return known, 0, [], []
     for (kind, chunk), (sflags, payload) in sections.items():
         is_known = (
             (0x10 <= kind < 0x10 + groups and (chunk == 0 or level_params))
@@ -384,13 +396,19 @@ def classify_sections(major, n, degree, sections):
 # ----------------------------------------------------------------------------
 def parse_position_params(payload):
     rd = Reader(payload, "position parameters")
+    grid = read_grid(rd)
+    rd.expect_end()
+    return grid
+
+
+def read_grid(rd):
+    """§4, g = 0: origin, step, bits and the Morton length table."""
     origin = [rd.f32() for _ in range(3)]
     step = [rd.f32() for _ in range(3)]
     bits = rd.u8()
     if bits > MAX_BITS:
-        raise corrupt(f"grid bits {bits}")
+        raise corrupt(f"{rd.what}: grid bits {bits}")
     table = read_channel_table(rd, allow_context=False)
-    rd.expect_end()
     return origin, step, bits, table
 
 
@@ -436,6 +454,11 @@ def split_streams(payload, count, what):
 
 def decode_positions(payload, k, bits, table, what):
     (stream,) = split_streams(payload, 1, what)
+    return decode_position_stream(stream, k, bits, table, what)[0]
+
+
+def decode_position_stream(stream, k, bits, table, what):
+    """§6.1: the grid coordinates q (k × 3) and the Morton codes of one position stream."""
     dec = AnsDecoder(stream, what)
     state = [0]
     limit = 1 << (3 * bits)
@@ -455,7 +478,7 @@ def decode_positions(payload, k, bits, table, what):
     for bit in range(bits):
         for axis in range(3):
             q[:, axis] |= ((codes >> np.uint64(3 * bit + axis)) & np.uint64(1)).astype(np.int64) << bit
-    return q
+    return q, codes
 
 
 def decode_channels(payload, k, channels, what):
@@ -476,6 +499,134 @@ def decode_channels(payload, k, channels, what):
 
 
 # ----------------------------------------------------------------------------
+# The anchor profile (§12)
+# ----------------------------------------------------------------------------
+MAX_ANCHOR_LAYERS = 4
+MAX_ANCHOR_WIDTH = 4096
+MAX_ANCHOR_SHIFT = 62
+MAX_ANCHOR_WEIGHTS = 1 << 18   # W (§12.1, limits)
+MAX_ANCHOR_WORK = 1 << 34      # N · W (§12.1, limits)
+ANCHOR_BOUND = 1 << 24         # |weight|, |feature| < 2^24; MLP values clamped to ±(2^24 − 1)
+MLP_ROWS = 4096                # Gaussians per MLP batch (any batching gives the same integers)
+
+
+def read_block(rd, channels, rows, what):
+    """§12.1: a block of `channels` channels and `rows` rows; returns (steps, rows × channels
+    int64 values, row r's channel j at [r, j])."""
+    c = rd.u8()
+    if c != channels:
+        raise corrupt(f"{what}: {c} channels, expected {channels}")
+    tables = [(rd.f32(), read_channel_table(rd, allow_context=True)) for _ in range(c)]
+    values = np.empty((rows, c), dtype=np.int64)
+    for j, (_, table) in enumerate(tables):
+        if table.mode == 0:
+            values[:, j] = table.value
+            continue
+        stream = rd.take(rd.varint())
+        dec = AnsDecoder(stream, f"{what} channel {j}")
+        state = [table.centre]  # §5.2: every stream has its own context state
+        values[:, j] = [read_value(dec, table, state) for _ in range(rows)]
+        dec.finish()
+    return [step for step, _ in tables], values
+
+
+def check_bounded(values, what):
+    """§12.1: every weight and feature, escaped ones too, has |v| < 2^24."""
+    if values.size and int(np.abs(values).max()) >= ANCHOR_BOUND:
+        raise corrupt(f"{what}: a value of magnitude 2^24 or more")
+
+
+def run_mlp(x, layers, weights):
+    """§12.2 on the rows of x (int64, one row per Gaussian): signed 64-bit integers, an
+    arithmetic (floor) shift, a clamp to ±(2^24 − 1), ReLU on every layer but the last."""
+    for l, ((n_in, _, shift), w) in enumerate(zip(layers, weights)):
+        # exact: |w|, |x| < 2^24 and n_in ≤ 4096, so |acc| < 2^61 (numpy integer matmul does
+        # no floating point)
+        acc = x @ w[:, :n_in].T + w[:, n_in]
+        y = np.clip(acc >> np.int64(shift), -(ANCHOR_BOUND - 1), ANCHOR_BOUND - 1)
+        if l < len(layers) - 1:
+            y = np.maximum(y, 0)
+        x = y
+    return x
+
+
+def decode_anchor(payload, n, degree):
+    """§12: the anchor section of a 7.0 file with N > 0; returns the output columns."""
+    rd = Reader(payload, "anchor section")
+    f = rd.u8()
+    if f == 0:
+        raise corrupt("anchor section: F = 0")
+    s = rd.u8()
+    nl = rd.u8()
+    if not 1 <= nl <= MAX_ANCHOR_LAYERS:
+        raise corrupt(f"anchor section: {nl} MLP layers")
+    p = 8 + 3 * (degree + 1) ** 2
+    layers = []
+    for l in range(nl):
+        n_in, n_out, shift = rd.varint(), rd.varint(), rd.u8()
+        if n_in != (f + 3 if l == 0 else layers[-1][1]):
+            raise corrupt(f"anchor section: layer {l} has {n_in} inputs")
+        if not 1 <= n_out <= MAX_ANCHOR_WIDTH:
+            raise corrupt(f"anchor section: layer {l} has {n_out} outputs")
+        if shift > MAX_ANCHOR_SHIFT:
+            raise corrupt(f"anchor section: layer {l} shift {shift}")
+        layers.append((n_in, n_out, shift))
+    if layers[-1][1] != p:
+        raise corrupt(f"anchor section: the last layer has {layers[-1][1]} outputs, P = {p}")
+    w_count = sum(n_out * (n_in + 1) for n_in, n_out, _ in layers)
+    # §12.1: checked before any block is read
+    if w_count > MAX_ANCHOR_WEIGHTS or n * w_count > MAX_ANCHOR_WORK:
+        raise DecodeError("limit exceeded", f"anchor MLP of {w_count} weights for N = {n}")
+    out_steps = np.array([rd.f32() for _ in range(p)], dtype=np.float32)
+    weights = []
+    for l, (n_in, n_out, _) in enumerate(layers):
+        _, w = read_block(rd, 1, n_out * (n_in + 1), f"anchor layer {l} weights")
+        check_bounded(w, f"anchor layer {l} weights")
+        weights.append(w.reshape(n_out, n_in + 1))  # row j: w_(j,0) … w_(j,in−1), then b_j
+    rd.what = "anchor grid"
+    origin, step, bits, length_table = read_grid(rd)
+    if s > bits:
+        raise corrupt(f"anchor section: anchor shift {s} above the grid's {bits} bits")
+    rd.what = "anchor section"
+    stream = rd.take(rd.varint())
+    q, codes = decode_position_stream(stream, n, bits, length_table, "anchor positions")
+    # Anchors: consecutive Gaussians with the same m >> 3s (s ≤ bits ≤ 21, so 3s ≤ 63).
+    key = codes >> np.uint64(3 * s)
+    anchor_of = np.concatenate([[0], np.cumsum(key[1:] != key[:-1])]).astype(np.int64)
+    a_count = int(anchor_of[-1]) + 1
+    _, features = read_block(rd, f, a_count, "anchor features")
+    check_bounded(features, "anchor features")
+    base_steps, base_ints = read_block(rd, 3, a_count, "anchor base scales")
+    rd.expect_end()
+
+    # §12.2: the MLP, in batches of Gaussians.
+    cells = q & ((1 << s) - 1)
+    outs = []
+    for start in range(0, n, MLP_ROWS):
+        rows = slice(start, min(n, start + MLP_ROWS))
+        x = np.concatenate([features[anchor_of[rows]], cells[rows]], axis=1)
+        outs.append(run_mlp(x, layers, weights))
+    o = np.concatenate(outs)
+
+    # §12.3, §8: binary32, each operation rounded (numpy float32 arrays, no fused multiply-add).
+    with np.errstate(all="ignore"):
+        pos = (np.asarray(origin, np.float32) + (q.astype(np.float32) * np.asarray(step, np.float32))).astype(np.float32)
+        vals = o.astype(np.float32) * out_steps  # exact f32(o): |o| < 2^24
+        base = base_ints.astype(np.float32) * np.asarray(base_steps, np.float32)
+        scale = vals[:, 1:4] + base[anchor_of]
+    check_finite(pos, "position")
+    check_finite(base, "anchor base scale")
+    check_finite(vals, "anchor output")
+    check_finite(scale, "scale")
+    rot = vals[:, 4:8].copy()
+    rot[np.all(rot == 0, axis=1)] = np.array([1, 0, 0, 0], np.float32)  # +0 and −0 alike
+    ncoef = (degree + 1) ** 2 - 1
+    # output 11 + 3m + c is coefficient m of colour c; §7.2 stores f_rest colour-major
+    rest = vals[:, 11:].reshape(n, ncoef, 3).transpose(0, 2, 1).reshape(n, 3 * ncoef)
+    return {"pos": pos, "scale": scale, "rot": rot, "opacity": vals[:, 0:1], "dc": vals[:, 8:11], "rest": rest}
+
+
+# ----------------------------------------------------------------------------
 # Dequantisation (§8)
 # ----------------------------------------------------------------------------
 def dequant(values, steps):
@@ -493,7 +644,10 @@ def decode(data):
     known, groups, sizes, params_of = classify_sections(major, n, degree, sections)
 
     cols = {}
-    if n > 0:
+    if major == ANCHOR_MAJOR:
+        if n > 0:
+            cols = decode_anchor(known[(KIND_ANCHOR, 0)], n, degree)
+    elif n > 0:
         books = {g: parse_codebook(g, known[(KIND_CODEBOOK, g - 4)], n) for g in range(5, groups) if (KIND_CODEBOOK, g - 4) in known}
         # §4: one set of parameter sections per parameter chunk (per level in 6.0, else chunk 0).
         params = {}

@@ -17,6 +17,7 @@
 pub use gscodec_decoder as decoder;
 
 #[doc(hidden)]
+pub mod anchor;
 pub mod cli;
 pub mod encoder;
 pub mod error;

@@ -7,13 +7,14 @@
 
 use std::path::{Path, PathBuf};
 
+use gscodec::anchor::AnchorConfig;
 use gscodec::rate::{self, CoarseTail, EncodeConfig};
 use gscodec::rng::Rng;
 use gscodec_decoder::bitstream::{self, Header, VERSION_MAJOR_UNIFORM, VERSION_MINOR};
 use gscodec_decoder::{decode, Decoder, Limits, Splats};
 use sha2::{Digest, Sha256};
 
-const NAMES: [&str; 11] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels", "vq", "classes"];
+const NAMES: [&str; 12] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels", "vq", "classes", "anchor"];
 /// Vectors made by `bitstream-spec/make_bad_vectors.py`, not by our encoder.
 const SCRIPTED: [&str; 1] = ["quirks"];
 /// Vectors whose expected `.ply` is given by its SHA-256 only.
@@ -125,7 +126,7 @@ fn vector_scene(name: &str) -> Splats {
         "one" => one_scene(),
         "hand" => hand_scene(),
         "edge" => edge_scene(),
-        "tiny" | "levels" | "vq" | "classes" => {
+        "tiny" | "levels" | "vq" | "classes" | "anchor" => {
             gscodec::io::read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap()
         }
         "chunks" => chunks_scene(),
@@ -143,6 +144,13 @@ fn regenerate() {
             // output still lists the 45 rest properties.
             let h = Header { version_major: VERSION_MAJOR_UNIFORM, version_minor: VERSION_MINOR, gaussians: 0, sh_degree: 3 };
             bitstream::write(&h, &[])
+        } else if name == "anchor" {
+            // The tiny scene in the anchor profile (format 7.0, SPEC §12): distilled only (no
+            // fine-tuning), SH degree 1, 8 features, 16 hidden units.
+            let scene = vector_scene(name);
+            let sig = gscodec::rate::importance::significance(&scene);
+            let cfg = AnchorConfig { features: 8, hidden: 16, distill_iters: 200, iters: 0, ..AnchorConfig::default() };
+            gscodec::anchor::encode(&scene, &sig, &cfg, (scene.len(), scene.sh_degree)).bytes
         } else {
             // `levels`: the tiny scene in importance levels (format 4.0, SPEC §3.1). `vq`: the tiny
             // scene to SH degree 2, band 1 by a codebook of 16 rows, band 2 per coefficient

@@ -6,13 +6,14 @@ use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
+use crate::bitstream::anchors::{expand, read_anchors, ANCHORS_KIND};
 use crate::bitstream::assemble::{assemble, scatter_sh, Piece};
 use crate::bitstream::layout::Group;
 use crate::bitstream::levels::Layout;
 use crate::bitstream::params::read_all_params;
 use crate::bitstream::stream::decode_data_section;
 use crate::bitstream::Container;
-use crate::error::DecodeError;
+use crate::error::{DecodeError, SectionId};
 use crate::Splats;
 
 /// SH bands are decoded in jobs of about this many channels (a band has 9, 15 or 21).
@@ -46,8 +47,27 @@ pub(crate) fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> 
 /// Decodes the groups up to SH degree `degree` of a checked container into `out` (unchanged on
 /// error): its layout (SPEC §3.1), then [`decode_chunks`] of every chunk.
 pub(crate) fn decode_container(c: &Container<'_>, degree: u8, out: &mut Splats) -> Result<(), DecodeError> {
+    if c.header.is_anchor() {
+        return decode_anchors(c, degree, out);
+    }
     let layout = c.layout()?;
     decode_chunks(c, &layout, layout.chunks(), degree, out)
+}
+
+/// Decodes an anchor-profile file (SPEC §12) into `out` (unchanged on error): its anchor
+/// section, then the MLP's Gaussians.
+fn decode_anchors(c: &Container<'_>, degree: u8, out: &mut Splats) -> Result<(), DecodeError> {
+    let h = c.header;
+    let n = h.gaussians as usize;
+    if n == 0 {
+        *out = Splats::new(degree);
+        return Ok(());
+    }
+    if c.section(ANCHORS_KIND, 0).is_none() {
+        return Err(c.missing(SectionId { kind: ANCHORS_KIND, chunk: 0 }, "anchors"));
+    }
+    let set = read_anchors(&mut c.reader(ANCHORS_KIND, 0), n, h.sh_degree)?;
+    expand(&set, h.sh_degree, degree, out).map_err(|what| c.reader(ANCHORS_KIND, 0).corrupt(what))
 }
 
 /// Decodes the first `chunks` chunks of `layout` (the Gaussians they hold, in file order) with

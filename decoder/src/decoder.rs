@@ -3,6 +3,7 @@
 
 use std::io::Read;
 
+use crate::bitstream::anchors::{read_anchors, ANCHORS_KIND};
 use crate::bitstream::header::{self, check_allocation_bound, Header, HEADER_BYTES};
 use crate::bitstream::info::{read_info, EncoderInfo};
 use crate::bitstream::layout::{Group, CODEBOOK_KIND, INFO_KIND, LEVELS_KIND};
@@ -79,6 +80,7 @@ impl SectionInfo {
             INFO_KIND => "info",
             bitstream::layout::PADDING_KIND => "padding",
             LEVELS_KIND => "levels",
+            ANCHORS_KIND => "anchors",
             CODEBOOK_KIND => match id.chunk {
                 1 => "sh_band1 codebook",
                 2 => "sh_band2 codebook",
@@ -123,6 +125,21 @@ pub struct FileInfo {
     /// A 6.0 file's parameters per level (SPEC §4): per level, its scale step over level 0's
     /// (importance classes: how much coarser the level is coded). Empty before 6.0.
     pub level_step_factors: Vec<f32>,
+    /// An anchor-profile file's model (SPEC §12); `None` for the explicit profile.
+    pub anchors: Option<AnchorSummary>,
+}
+
+/// What an anchor-profile file (SPEC §12) holds besides its Gaussians.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AnchorSummary {
+    /// Anchors A.
+    pub anchors: usize,
+    /// Features per anchor F.
+    pub features: usize,
+    /// Anchor cells are 2^shift grid cells wide per axis.
+    pub shift: u8,
+    /// The MLP's layer widths, input first.
+    pub widths: Vec<usize>,
 }
 
 /// Configures a decode of a `.gsc` file from any [`Read`] (a file, a socket, a decompressor, a
@@ -352,6 +369,9 @@ pub fn peek_header(bytes: &[u8]) -> Result<Header, DecodeError> {
 /// Any [`DecodeError`] but `Io` and `LimitsExceeded` from caller limits.
 pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
     let c = sections::parse(bytes)?;
+    if c.header.is_anchor() {
+        return inspect_anchors(&c, bytes.len() as u64);
+    }
     let layout = c.layout()?;
     let params = read_all_params(&c, c.header.sh_degree, layout.level_chunks.len())?;
     let mut info = FileInfo {
@@ -363,6 +383,7 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
         context_channels: Vec::new(),
         codebooks: Vec::new(),
         level_step_factors: Vec::new(),
+        anchors: None,
     };
     for s in &c.sections {
         info.info.sections.push(SectionInfo::new(s.id(), s.flags, s.data.len()));
@@ -394,6 +415,35 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
     Ok(info)
 }
 
+/// [`inspect`] of an anchor-profile file: its sections and its anchor section's model (the
+/// anchors' streams are decoded to check them).
+fn inspect_anchors(c: &sections::Container<'_>, file_bytes: u64) -> Result<FileInfo, DecodeError> {
+    let n = c.header.gaussians as usize;
+    let anchors = if n == 0 {
+        None
+    } else {
+        if c.section(ANCHORS_KIND, 0).is_none() {
+            return Err(c.missing(SectionId { kind: ANCHORS_KIND, chunk: 0 }, "anchors"));
+        }
+        let set = read_anchors(&mut c.reader(ANCHORS_KIND, 0), n, c.header.sh_degree)?;
+        let widths = std::iter::once(set.mlp.layers[0].inputs).chain(set.mlp.layers.iter().map(|l| l.outputs)).collect();
+        Some(AnchorSummary { anchors: set.anchors(), features: set.features, shift: set.shift, widths })
+    };
+    let sections = c.sections.iter().map(|s| SectionInfo::new(s.id(), s.flags, s.data.len())).collect();
+    let encoder = c.sections.iter().find(|s| s.kind == INFO_KIND).and_then(|s| read_info(s.data));
+    Ok(FileInfo {
+        info: Info { header: c.header, file_bytes, sections },
+        encoder,
+        levels: if n == 0 { Vec::new() } else { vec![n] },
+        chunks: Vec::new(),
+        constant_channels: Vec::new(),
+        context_channels: Vec::new(),
+        codebooks: Vec::new(),
+        level_step_factors: Vec::new(),
+        anchors,
+    })
+}
+
 /// Decodes what has arrived of a file written in the recommended section order (SPEC §3, §7.1):
 /// `Ok(None)` until the first importance level is complete (levels, parameters and the base —
 /// positions, scales, rotations, opacities, DC colours — of its chunks), then the Gaussians of
@@ -423,7 +473,11 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
 pub fn decode_prefix(bytes: &[u8], limits: &Limits) -> Result<Option<Splats>, DecodeError> {
     let Some(p) = arrived_prefix(bytes, limits)? else { return Ok(None) };
     let mut out = Splats::new(p.degree);
-    decode_chunks(&p.container, &p.layout, p.chunks, p.degree, &mut out)?;
+    if p.container.header.is_anchor() {
+        decode_container(&p.container, p.degree, &mut out)?;
+    } else {
+        decode_chunks(&p.container, &p.layout, p.chunks, p.degree, &mut out)?;
+    }
     Ok(Some(out))
 }
 
@@ -459,6 +513,12 @@ fn arrived_prefix<'a>(bytes: &'a [u8], limits: &Limits) -> Result<Option<Prefix<
     };
     let table = read_table(bytes)?;
     let wanted = check_limits(&table, limits)?;
+    if c.header.is_anchor() {
+        // An anchor-profile file has one level: all of it (SPEC §12).
+        let layout = Layout::uniform(c.header.gaussians as usize);
+        let chunks = layout.chunks();
+        return Ok(c.pending.is_empty().then_some(Prefix { container: c, layout, chunks, degree: wanted }));
+    }
     let pending: std::collections::HashSet<SectionId> = c.pending.iter().copied().collect();
     let pending = |kind: u16, chunk: usize| u16::try_from(chunk).is_ok_and(|chunk| pending.contains(&SectionId { kind, chunk }));
     if pending(LEVELS_KIND, 0) || !Group::present(0).all(|g| !pending(g.params_kind(), 0)) {

@@ -20,8 +20,8 @@ pub struct SectionId {
 }
 
 impl SectionId {
-    /// What the section holds: a group name with `parameters` or `data`, `levels`, `info`,
-    /// `padding` or `unknown`.
+    /// What the section holds: a group name with `parameters` or `data`, `levels`, `codebook`,
+    /// `anchors`, `info`, `padding` or `unknown`.
     pub fn name(self) -> String {
         if let Some(g) = Group::of_kind(self.kind) {
             return format!("{} {}", g.name(), if g.params_kind() == self.kind { "parameters" } else { "data" });
@@ -30,6 +30,8 @@ impl SectionId {
             INFO_KIND => "info".into(),
             PADDING_KIND => "padding".into(),
             LEVELS_KIND => "levels".into(),
+            crate::bitstream::layout::CODEBOOK_KIND => "codebook".into(),
+            crate::bitstream::anchors::ANCHORS_KIND => "anchors".into(),
             _ => "unknown".into(),
         }
     }
@@ -230,7 +232,7 @@ impl fmt::Display for UnsupportedError {
                     f,
                     "unsupported format version {major}.{minor} (this decoder reads {}.x to {}.x)",
                     crate::bitstream::VERSION_MAJOR_UNIFORM,
-                    crate::bitstream::VERSION_MAJOR
+                    crate::bitstream::VERSION_MAJOR_ANCHORS
                 )
             }
             Unsupported::Section { id, offset } => {
@@ -256,6 +258,9 @@ pub enum Limit {
     Sections,
     /// Symbols of a channel table: at most 4096.
     TableSymbols,
+    /// The anchor profile's MLP (SPEC §12): at most 2^18 weights, and anchors × weights at most
+    /// 2^34 multiply-adds.
+    AnchorWork,
 }
 
 /// A file larger than a limit; says which, the value and the bound.
@@ -297,6 +302,7 @@ impl fmt::Display for LimitError {
             }
             (Limit::Sections, _) => write!(f, "limit exceeded: {v} sections > {m}"),
             (Limit::TableSymbols, _) => write!(f, "limit exceeded: table of {v} symbols > {m}"),
+            (Limit::AnchorWork, _) => write!(f, "limit exceeded: anchor MLP work {v} > {m}"),
         }
     }
 }

@@ -59,7 +59,8 @@ pub use bitstream::layout::Group;
 pub use bitstream::Header;
 pub use camera::Camera;
 pub use decoder::{
-    decode, decode_prefix, decode_with, inspect, peek_header, prefix_extent, Decoder, FileInfo, Info, Limits, Reader, SectionInfo,
+    decode, decode_prefix, decode_with, inspect, peek_header, prefix_extent, AnchorSummary, Decoder, FileInfo, Info, Limits, Reader,
+    SectionInfo,
 };
 pub use error::{ChecksumError, DecodeError, FormatError, FormatErrorKind, Limit, LimitError, SectionId, UnsupportedError};
 pub use render::{Image, RenderOptions};

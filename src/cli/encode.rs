@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::encoder::{Backend, Encoded, Encoder, EncoderConfig, Lambda, LossSpec, Target};
+use crate::encoder::{Backend, Encoded, Encoder, EncoderConfig, Lambda, LossSpec, Profile, Target};
 use crate::loss::LossKind;
 use crate::Error;
 use gscodec_decoder::Splats;
@@ -50,6 +50,11 @@ pub struct Args {
     /// gives its cost in bytes).
     #[arg(long)]
     pub progressive: bool,
+    /// How to code the scene: explicit (per-Gaussian attributes), anchor (anchors with features
+    /// and a small fixed-point MLP, format 7.0; --iters then sets its fine-tuning, default 300),
+    /// or auto (whichever has the lower J = D + λ·R). See docs/codec.md.
+    #[arg(long, value_enum, default_value_t = Profile::Explicit)]
+    pub profile: Profile,
     /// Write a JSON report (sizes per attribute group, estimated vs actual, stage times, time series).
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -76,6 +81,7 @@ impl Args {
             .with_loss(LossSpec::from_args(&self.loss, LossKind::Wdr))
             .with_backend(self.backend)
             .with_progressive(self.progressive)
+            .with_profile(self.profile)
     }
 }
 

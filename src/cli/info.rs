@@ -60,6 +60,13 @@ pub fn run(args: Args) -> crate::Result<()> {
                 "constant_channels": info.constant_channels,
             },
             "context_channels": info.context_channels,
+            "profile": if info.anchors.is_some() { "anchor" } else { "explicit" },
+            "anchors": info.anchors.as_ref().map(|a| json!({
+                "anchors": a.anchors,
+                "features": a.features,
+                "anchor_cells": 1u32 << a.shift,
+                "mlp_widths": a.widths,
+            })),
             "sh_bands": (1..=h.sh_degree).map(|b| {
                 let k = info.codebooks.iter().find(|c| c.0 == b).map(|c| c.1);
                 json!({"band": b, "mode": if k.is_some() { "codebook" } else { "per-coefficient" }, "codebook_rows": k})
@@ -88,7 +95,17 @@ pub fn run(args: Args) -> crate::Result<()> {
         if let (Some(d), Some(n)) = (input_sh_degree, dropped_bands) {
             println!("left out: {n} SH band(s) (input degree {d})");
         }
-        for b in 1..=h.sh_degree {
+        if let Some(a) = &info.anchors {
+            let widths: Vec<String> = a.widths.iter().map(|w| w.to_string()).collect();
+            println!(
+                "profile     anchor: {} anchors of {}³ grid cells, {} features each; MLP {}",
+                a.anchors,
+                1u32 << a.shift,
+                a.features,
+                widths.join(" → ")
+            );
+        }
+        for b in (1..=h.sh_degree).filter(|_| info.anchors.is_none()) {
             match info.codebooks.iter().find(|c| c.0 == b) {
                 Some((_, k)) => println!("sh_band{b}    codebook of {k} rows, one index per Gaussian"),
                 None => println!("sh_band{b}    per coefficient"),

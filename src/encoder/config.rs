@@ -28,6 +28,31 @@ pub struct EncoderConfig {
     pub seed: u64,
     /// Write importance levels (a progressive 4.0 file, [`crate::rate::EncodeConfig::progressive`]).
     pub progressive: bool,
+    /// Which way to code the scene (SPEC §12: the anchor profile).
+    pub profile: Profile,
+}
+
+/// How a scene is coded: the explicit profile (per-Gaussian attributes, formats 3.0–6.0), the
+/// anchor profile (anchors with features and a fixed-point MLP, format 7.0, SPEC §12), or
+/// whichever of the two has the lower `J = D + λ·R`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Profile {
+    #[default]
+    Explicit,
+    Anchor,
+    Auto,
+}
+
+impl Profile {
+    /// Its name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Profile::Explicit => "explicit",
+            Profile::Anchor => "anchor",
+            Profile::Auto => "auto",
+        }
+    }
 }
 
 impl Default for EncoderConfig {
@@ -40,6 +65,7 @@ impl Default for EncoderConfig {
             backend: Backend::default(),
             seed: 0,
             progressive: false,
+            profile: Profile::Explicit,
         }
     }
 }
@@ -78,6 +104,12 @@ impl EncoderConfig {
     /// Sets the training seed.
     pub fn with_seed(mut self, seed: u64) -> Self {
         self.seed = seed;
+        self
+    }
+
+    /// Sets the profile.
+    pub fn with_profile(mut self, profile: Profile) -> Self {
+        self.profile = profile;
         self
     }
 

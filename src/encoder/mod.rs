@@ -33,7 +33,7 @@ use gscodec_decoder::{RenderOptions, Splats};
 
 pub use crate::rate::Lambda;
 pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, TrainJob};
-pub use config::{EncoderConfig, InvalidConfig, DEFAULT_DATASET_ITERS, MAX_ITERS};
+pub use config::{EncoderConfig, InvalidConfig, Profile, DEFAULT_DATASET_ITERS, MAX_ITERS};
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
 pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 
@@ -106,6 +106,60 @@ impl Encoder {
         orbit: &Orbit,
         progress: &mut dyn FnMut(&Progress),
     ) -> Result<Encoded> {
+        if self.config.profile == Profile::Explicit {
+            return self.encode_explicit(trials, orbit, progress);
+        }
+        // The anchor profile codes what the explicit profile's RD search keeps (pruned, SH
+        // bands dropped) on its grid; its own fine-tuning takes `--iters`.
+        let explicit_iters = if self.config.profile == Profile::Anchor { Some(0) } else { self.config.iters };
+        let explicit = Encoder { config: self.config.clone().with_iters(explicit_iters) };
+        let e = explicit.encode_explicit(trials, orbit, progress)?;
+        self.with_anchors(e, trials.scene(), orbit)
+    }
+
+    /// The explicit result `e` of `scene` replaced by the anchor profile's file where the profile
+    /// asks for it: always for [`Profile::Anchor`], when its `J` is lower for [`Profile::Auto`].
+    fn with_anchors(&self, e: Encoded, scene: &Splats, orbit: &Orbit) -> Result<Encoded> {
+        let start = Instant::now();
+        let prepared = rate::prepared(scene, &e.config, None);
+        if prepared.is_empty() {
+            return Ok(e);
+        }
+        let sig = rate::importance::significance(&prepared);
+        let cfg = crate::anchor::AnchorConfig {
+            position_bits: Some(e.report.position_bits),
+            iters: self.config.iters.unwrap_or(crate::anchor::AnchorConfig::default().iters),
+            seed: self.config.seed,
+            ..Default::default()
+        };
+        let a = crate::anchor::encode(&prepared, &sig, &cfg, (scene.len(), scene.sh_degree));
+        let orbit_psnr = orbit.psnr(&a.decoded);
+        let j = |d: &Splats, bytes: usize| orbit.distortion(d) + self.config.lambda.rate_cost(bytes);
+        let alternative = (e.bytes.len(), e.report.orbit_psnr);
+        if self.config.profile == Profile::Auto && j(&e.decoded, e.bytes.len()) <= j(&a.decoded, a.bytes.len()) {
+            let report = EncodeReport { profile: "explicit", anchor: Some(a.report), ..e.report };
+            return Ok(Encoded { report, ..e });
+        }
+        let mut stages = e.report.stages;
+        stages.train_s += start.elapsed().as_secs_f64();
+        stages.total_s += start.elapsed().as_secs_f64();
+        let report = EncodeReport {
+            file_bytes: a.bytes.len(),
+            estimated_bytes: a.bytes.len() as f64,
+            gaussians: a.decoded.len(),
+            sh_degree: a.decoded.sh_degree,
+            orbit_psnr,
+            stages,
+            profile: "anchor",
+            explicit_alternative: Some(alternative),
+            anchor: Some(a.report),
+            ..e.report
+        };
+        Ok(Encoded { bytes: a.bytes, decoded: a.decoded, report, config: e.config })
+    }
+
+    /// [`Encoder::encode_scene_with`] in the explicit profile.
+    fn encode_explicit(&self, trials: &mut rate::rd::Trials, orbit: &Orbit, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
         let start = Instant::now();
         let scene = trials.scene();
         let iters = self.config.iters_for(false);
@@ -206,7 +260,13 @@ impl Encoder {
         let (config, _) = rate::rd::search_from(&trained, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
             .map_err(|e| Error::Input(e.to_string()))?;
         stages.rd_search_s = t.elapsed().as_secs_f64();
-        self.finish(&Orbit::new(&trained), &trained, &config, iters, start, stages, series, Some(r), Some(dataset))
+        let orbit = Orbit::new(&trained);
+        let e = self.finish(&orbit, &trained, &config, iters, start, stages, series, Some(r), Some(dataset))?;
+        match self.config.profile {
+            Profile::Explicit => Ok(e),
+            // The anchors are fitted to the trained scene (against its renders).
+            _ => Encoder { config: self.config.clone().with_iters(None) }.with_anchors(e, &trained, &orbit),
+        }
     }
 
     /// Runs the configured backend on one training job with the rate objective.
@@ -318,6 +378,9 @@ impl Encoder {
             series,
             target: None,
             fine_tuning_kept: None,
+            profile: "explicit",
+            anchor: None,
+            explicit_alternative: None,
         };
         Ok(Encoded { bytes, decoded, report, config: *config })
     }

@@ -94,4 +94,12 @@ pub struct EncodeReport {
     /// the RD search's own file had the lower `J = D + λ·R`, D on the orbit views at 256², and
     /// is the output; `train` still reports the run). `None` without fine-tuning.
     pub fine_tuning_kept: Option<bool>,
+    /// The profile of the file: `explicit` (formats 3.0–6.0) or `anchor` (7.0, SPEC §12).
+    pub profile: &'static str,
+    /// The anchor profile's encode (with `--profile anchor` or `auto`), whether or not its file
+    /// is the output; `groups`, `steps` and the pruning fields then describe the explicit
+    /// profile's choice, whose pruned scene the anchors code.
+    pub anchor: Option<crate::anchor::AnchorReport>,
+    /// With `--profile auto`: the explicit file's size and PSNR, the other candidate.
+    pub explicit_alternative: Option<(usize, f64)>,
 }

@@ -183,7 +183,7 @@ pub fn quantise_ordered(splats: &Splats, steps: &Steps, level: &[u8]) -> (Quanti
 }
 
 /// The position grid of `bits` bits per axis over the bounds `lo..hi`: (origin, step, bits).
-fn grid(lo: [f32; 3], hi: [f32; 3], bits: u8) -> Grid {
+pub(crate) fn grid(lo: [f32; 3], hi: [f32; 3], bits: u8) -> Grid {
     let cells = ((1u64 << bits) - 1) as f64;
     let mut step = [1.0f32; 3];
     for a in 0..3 {

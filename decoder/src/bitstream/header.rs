@@ -1,8 +1,8 @@
 //! The fixed header (SPEC §2): magic, version, section count, Gaussian count, SH degree.
 
 use super::{
-    ByteReader, ByteWriter, MAGIC, MAX_GAUSSIANS, MAX_GAUSSIANS_PER_BYTE, MAX_SECTIONS, VERSION_MAJOR, VERSION_MAJOR_CODEBOOKS,
-    VERSION_MAJOR_LEVELS, VERSION_MAJOR_UNIFORM,
+    ByteReader, ByteWriter, MAGIC, MAX_GAUSSIANS, MAX_GAUSSIANS_PER_BYTE, MAX_SECTIONS, VERSION_MAJOR, VERSION_MAJOR_ANCHORS,
+    VERSION_MAJOR_CODEBOOKS, VERSION_MAJOR_LEVELS, VERSION_MAJOR_UNIFORM,
 };
 use crate::error::{self, DecodeError, FormatErrorKind, Limit, Place};
 
@@ -12,7 +12,8 @@ pub const HEADER_BYTES: usize = 16;
 /// The fixed header's fields (the section count is the section table's length).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Header {
-    /// Format major version (this crate reads 3, 4, 5 and 6).
+    /// Format major version (this crate reads 3 to 6, the explicit profile, and 7, the anchor
+    /// profile).
     pub version_major: u8,
     /// Format minor version (a reader accepts any).
     pub version_minor: u8,
@@ -26,18 +27,23 @@ impl Header {
     /// Whether the file has a levels section (formats 4 to 6, SPEC §3.1); a 3.0 file's layout
     /// is one level of 65,536-Gaussian chunks.
     pub fn has_levels(&self) -> bool {
-        self.version_major >= VERSION_MAJOR_LEVELS
+        (VERSION_MAJOR_LEVELS..=VERSION_MAJOR).contains(&self.version_major)
+    }
+
+    /// Whether the file is in the anchor profile (format 7, SPEC §12).
+    pub fn is_anchor(&self) -> bool {
+        self.version_major == VERSION_MAJOR_ANCHORS
     }
 
     /// Whether the file may hold SH codebooks (formats 5 and 6, SPEC §3.2).
     pub fn has_codebooks(&self) -> bool {
-        self.version_major >= VERSION_MAJOR_CODEBOOKS
+        (VERSION_MAJOR_CODEBOOKS..=VERSION_MAJOR).contains(&self.version_major)
     }
 
     /// Whether each level has its own parameter sections (format 6, SPEC §4): level `l`'s
     /// are the sections of chunk `l`; before 6.0 every level uses those of chunk 0.
     pub fn has_level_params(&self) -> bool {
-        self.version_major >= VERSION_MAJOR
+        self.version_major == VERSION_MAJOR
     }
 
     /// The chunk of the parameter sections that level `level`'s data sections use.
@@ -61,7 +67,7 @@ pub fn read_header(bytes: &[u8]) -> Result<(Header, usize), DecodeError> {
     }
     let major = r.u8("version")?;
     let minor = r.u8("version")?;
-    if !(VERSION_MAJOR_UNIFORM..=VERSION_MAJOR).contains(&major) {
+    if !(VERSION_MAJOR_UNIFORM..=VERSION_MAJOR_ANCHORS).contains(&major) {
         return Err(error::unsupported_version(major, minor));
     }
     let count = r.u16("section count")? as usize;

@@ -15,10 +15,12 @@
 //! | [`stream`] | §6, §6.2 | channel streams of a data section | [`stream::write_channel_streams`], [`stream::push_stream`] |
 //! | [`positions`] | §6.1 | the Morton position stream | [`positions::write_position_stream`] |
 //! | [`info`] | §3 | [`info::read_info`] | [`info::write_info`] |
+//! | [`anchors`] | §12 | [`anchors::read_anchors`], [`anchors::expand`] | [`anchors::write_anchors`] |
 //! | [`assemble`] | §7, §8 | dequantisation and channel values → [`Splats`](crate::Splats) | |
 //!
 //! Probability tables and the ANS coder are in [`crate::entropy`].
 
+pub mod anchors;
 pub mod assemble;
 pub mod bytes;
 pub mod header;
@@ -37,10 +39,13 @@ pub use sections::{parse, parse_prefix, write, Container, Section};
 
 /// First four bytes of every `.gsc` file.
 pub const MAGIC: [u8; 4] = [0x8A, b'G', b'S', b'C'];
-/// Newest format major version of this crate: files whose levels have their own parameter
+/// Newest major version of the explicit profile: files whose levels have their own parameter
 /// sections (SPEC §4, importance classes) are written as 6.0; files of [`VERSION_MAJOR_CODEBOOKS`],
 /// [`VERSION_MAJOR_LEVELS`] and [`VERSION_MAJOR_UNIFORM`] are read too.
 pub const VERSION_MAJOR: u8 = 6;
+/// Format 7.0: the anchor profile (SPEC §12), an anchor section instead of the explicit
+/// profile's levels, groups and codebooks. The newest major version this crate reads.
+pub const VERSION_MAJOR_ANCHORS: u8 = 7;
 /// Format 5.0: SH codebooks (SPEC §3.2), written for files with codebooks whose levels share one
 /// set of parameter sections.
 pub const VERSION_MAJOR_CODEBOOKS: u8 = 5;

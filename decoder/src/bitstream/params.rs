@@ -43,7 +43,7 @@ pub struct Codebook {
 }
 
 /// `u8 C` (which must be `channels`), then C × (f32 step, channel table) (SPEC §4).
-fn read_channel_tables(r: &mut ByteReader<'_>, channels: usize, p: &mut GroupParams) -> Result<(), DecodeError> {
+pub(crate) fn read_channel_tables(r: &mut ByteReader<'_>, channels: usize, p: &mut GroupParams) -> Result<(), DecodeError> {
     let at = r.place();
     let n = r.u8("channel count")? as usize;
     if n != channels {
@@ -93,20 +93,7 @@ pub fn read_params(g: Group, r: &mut ByteReader<'_>, codebook: Option<Arc<Codebo
     let channels = if codebook.is_some() { 1 } else { g.channels() };
     let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None, codebook };
     if g == Group::Position {
-        let origin = [r.f32("grid origin")?, r.f32("grid origin")?, r.f32("grid origin")?];
-        let step = [r.f32("grid step")?, r.f32("grid step")?, r.f32("grid step")?];
-        let at = r.place();
-        let bits = r.u8("grid bits")?;
-        if bits > MAX_POSITION_BITS {
-            return Err(at.corrupt("position grid above 21 bits per axis"));
-        }
-        p.grid = Some((origin, step, bits));
-        let at = r.place();
-        let lengths = ChannelTable::read(r)?;
-        if matches!(lengths, ChannelTable::Context { .. }) {
-            return Err(at.corrupt("context-coded position lengths"));
-        }
-        p.tables.push(lengths);
+        p = read_position_params(r)?;
     } else {
         read_channel_tables(r, channels, &mut p)?;
     }
@@ -114,6 +101,24 @@ pub fn read_params(g: Group, r: &mut ByteReader<'_>, codebook: Option<Arc<Codebo
         return Err(r.corrupt("trailing bytes in a parameter section"));
     }
     Ok(p)
+}
+
+/// The position grid and length table (SPEC §4, g = 0), read up to the table's end (the caller
+/// checks what follows).
+pub(crate) fn read_position_params(r: &mut ByteReader<'_>) -> Result<GroupParams, DecodeError> {
+    let origin = [r.f32("grid origin")?, r.f32("grid origin")?, r.f32("grid origin")?];
+    let step = [r.f32("grid step")?, r.f32("grid step")?, r.f32("grid step")?];
+    let at = r.place();
+    let bits = r.u8("grid bits")?;
+    if bits > MAX_POSITION_BITS {
+        return Err(at.corrupt("position grid above 21 bits per axis"));
+    }
+    let at = r.place();
+    let lengths = ChannelTable::read(r)?;
+    if matches!(lengths, ChannelTable::Context { .. }) {
+        return Err(at.corrupt("context-coded position lengths"));
+    }
+    Ok(GroupParams { steps: Vec::new(), tables: vec![lengths], grid: Some((origin, step, bits)), codebook: None })
 }
 
 /// Writes the position parameter section: the grid, then the serialised length table.

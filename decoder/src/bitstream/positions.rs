@@ -8,7 +8,7 @@ use super::stream::{next_stream, push_stream, stream_decoder};
 use super::tables::ChannelTable;
 use super::{ByteReader, ByteWriter};
 use crate::entropy::SymbolEncoder;
-use crate::error::DecodeError;
+use crate::error::{DecodeError, Place};
 
 /// Interleaves three `bits`-bit coordinates into a Morton code: bit k of x goes to bit 3k,
 /// of y to 3k+1, of z to 3k+2.
@@ -98,13 +98,34 @@ pub fn position_of(m: u64, grid: &Grid) -> [f32; 3] {
 /// Decodes the position stream of a chunk into `out`: 3 coordinates per Gaussian.
 pub(crate) fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, out: &mut [f32]) -> Result<(), DecodeError> {
     let Some(grid) = p.grid else { return Err(r.corrupt("position parameters without a grid")) };
+    let count = out.len() / 3;
+    let mut rows = out.chunks_exact_mut(3);
+    decode_morton(p, r, count, |m, at| {
+        let xyz = position_of(m, &grid);
+        if !xyz.iter().all(|x| x.is_finite()) {
+            return Err(at.corrupt("dequantised value is not finite"));
+        }
+        rows.next().map(|row| row.copy_from_slice(&xyz)).ok_or_else(|| at.corrupt("position count"))
+    })
+}
+
+/// Decodes the Morton codes of a position stream (SPEC §6.1) of `count` Gaussians, handing each
+/// to `each` in order (with the stream's place for errors).
+#[inline(always)]
+pub(crate) fn decode_morton(
+    p: &GroupParams,
+    r: &mut ByteReader<'_>,
+    count: usize,
+    mut each: impl FnMut(u64, Place) -> Result<(), DecodeError>,
+) -> Result<(), DecodeError> {
+    let Some(grid) = p.grid else { return Err(r.corrupt("position parameters without a grid")) };
     let bits = grid.2;
     let (data, at) = next_stream(r)?;
     let mut d = stream_decoder(data, at)?;
     let max_len = 3 * u32::from(bits);
     let limit = 1u64 << max_len; // bits <= 21, so at most 2^63
     let mut m: u64 = 0;
-    for row in out.chunks_exact_mut(3) {
+    for _ in 0..count {
         let len = d.value(&p.tables[0], 0);
         if len < 0 || len as u32 > max_len {
             return Err(at.corrupt("position delta too long"));
@@ -123,11 +144,7 @@ pub(crate) fn decode_positions(p: &GroupParams, r: &mut ByteReader<'_>, out: &mu
             (1u64 << (len - 1)) | rest
         };
         m = m.checked_add(delta).filter(|&m| m < limit).ok_or_else(|| at.corrupt("position outside the grid"))?;
-        let xyz = position_of(m, &grid);
-        if !xyz.iter().all(|x| x.is_finite()) {
-            return Err(at.corrupt("dequantised value is not finite"));
-        }
-        row.copy_from_slice(&xyz);
+        each(m, at)?;
     }
     d.finish().map_err(|what| at.corrupt(what))?;
     Ok(())
