@@ -430,7 +430,8 @@ def anchor_layout(payload, n):
     rd.take(4 * layers[-1][1])
     out["steps"] = rd.pos
     for n_in, n_out, _ in layers:
-        specdec.read_block(rd, 1, n_out * (n_in + 1), "weights")
+        table = specdec.read_channel_table(rd, allow_context=False)
+        specdec.decode_lengths(rd.take(rd.varint()), n_out * (n_in + 1), 25, table, "weights")
     out["weights"] = rd.pos
     _, _, out["bits"], table = specdec.read_grid(rd)
     out["grid"] = rd.pos
@@ -483,11 +484,12 @@ def make_anchor(good, six):
     # L = 0: no layer entries and no weight blocks; everything else as it was
     add("anchor-layers", with_section(bytes([f, lay["s"], 0]) + section[lay["layers"]:lay["steps"]] + section[lay["weights"]:]),
         "format", "an MLP of L = 0 layers (1 <= L <= 4)")
-    # valid shapes F+3 -> 4096 -> 4096 -> P, each weight block one constant channel (zero)
+    # valid shapes F+3 -> 4096 -> 4096 -> P, each layer's weights a constant length table (0: every
+    # weight 0) and an empty stream
     p = layers[-1][1]
     shapes = [(f + 3, 4096), (4096, 4096), (4096, p)]
     table = b"".join(varint(i) + varint(o) + b"\x00" for i, o in shapes)
-    blocks = (bytes([1]) + struct.pack("<f", 1.0) + bytes([0]) + varint(zigzag(0))) * len(shapes)
+    blocks = (bytes([0]) + varint(zigzag(0)) + varint(0)) * len(shapes)
     w = sum(o * (i + 1) for i, o in shapes)
     add("anchor-work", with_section(bytes([f, lay["s"], len(shapes)]) + table + section[lay["layers"]:lay["steps"]] + blocks + section[lay["weights"]:]),
         "limits", f"an MLP of layers {f + 3} -> 4096 -> 4096 -> {p}: W = {w} weights, above 2^18")

@@ -457,23 +457,31 @@ def decode_positions(payload, k, bits, table, what):
     return decode_position_stream(stream, k, bits, table, what)[0]
 
 
-def decode_position_stream(stream, k, bits, table, what):
-    """§6.1: the grid coordinates q (k × 3) and the Morton codes of one position stream."""
+def decode_lengths(stream, k, max_len, table, what):
+    """§6.1's code: k values, each a length L (at most max_len) from `table`, then L − 1 raw
+    bits below the leading one; the stream's end is checked (§5.3)."""
     dec = AnsDecoder(stream, what)
     state = [0]
+    values = []
+    for _ in range(k):
+        length = read_value(dec, table, state)
+        if not 0 <= length <= max_len:
+            raise corrupt(f"{what}: length {length}")
+        values.append(length if length <= 1 else (1 << (length - 1)) + dec.raw_bits(length - 1))
+    dec.finish()
+    return values
+
+
+def decode_position_stream(stream, k, bits, table, what):
+    """§6.1: the grid coordinates q (k × 3) and the Morton codes of one position stream."""
     limit = 1 << (3 * bits)
     m = 0
     codes = np.empty(k, dtype=np.uint64)
-    for i in range(k):
-        length = read_value(dec, table, state)
-        if not 0 <= length <= 3 * bits:
-            raise corrupt(f"{what}: Morton length {length}")
-        d = length if length <= 1 else (1 << (length - 1)) + dec.raw_bits(length - 1)
+    for i, d in enumerate(decode_lengths(stream, k, 3 * bits, table, what)):
         m += d
         if m >= limit:
             raise corrupt(f"{what}: Morton code out of range")
         codes[i] = m
-    dec.finish()
     q = np.zeros((k, 3), dtype=np.int64)
     for bit in range(bits):
         for axis in range(3):
@@ -580,7 +588,11 @@ def decode_anchor(payload, n, degree):
     out_steps = np.array([rd.f32() for _ in range(p)], dtype=np.float32)
     weights = []
     for l, (n_in, n_out, _) in enumerate(layers):
-        _, w = read_block(rd, 1, n_out * (n_in + 1), f"anchor layer {l} weights")
+        # §12.1: a length table (not mode 2), then one stream of zigzag values in §6.1's code
+        table = read_channel_table(rd, allow_context=False)
+        stream = rd.take(rd.varint())
+        z = decode_lengths(stream, n_out * (n_in + 1), 25, table, f"anchor layer {l} weights")
+        w = np.array([unzigzag(v) for v in z], dtype=np.int64)
         check_bounded(w, f"anchor layer {l} weights")
         weights.append(w.reshape(n_out, n_in + 1))  # row j: w_(j,0) … w_(j,in−1), then b_j
     rd.what = "anchor grid"

@@ -212,3 +212,51 @@ fn target_psnr_is_reached_as_eval_measures_it() {
     let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "30", "--lambda", "3"]);
     assert_eq!(o.status.code(), Some(2), "a target and a λ conflict");
 }
+
+/// `encode --profile anchor` writes a 7.0 file (SPEC §12) that decodes, that `info` describes and
+/// whose report's PSNR is what `eval` measures; `--profile auto` writes, byte for byte, one of
+/// the two profiles' files.
+#[test]
+fn anchor_profile_encodes_decodes_and_auto_picks_one_of_the_two() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let encode = |profile: &str| -> (Vec<u8>, serde_json::Value) {
+        let gsc = dir.path().join(format!("{profile}.gsc"));
+        let report = dir.path().join(format!("{profile}.json"));
+        let o = gscodec(&[
+            "encode",
+            input.to_str().unwrap(),
+            "-o",
+            gsc.to_str().unwrap(),
+            "--profile",
+            profile,
+            "--iters",
+            "5",
+            "--lambda",
+            "20",
+            "--report",
+            report.to_str().unwrap(),
+            "--quiet",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        (std::fs::read(&gsc).unwrap(), serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap())
+    };
+    let (bytes, r) = encode("anchor");
+    assert_eq!((&r["profile"], r["file_bytes"].as_u64().unwrap() as usize), (&"anchor".into(), bytes.len()));
+    assert!(r["anchor"]["anchors"].as_u64().unwrap() > 0 && r["explicit_alternative"].is_array());
+    let scene = gscodec_decoder::decode(&bytes).unwrap();
+    assert_eq!(scene.len() as u64, r["gaussians"].as_u64().unwrap());
+    let gsc = dir.path().join("anchor.gsc");
+    let o = gscodec(&["info", gsc.to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!((&v["version"], &v["profile"]), (&"7.0".into(), &"anchor".into()));
+    assert_eq!(v["anchors"]["anchors"], r["anchor"]["anchors"]);
+    let o = gscodec(&["eval", gsc.to_str().unwrap(), "--reference", input.to_str().unwrap(), "--orbit", "8", "--json"]);
+    let e: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!((e["psnr"].as_f64().unwrap() - r["orbit_psnr"].as_f64().unwrap()).abs() < 1e-6);
+    let (explicit, _) = encode("explicit");
+    let (auto, ra) = encode("auto");
+    let expected = if ra["profile"] == "anchor" { &bytes } else { &explicit };
+    assert!(&auto == expected, "auto wrote the {} profile's file", ra["profile"]);
+    assert!(ra["anchor"].is_object());
+}

@@ -6,6 +6,7 @@
 use gscodec_decoder::bitstream::anchors::{
     expand, outputs_per_gaussian, write_anchors, AnchorSection, AnchorSet, Layer, Mlp, ANCHORS_KIND, VALUE_BOUND,
 };
+use gscodec_decoder::bitstream::bytes::zigzag;
 use gscodec_decoder::bitstream::info::{write_info, EncoderInfo};
 use gscodec_decoder::bitstream::layout::INFO_KIND;
 use gscodec_decoder::bitstream::params::{write_channel_params, write_position_params, Grid};
@@ -37,9 +38,9 @@ pub fn output_steps(degree: u8) -> Vec<f32> {
 /// Bits of precision the hidden layer keeps (its largest activation ≈ 2^HIDDEN_BITS).
 const HIDDEN_BITS: i32 = 12;
 /// The first layer's largest weight is about 2^FIRST_WEIGHT_BITS.
-const FIRST_WEIGHT_BITS: i32 = 9;
+const FIRST_WEIGHT_BITS: i32 = 11;
 /// The output layer's largest weight is about 2^OUTPUT_WEIGHT_BITS.
-const OUTPUT_WEIGHT_BITS: i32 = 8;
+const OUTPUT_WEIGHT_BITS: i32 = 10;
 
 /// The MLP of `model` in fixed point (SPEC §12.2) for the anchors' rounded features.
 pub fn fixed_mlp(model: &Model) -> Mlp {
@@ -189,11 +190,16 @@ fn columns(values: &[i32], width: usize) -> Vec<Vec<i32>> {
 /// for the info section.
 pub fn write(fixed: &Fixed, input: (usize, u8)) -> (Vec<u8>, AnchorBytes) {
     let set = &fixed.set;
+    // Per layer: the length table of its zigzagged weights, then their stream (SPEC §12.1).
     let mut weights = Vec::new();
     let mut rest = &set.mlp.weights[..];
     for l in &set.mlp.layers {
         let (layer, tail) = rest.split_at(l.outputs * (l.inputs + 1));
-        weights.extend(block(&[layer.to_vec()], &[1.0]));
+        let z: Vec<u64> = layer.iter().map(|&w| u64::from(zigzag(w))).collect();
+        let lens: Vec<i32> = z.iter().map(|&v| delta_length(v) as i32).collect();
+        let t = tables::compare(&lens, None).best; // lengths are never context-coded (SPEC §12.1)
+        weights.extend_from_slice(&t.bytes);
+        weights.extend(write_position_stream(&t.table, &z));
         rest = tail;
     }
     let deltas = morton_deltas(&fixed.morton, &[0..fixed.morton.len()]);

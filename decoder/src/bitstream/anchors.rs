@@ -7,15 +7,17 @@
 //! operations are the products and sums of SPEC §8.
 //!
 //! The section (kind [`ANCHORS_KIND`], chunk 0) reuses the explicit profile's elements: the
-//! position grid and stream, and "blocks" — a channel count, per channel a step and a table
-//! (SPEC §4, §4.1), then the channels' streams (SPEC §6) — for the MLP's weights and the
-//! anchors' features and base scales.
+//! position grid and stream, the same length + raw bits code for the MLP's zigzagged weights,
+//! and "blocks" — a channel count, per channel a step and a table (SPEC §4, §4.1), then the
+//! channels' streams (SPEC §6) — for the anchors' features and base scales.
 
 use rayon::prelude::*;
 
+use super::bytes::unzigzag;
 use super::params::{read_channel_tables, read_position_params, GroupParams};
-use super::positions::{decode_morton, morton_decode, position_of};
+use super::positions::{decode_lengths, decode_morton, morton_decode, position_of};
 use super::stream::decode_channels;
+use super::tables::ChannelTable;
 use super::{ByteReader, ByteWriter};
 use crate::error::{self, DecodeError, Limit};
 use crate::math::sh_rest_coeffs;
@@ -34,6 +36,8 @@ pub const MAX_WORK: u64 = 1 << 34;
 /// Every feature, weight, bias and activation lies strictly inside ±2^24: features and weights
 /// outside are a `format` error, activations are clamped to ±(2^24 − 1).
 pub const VALUE_BOUND: i32 = 1 << 24;
+/// Longest coded length of a zigzagged weight: `z < 2^25`.
+pub const WEIGHT_LENGTH_BITS: u32 = 25;
 /// Output channels per Gaussian before the colours: opacity, log σ × 3, quaternion × 4.
 const GEOMETRY_OUTPUTS: usize = 8;
 /// MLP inputs besides the features: the Gaussian's cell inside its anchor, x y z.
@@ -174,12 +178,23 @@ pub fn read_anchors(r: &mut ByteReader<'_>, n: usize, d: u8) -> Result<AnchorSet
     for _ in 0..p {
         out_steps.push(r.f32("output step")?);
     }
-    // One block per layer: one channel, the layer's rows one after the other, each `inputs`
-    // weights then the bias.
+    // Per layer: a length table and one stream of its rows (each `inputs` weights, then the
+    // bias), every value zigzagged and coded as a length and raw bits (SPEC §12.1).
     let mut weights = Vec::with_capacity(total);
     for l in &layers {
-        let w = read_block(r, 1, l.outputs * (l.inputs + 1), true)?;
-        weights.extend(bounded_integers(&w, r, "MLP weight outside ±2^24")?);
+        let at = r.place();
+        let table = ChannelTable::read(r)?;
+        if matches!(table, ChannelTable::Context { .. }) {
+            return Err(at.corrupt("context-coded weight lengths"));
+        }
+        decode_lengths(&table, r, l.outputs * (l.inputs + 1), WEIGHT_LENGTH_BITS, |z, at| {
+            let w = unzigzag(z as u32);
+            if w.unsigned_abs() >= VALUE_BOUND as u32 {
+                return Err(at.corrupt("MLP weight outside ±2^24"));
+            }
+            weights.push(w);
+            Ok(())
+        })?;
     }
     let grid = read_position_params(r)?;
     let (_, _, bits) = grid.grid.expect("position parameters have a grid");
@@ -269,7 +284,8 @@ pub struct AnchorSection<'a> {
     pub shift: u8,
     pub layers: &'a [Layer],
     pub out_steps: &'a [f32],
-    /// The weight blocks, one per layer: one channel of `outputs × (inputs + 1)` values.
+    /// Per layer, the serialised length table of its zigzagged weights, then their stream
+    /// (`write_position_stream` of the zigzagged values).
     pub weights: &'a [u8],
     /// `write_position_params` of the grid, then `write_position_stream` of every Gaussian.
     pub positions: &'a [u8],

@@ -119,19 +119,35 @@ pub(crate) fn decode_morton(
     mut each: impl FnMut(u64, Place) -> Result<(), DecodeError>,
 ) -> Result<(), DecodeError> {
     let Some(grid) = p.grid else { return Err(r.corrupt("position parameters without a grid")) };
-    let bits = grid.2;
-    let (data, at) = next_stream(r)?;
-    let mut d = stream_decoder(data, at)?;
-    let max_len = 3 * u32::from(bits);
+    let max_len = 3 * u32::from(grid.2);
     let limit = 1u64 << max_len; // bits <= 21, so at most 2^63
     let mut m: u64 = 0;
+    decode_lengths(&p.tables[0], r, count, max_len, |delta, at| {
+        m = m.checked_add(delta).filter(|&m| m < limit).ok_or_else(|| at.corrupt("position outside the grid"))?;
+        each(m, at)
+    })
+}
+
+/// Decodes the next stream of `r` as `count` values in the length + raw bits code of SPEC §6.1
+/// (`L` from `table`, at most `max_len`; then `L − 1` raw bits below the leading one), handing
+/// each to `each`, and checks the stream's end.
+#[inline(always)]
+pub(crate) fn decode_lengths(
+    table: &ChannelTable,
+    r: &mut ByteReader<'_>,
+    count: usize,
+    max_len: u32,
+    mut each: impl FnMut(u64, Place) -> Result<(), DecodeError>,
+) -> Result<(), DecodeError> {
+    let (data, at) = next_stream(r)?;
+    let mut d = stream_decoder(data, at)?;
     for _ in 0..count {
-        let len = d.value(&p.tables[0], 0);
+        let len = d.value(table, 0);
         if len < 0 || len as u32 > max_len {
-            return Err(at.corrupt("position delta too long"));
+            return Err(at.corrupt("coded length too long"));
         }
         let len = len as u32;
-        let delta = if len <= 1 {
+        let value = if len <= 1 {
             u64::from(len)
         } else {
             let mut rest = 0u64;
@@ -143,8 +159,7 @@ pub(crate) fn decode_morton(
             }
             (1u64 << (len - 1)) | rest
         };
-        m = m.checked_add(delta).filter(|&m| m < limit).ok_or_else(|| at.corrupt("position outside the grid"))?;
-        each(m, at)?;
+        each(value, at)?;
     }
     d.finish().map_err(|what| at.corrupt(what))?;
     Ok(())
