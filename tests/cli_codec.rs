@@ -259,4 +259,9 @@ fn anchor_profile_encodes_decodes_and_auto_picks_one_of_the_two() {
     let expected = if ra["profile"] == "anchor" { &bytes } else { &explicit };
     assert!(&auto == expected, "auto wrote the {} profile's file", ra["profile"]);
     assert!(ra["anchor"].is_object());
+    // The anchor shape flags are checked at the door: exit 2, one line, no output.
+    let out = dir.path().join("bad.gsc");
+    let o = gscodec(&["encode", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--profile", "anchor", "--anchor-hidden", "513"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!out.exists());
 }

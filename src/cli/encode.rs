@@ -55,6 +55,14 @@ pub struct Args {
     /// or auto (whichever has the lower J = D + λ·R). See docs/codec.md.
     #[arg(long, value_enum, default_value_t = Profile::Explicit)]
     pub profile: Profile,
+    /// Anchor profile: features per anchor (1..=255, default 16). More features describe each
+    /// anchor's Gaussians better and cost more bits.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u8).range(1..))]
+    pub anchor_features: Option<u8>,
+    /// Anchor profile: hidden units of the MLP (1..=512, default 32; with 255 features that is
+    /// within the format's 2^18 weights).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..=512))]
+    pub anchor_hidden: Option<u16>,
     /// Write a JSON report (sizes per attribute group, estimated vs actual, stage times, time series).
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -82,6 +90,7 @@ impl Args {
             .with_backend(self.backend)
             .with_progressive(self.progressive)
             .with_profile(self.profile)
+            .with_anchor_shape(self.anchor_features.map(usize::from), self.anchor_hidden.map(usize::from))
     }
 }
 

@@ -30,6 +30,9 @@ pub struct EncoderConfig {
     pub progressive: bool,
     /// Which way to code the scene (SPEC §12: the anchor profile).
     pub profile: Profile,
+    /// The anchor profile's features per anchor and hidden units (`None`: its defaults, 16 and 32).
+    pub anchor_features: Option<usize>,
+    pub anchor_hidden: Option<usize>,
 }
 
 /// How a scene is coded: the explicit profile (per-Gaussian attributes, formats 3.0–6.0), the
@@ -66,6 +69,8 @@ impl Default for EncoderConfig {
             seed: 0,
             progressive: false,
             profile: Profile::Explicit,
+            anchor_features: None,
+            anchor_hidden: None,
         }
     }
 }
@@ -110,6 +115,13 @@ impl EncoderConfig {
     /// Sets the profile.
     pub fn with_profile(mut self, profile: Profile) -> Self {
         self.profile = profile;
+        self
+    }
+
+    /// Sets the anchor profile's features per anchor and hidden units (`None`: its defaults).
+    pub fn with_anchor_shape(mut self, features: Option<usize>, hidden: Option<usize>) -> Self {
+        self.anchor_features = features;
+        self.anchor_hidden = hidden;
         self
     }
 

@@ -126,11 +126,14 @@ impl Encoder {
             return Ok(e);
         }
         let sig = rate::importance::significance(&prepared);
+        let d = crate::anchor::AnchorConfig::default();
         let cfg = crate::anchor::AnchorConfig {
             position_bits: Some(e.report.position_bits),
-            iters: self.config.iters.unwrap_or(crate::anchor::AnchorConfig::default().iters),
+            features: self.config.anchor_features.unwrap_or(d.features),
+            hidden: self.config.anchor_hidden.unwrap_or(d.hidden),
+            iters: self.config.iters.unwrap_or(d.iters),
             seed: self.config.seed,
-            ..Default::default()
+            ..d
         };
         let a = crate::anchor::encode(&prepared, &sig, &cfg, (scene.len(), scene.sh_degree));
         let orbit_psnr = orbit.psnr(&a.decoded);
