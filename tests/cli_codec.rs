@@ -259,6 +259,28 @@ fn anchor_profile_encodes_decodes_and_auto_picks_one_of_the_two() {
     let expected = if ra["profile"] == "anchor" { &bytes } else { &explicit };
     assert!(&auto == expected, "auto wrote the {} profile's file", ra["profile"]);
     assert!(ra["anchor"].is_object());
+    // A dataset: trained from its images (the explicit scene), then the anchors fitted to it.
+    let from_images = dir.path().join("images.gsc");
+    let dataset = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
+    let o = gscodec(&[
+        "encode",
+        dataset.to_str().unwrap(),
+        "-o",
+        from_images.to_str().unwrap(),
+        "--iters",
+        "20",
+        "--loss",
+        "l1ssim",
+        "--profile",
+        "anchor",
+        "--anchor-iters",
+        "5",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let bytes = std::fs::read(&from_images).unwrap();
+    assert_eq!(gscodec_decoder::peek_header(&bytes).unwrap().version_major, 7);
+    gscodec_decoder::decode(&bytes).unwrap();
     // The anchor shape flags are checked at the door: exit 2, one line, no output.
     let out = dir.path().join("bad.gsc");
     let o = gscodec(&["encode", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--profile", "anchor", "--anchor-hidden", "513"]);

@@ -66,15 +66,15 @@ pub fn place(scene: &Splats, bits: u8) -> Placed {
 }
 
 /// The anchor shift whose anchors hold closest to `per_anchor` Gaussians on average (in log
-/// terms), among 1..=bits.
+/// terms), among 0..=bits (SPEC §12.1: at most the grid's bits).
 pub fn choose_shift(morton: &[u64], bits: u8, per_anchor: f32) -> u8 {
     let anchors = |s: u8| 1 + morton.windows(2).filter(|w| w[0] >> (3 * u32::from(s)) != w[1] >> (3 * u32::from(s))).count();
-    (1..=bits.max(1))
+    (0..=bits)
         .min_by(|&a, &b| {
             let err = |s: u8| ((morton.len() as f32 / anchors(s) as f32) / per_anchor).ln().abs();
             err(a).total_cmp(&err(b))
         })
-        .unwrap_or(1)
+        .unwrap_or(0)
 }
 
 /// The model for `placed` with anchors of `2^shift` cells: base log scales the mean of each

@@ -167,6 +167,25 @@ mod tests {
     }
 
     #[test]
+    fn one_gaussian_and_a_flat_scene_code_too() {
+        // One Gaussian: a grid of 0 bits, anchor cells of one cell. A flat scene: bounds of zero
+        // extent on one axis.
+        let scene = tiny();
+        let one = {
+            let mut s = scene.clone();
+            s.retain_indices(|i| i == 0);
+            s
+        };
+        let mut flat = scene.clone();
+        flat.positions.iter_mut().for_each(|p| p[2] = 0.5);
+        for (s, bits) in [(&one, 0u8), (&flat, 6)] {
+            let e = run(s, &AnchorConfig { position_bits: Some(bits), ..quick() });
+            assert_eq!(gscodec_decoder::decode(&e.bytes).unwrap(), e.decoded);
+            assert_eq!(e.decoded.len(), s.len());
+        }
+    }
+
+    #[test]
     fn encoding_does_not_depend_on_the_thread_count() {
         let scene = tiny();
         let cfg = AnchorConfig { iters: 3, ..quick() };

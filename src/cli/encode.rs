@@ -51,7 +51,7 @@ pub struct Args {
     #[arg(long)]
     pub progressive: bool,
     /// How to code the scene: explicit (per-Gaussian attributes), anchor (anchors with features
-    /// and a small fixed-point MLP, format 7.0; --iters then sets its fine-tuning, default 300),
+    /// and a small fixed-point MLP, format 7.0; its fine-tuning: --anchor-iters, default 300),
     /// or auto (whichever has the lower J = D + λ·R). See docs/codec.md.
     #[arg(long, value_enum, default_value_t = Profile::Explicit)]
     pub profile: Profile,
@@ -63,6 +63,10 @@ pub struct Args {
     /// within the format's 2^18 weights).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..=512))]
     pub anchor_hidden: Option<u16>,
+    /// Anchor profile: fine-tuning steps of the anchors against renders of the scene (default:
+    /// --iters for a scene, 300 for a dataset, whose --iters train the scene first).
+    #[arg(long, value_name = "N")]
+    pub anchor_iters: Option<usize>,
     /// Write a JSON report (sizes per attribute group, estimated vs actual, stage times, time series).
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -91,6 +95,7 @@ impl Args {
             .with_progressive(self.progressive)
             .with_profile(self.profile)
             .with_anchor_shape(self.anchor_features.map(usize::from), self.anchor_hidden.map(usize::from))
+            .with_anchor_iters(self.anchor_iters)
     }
 }
 

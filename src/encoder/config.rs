@@ -33,6 +33,8 @@ pub struct EncoderConfig {
     /// The anchor profile's features per anchor and hidden units (`None`: its defaults, 16 and 32).
     pub anchor_features: Option<usize>,
     pub anchor_hidden: Option<usize>,
+    /// The anchor profile's fine-tuning steps (`None`: `iters` for a scene, else 300).
+    pub anchor_iters: Option<usize>,
 }
 
 /// How a scene is coded: the explicit profile (per-Gaussian attributes, formats 3.0–6.0), the
@@ -71,6 +73,7 @@ impl Default for EncoderConfig {
             profile: Profile::Explicit,
             anchor_features: None,
             anchor_hidden: None,
+            anchor_iters: None,
         }
     }
 }
@@ -122,6 +125,12 @@ impl EncoderConfig {
     pub fn with_anchor_shape(mut self, features: Option<usize>, hidden: Option<usize>) -> Self {
         self.anchor_features = features;
         self.anchor_hidden = hidden;
+        self
+    }
+
+    /// Sets the anchor profile's fine-tuning steps (`None`: `iters` for a scene, else 300).
+    pub fn with_anchor_iters(mut self, iters: Option<usize>) -> Self {
+        self.anchor_iters = iters;
         self
     }
 

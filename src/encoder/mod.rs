@@ -110,7 +110,7 @@ impl Encoder {
             return self.encode_explicit(trials, orbit, progress);
         }
         // The anchor profile codes what the explicit profile's RD search keeps (pruned, SH
-        // bands dropped) on its grid; its own fine-tuning takes `--iters`.
+        // bands dropped) on its grid; its own fine-tuning takes `--anchor-iters`, else `--iters`.
         let explicit_iters = if self.config.profile == Profile::Anchor { Some(0) } else { self.config.iters };
         let explicit = Encoder { config: self.config.clone().with_iters(explicit_iters) };
         let e = explicit.encode_explicit(trials, orbit, progress)?;
@@ -131,7 +131,7 @@ impl Encoder {
             position_bits: Some(e.report.position_bits),
             features: self.config.anchor_features.unwrap_or(d.features),
             hidden: self.config.anchor_hidden.unwrap_or(d.hidden),
-            iters: self.config.iters.unwrap_or(d.iters),
+            iters: self.config.anchor_iters.or(self.config.iters).unwrap_or(d.iters),
             seed: self.config.seed,
             ..d
         };
