@@ -174,7 +174,8 @@ pub struct AnchorBytes {
 /// cheapest table (context tables allowed: the rows are one stream).
 fn block(columns: &[Vec<i32>], steps: &[f32]) -> Vec<u8> {
     let rows = columns.first().map_or(0, Vec::len);
-    let chosen: Vec<tables::ChosenTable> = columns.par_iter().map(|c| tables::compare(c, Some(&[0..rows])).best).collect();
+    let all = 0..rows; // each column is one stream (one context run)
+    let chosen: Vec<tables::ChosenTable> = columns.par_iter().map(|c| tables::compare(c, Some(std::slice::from_ref(&all))).best).collect();
     let mut out = write_channel_params(steps, chosen.iter().map(|t| &t.bytes[..]));
     let refs: Vec<&ChannelTable> = chosen.iter().map(|t| &t.table).collect();
     let cols: Vec<&[i32]> = columns.iter().map(Vec::as_slice).collect();
@@ -202,7 +203,8 @@ pub fn write(fixed: &Fixed, input: (usize, u8)) -> (Vec<u8>, AnchorBytes) {
         weights.extend(write_position_stream(&t.table, &z));
         rest = tail;
     }
-    let deltas = morton_deltas(&fixed.morton, &[0..fixed.morton.len()]);
+    // The positions are one stream (SPEC §12.1).
+    let deltas = morton_deltas(&fixed.morton, std::slice::from_ref(&(0..fixed.morton.len())));
     let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
     let t = tables::compare(&lens, None).best; // position lengths are never context-coded (SPEC §4)
     let mut positions = write_position_params(&fixed.grid, &t.bytes);
