@@ -38,9 +38,9 @@ pub fn output_steps(degree: u8) -> Vec<f32> {
 /// Bits of precision the hidden layer keeps (its largest activation ≈ 2^HIDDEN_BITS).
 const HIDDEN_BITS: i32 = 12;
 /// The first layer's largest weight is about 2^FIRST_WEIGHT_BITS.
-const FIRST_WEIGHT_BITS: i32 = 13;
+const FIRST_WEIGHT_BITS: i32 = 11;
 /// The output layer's largest weight is about 2^OUTPUT_WEIGHT_BITS.
-const OUTPUT_WEIGHT_BITS: i32 = 12;
+const OUTPUT_WEIGHT_BITS: i32 = 10;
 
 /// The MLP of `model` in fixed point (SPEC §12.2) for the anchors' rounded features.
 pub fn fixed_mlp(model: &Model) -> Mlp {

@@ -204,7 +204,7 @@ mod tests {
         fit::distill(&mut model, &scene, &placed.order, &weight, 100);
         let float = model.gaussians(&model.forward().out, &model.base);
         let q = fixed::quantise(&model, placed.grid, &placed.morton, shift, 1e-6);
-        // The integer weights round each weight to about 2^-13 (first layer) and 2^-12 (last)
+        // The integer weights round each weight to about 2^-11 (first layer) and 2^-10 (last)
         // of the layer's largest: a value moves by about a hundredth on average (opacity
         // logits; a few thousandths for log scales and SH), at worst by a few hundredths.
         let errors = |a: &[f32], b: &[f32]| {
