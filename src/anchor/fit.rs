@@ -9,31 +9,26 @@ use gscodec_decoder::math::sh_rest_coeffs;
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
 
 use super::model::Model;
+use crate::optim::AdamRule;
 use crate::raster;
 use crate::rng::Rng;
 
-/// Adam over one flat parameter vector.
+/// Adam over one flat parameter vector: the project's update rule ([`AdamRule`]) with this
+/// vector's moments.
 pub struct Adam {
+    rule: AdamRule,
     m: Vec<f32>,
     v: Vec<f32>,
-    t: i32,
 }
 
 impl Adam {
     pub fn new(n: usize) -> Adam {
-        Adam { m: vec![0.0; n], v: vec![0.0; n], t: 0 }
+        Adam { rule: AdamRule { eps: 1e-8, ..AdamRule::default() }, m: vec![0.0; n], v: vec![0.0; n] }
     }
 
     pub fn step(&mut self, x: &mut [f32], g: &[f32], lr: f32) {
-        const B1: f32 = 0.9;
-        const B2: f32 = 0.999;
-        self.t += 1;
-        let (c1, c2) = (1.0 - B1.powi(self.t), 1.0 - B2.powi(self.t));
-        for i in 0..x.len() {
-            self.m[i] = B1 * self.m[i] + (1.0 - B1) * g[i];
-            self.v[i] = B2 * self.v[i] + (1.0 - B2) * g[i] * g[i];
-            x[i] -= lr * (self.m[i] / c1) / ((self.v[i] / c2).sqrt() + 1e-8);
-        }
+        let c = self.rule.begin_step();
+        self.rule.update(c, lr, x, g, &mut self.m, &mut self.v);
     }
 }
 

@@ -139,13 +139,14 @@ impl Encoder {
         let orbit_psnr = orbit.psnr(&a.decoded);
         let j = |d: &Splats, bytes: usize| orbit.distortion(d) + self.config.lambda.rate_cost(bytes);
         let alternative = (e.bytes.len(), e.report.orbit_psnr);
-        if self.config.profile == Profile::Auto && j(&e.decoded, e.bytes.len()) <= j(&a.decoded, a.bytes.len()) {
-            let report = EncodeReport { profile: "explicit", anchor: Some(a.report), ..e.report };
-            return Ok(Encoded { report, ..e });
-        }
+        // The anchors' fitting counts as training, whichever file is kept.
         let mut stages = e.report.stages;
         stages.train_s += start.elapsed().as_secs_f64();
         stages.total_s += start.elapsed().as_secs_f64();
+        if self.config.profile == Profile::Auto && j(&e.decoded, e.bytes.len()) <= j(&a.decoded, a.bytes.len()) {
+            let report = EncodeReport { profile: "explicit", anchor: Some(a.report), stages, ..e.report };
+            return Ok(Encoded { report, ..e });
+        }
         let report = EncodeReport {
             file_bytes: a.bytes.len(),
             estimated_bytes: a.bytes.len() as f64,
