@@ -67,7 +67,8 @@ pub struct AnchorReport {
     pub sh_degree: u8,
     pub distill_loss: f64,
     pub fine_tune_loss: f64,
-    /// PSNR of the float model (before the fixed-point MLP) against the input, `eval --orbit 8`'s measure.
+    /// PSNR of the float model (before the fixed-point MLP) against this encoder's input scene
+    /// (for `encode`, the explicit search's pruned scene), `eval --orbit 8`'s measure.
     pub float_psnr: f64,
     pub bytes: fixed::AnchorBytes,
 }
