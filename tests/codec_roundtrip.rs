@@ -4,7 +4,7 @@ use glam::Vec3;
 use gscodec::rate::{self, quantise, EncodeConfig};
 use gscodec::rng::Rng;
 use gscodec::testkit::{extreme_splats, random_splats_in, rig_cameras, SceneRanges};
-use gscodec_decoder::bitstream::VERSION_MAJOR;
+use gscodec_decoder::bitstream::VERSION_MAJOR_ANCHORS;
 use gscodec_decoder::render::render;
 use gscodec_decoder::{decode, decode_with, Camera, DecodeError, FormatErrorKind, Limits, RenderOptions, Splats};
 
@@ -185,8 +185,8 @@ fn typed_errors_for_bad_files() {
     let e = decode(b"PK\x03\x04").unwrap_err();
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::BadMagic));
     let mut newer = bytes.clone();
-    newer[4] = VERSION_MAJOR + 1;
-    assert!(matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR + 1, 0))));
+    newer[4] = VERSION_MAJOR_ANCHORS + 1;
+    assert!(matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR_ANCHORS + 1, 0))));
     let e = decode(&bytes[..bytes.len() - 1]).unwrap_err();
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::Truncated));
     // Hostile Gaussian count: refused before anything is allocated.
