@@ -157,7 +157,7 @@ pub fn distill(model: &mut Model, scene: &Splats, order: &[usize], weight: &[f32
 }
 
 /// Straight-through rounding of `v` to multiples of `step`.
-fn rounded(v: &[f32], step: f32) -> Vec<f32> {
+pub(crate) fn rounded(v: &[f32], step: f32) -> Vec<f32> {
     v.iter().map(|x| (x / step).round() * step).collect()
 }
 

@@ -18,7 +18,7 @@ use gscodec_decoder::entropy::ChannelTable;
 use gscodec_decoder::Splats;
 use rayon::prelude::*;
 
-use super::model::Model;
+use super::model::{Activations, Model};
 use crate::rate::tables;
 
 /// Steps of a Gaussian's output channels (SPEC §12.3): they cost no bits (the MLP computes the
@@ -42,12 +42,12 @@ const FIRST_WEIGHT_BITS: i32 = 11;
 /// The output layer's largest weight is about 2^OUTPUT_WEIGHT_BITS.
 const OUTPUT_WEIGHT_BITS: i32 = 10;
 
-/// The MLP of `model` in fixed point (SPEC §12.2) for the anchors' rounded features.
-pub fn fixed_mlp(model: &Model) -> Mlp {
+/// The MLP of `model` in fixed point (SPEC §12.2), from its activations `act` and the anchors'
+/// integer features `features` ([`Model::integer_features`]).
+pub fn fixed_mlp(model: &Model, act: &Activations, features: &[i32]) -> Mlp {
     let (m, h) = (model.inputs(), model.h);
     let steps = output_steps(model.degree);
     let p = steps.len();
-    let act = model.forward();
     let max_pre = act.pre.iter().fold(1e-6f32, |m, &v| m.max(v.abs()));
     // Hidden units are integers of `sh`: the largest activation is about 2^HIDDEN_BITS.
     let sh = max_pre / (1 << HIDDEN_BITS) as f32;
@@ -111,7 +111,7 @@ pub fn fixed_mlp(model: &Model) -> Mlp {
             |(x, tmp, o), i| {
                 let a = model.anchor_of[i] as usize;
                 x.clear();
-                x.extend(model.feat[a * f..][..f].iter().map(|v| v.round().clamp(-bound, bound) as i32));
+                x.extend_from_slice(&features[a * f..][..f]);
                 x.extend_from_slice(&model.local[i]);
                 mlp.forward(x, tmp, o);
                 (0..p).map(|c| f64::from(o[c]) - f64::from(act.out[i * p + c] / steps[c])).collect()
@@ -140,19 +140,19 @@ pub struct Fixed {
     pub decoded: Splats,
 }
 
-/// Rounds `model` to the file's integers.
-pub fn quantise(model: &Model, grid: Grid, morton: &[u64], shift: u8, base_step: f32) -> Fixed {
-    let bound = (VALUE_BOUND - 1) as f32;
+/// Rounds `model` (whose activations are `act`) to the file's integers.
+pub fn quantise(model: &Model, act: &Activations, grid: Grid, morton: &[u64], shift: u8, base_step: f32) -> Fixed {
     let base: Vec<i32> = model.base.iter().map(|v| (v / base_step).round() as i32).collect();
+    let feature_values = model.integer_features();
     let set = AnchorSet {
         features: model.f,
         shift,
-        mlp: fixed_mlp(model),
+        mlp: fixed_mlp(model, act, &feature_values),
         out_steps: output_steps(model.degree),
         positions: model.positions.clone(),
         anchor_of: model.anchor_of.clone(),
         local: model.local.clone(),
-        feature_values: model.feat.iter().map(|v| v.round().clamp(-bound, bound) as i32).collect(),
+        feature_values,
         base: base.iter().map(|&v| v as f32 * base_step).collect(),
     };
     let mut decoded = Splats::new(model.degree);

@@ -106,9 +106,8 @@ pub fn encode(scene: &Splats, sig: &[f32], cfg: &AnchorConfig, input: (usize, u8
     }
     // The float model's scene (base rounded as coded): how much the fixed-point MLP costs.
     let act = model.forward();
-    let base: Vec<f32> = model.base.iter().map(|x| (x / cfg.base_step).round() * cfg.base_step).collect();
-    let float_psnr = crate::encoder::orbit_psnr(scene, &model.gaussians(&act.out, &base));
-    let q = fixed::quantise(&model, placed.grid, &placed.morton, shift, cfg.base_step);
+    let float_psnr = crate::encoder::orbit_psnr(scene, &model.gaussians(&act.out, &fit::rounded(&model.base, cfg.base_step)));
+    let q = fixed::quantise(&model, &act, placed.grid, &placed.morton, shift, cfg.base_step);
     let (bytes, sizes) = fixed::write(&q, input);
     let report = AnchorReport {
         anchors: model.anchors(),
@@ -203,8 +202,9 @@ mod tests {
         let mut model = fit::init(&scene, &placed, shift, 8, 16, 1, 0);
         let weight = vec![1.0; scene.len()];
         fit::distill(&mut model, &scene, &placed.order, &weight, 100);
-        let float = model.gaussians(&model.forward().out, &model.base);
-        let q = fixed::quantise(&model, placed.grid, &placed.morton, shift, 1e-6);
+        let act = model.forward();
+        let float = model.gaussians(&act.out, &model.base);
+        let q = fixed::quantise(&model, &act, placed.grid, &placed.morton, shift, 1e-6);
         // The integer weights round each weight to about 2^-11 (first layer) and 2^-10 (last)
         // of the layer's largest: a value moves by about a hundredth on average (opacity
         // logits; a few thousandths for log scales and SH), at worst by a few hundredths.

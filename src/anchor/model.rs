@@ -4,7 +4,7 @@
 //! Gaussian on its anchor's features and its cell inside the anchor. Forward and backward by
 //! hand: the MLP is two dense layers.
 
-use gscodec_decoder::bitstream::anchors::{outputs_per_gaussian, POSITION_INPUTS};
+use gscodec_decoder::bitstream::anchors::{outputs_per_gaussian, POSITION_INPUTS, VALUE_BOUND};
 use gscodec_decoder::Splats;
 use rayon::prelude::*;
 
@@ -57,6 +57,12 @@ impl Model {
     /// Number of anchors.
     pub fn anchors(&self) -> usize {
         self.base.len() / 3
+    }
+
+    /// The features as the file stores them: rounded, within ±(2^24 − 1) (SPEC §12.1).
+    pub fn integer_features(&self) -> Vec<i32> {
+        let bound = (VALUE_BOUND - 1) as f32;
+        self.feat.iter().map(|v| v.round().clamp(-bound, bound) as i32).collect()
     }
 
     /// Gaussian `i`'s MLP input: its anchor's rounded features (the straight-through estimator

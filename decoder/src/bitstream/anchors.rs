@@ -13,9 +13,10 @@
 
 use rayon::prelude::*;
 
+use super::assemble::dequantise_position;
 use super::bytes::unzigzag;
 use super::params::{read_channel_tables, read_position_params, GroupParams};
-use super::positions::{decode_lengths, decode_morton, morton_decode, position_of};
+use super::positions::{decode_lengths, decode_morton, morton_decode};
 use super::stream::decode_channels;
 use super::tables::ChannelTable;
 use super::{ByteReader, ByteWriter};
@@ -197,7 +198,7 @@ pub fn read_anchors(r: &mut ByteReader<'_>, n: usize, d: u8) -> Result<AnchorSet
         })?;
     }
     let grid = read_position_params(r)?;
-    let (_, _, bits) = grid.grid.expect("position parameters have a grid");
+    let (origin, step, bits) = grid.grid.expect("position parameters have a grid");
     if shift > bits {
         return Err(at.corrupt("anchor shift above the grid's bits"));
     }
@@ -211,13 +212,14 @@ pub fn read_anchors(r: &mut ByteReader<'_>, n: usize, d: u8) -> Result<AnchorSet
             last_cell = Some(cell);
             anchors += 1;
         }
-        let xyz = position_of(m, &grid.grid.expect("a grid"));
+        let q = morton_decode(m, bits);
+        let xyz: [f32; 3] = std::array::from_fn(|a| dequantise_position(origin[a], step[a], q[a]));
         if !xyz.iter().all(|x| x.is_finite()) {
             return Err(at.corrupt("dequantised value is not finite"));
         }
         positions.push(xyz);
         anchor_of.push(anchors - 1);
-        local.push(morton_decode(m, bits).map(|q| (q & mask) as i32));
+        local.push(q.map(|q| (q & mask) as i32));
         Ok(())
     })?;
     let a = anchors as usize;
