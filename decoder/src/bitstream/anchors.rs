@@ -85,12 +85,179 @@ impl Mlp {
             for row in w[..l.outputs * (l.inputs + 1)].chunks_exact(l.inputs + 1) {
                 let acc =
                     row[..l.inputs].iter().zip(tmp.iter()).fold(i64::from(row[l.inputs]), |a, (&w, &x)| a + i64::from(w) * i64::from(x));
-                let bound = i64::from(VALUE_BOUND - 1);
-                let y = (acc >> l.shift).clamp(-bound, bound) as i32;
-                out.push(if last { y } else { y.max(0) });
+                out.push(activate(acc, l.shift, last));
             }
             w = &w[l.outputs * (l.inputs + 1)..];
         }
+    }
+}
+
+/// [`Mlp::forward`] arranged for many Gaussians (what [`expand`] runs), with the same integer
+/// results:
+/// * the first layer's feature part `b_j + Σ_(k<F) w_jk·x_k` is computed once per anchor
+///   ([`Evaluator::anchor`]); each Gaussian adds its 3 cell terms;
+/// * every later layer keeps its weights input-major, so a layer is `acc[·] += w[k][·]·x_k` over
+///   the outputs, which the compiler vectorises. The accumulation is in `f64` when it is exact:
+///   every product `|w|·|x| < 2^48` is, and when `|b_j| + Σ_k |w_jk|·(2^24 − 1) < 2^51` for every
+///   row so is every partial sum (integers below 2^51), so the result equals the `i64` sum of
+///   SPEC §12.2 ([`activate_f64`] needs the 2^51). A layer outside that bound accumulates in
+///   `i64`.
+pub struct Evaluator {
+    features: usize,
+    /// First layer: per output, the feature weights then the bias (rows of [`Mlp`]), and the
+    /// cell weights input-major.
+    first: Layer,
+    first_rows: Vec<i32>,
+    first_cell: Vec<[i64; POSITION_INPUTS]>,
+    rest: Vec<FastLayer>,
+}
+
+/// Outputs accumulated together by an `f64` layer (kept in registers).
+const BLOCK: usize = 8;
+
+struct FastLayer {
+    layer: Layer,
+    bias: Vec<i64>,
+    /// `f64`: blocks of [`BLOCK`] outputs, each `w[k · BLOCK + j]`; `i64`: `w[k · outputs + j]`.
+    weights: FastWeights,
+}
+
+enum FastWeights {
+    F64(Vec<f64>),
+    I64(Vec<i64>),
+}
+
+/// Per-thread scratch of an [`Evaluator`]: the current anchor's first-layer sums and the
+/// activations.
+#[derive(Default)]
+pub struct Scratch {
+    anchor: Option<usize>,
+    first: Vec<i64>,
+    acc_i: Vec<i64>,
+    x: Vec<i32>,
+    y: Vec<i32>,
+}
+
+/// `y = clamp(acc >> shift, ±(2^24 − 1))`, rectified unless `last` (SPEC §12.2).
+#[inline(always)]
+fn activate(acc: i64, shift: u8, last: bool) -> i32 {
+    let bound = i64::from(VALUE_BOUND - 1);
+    let y = (acc >> shift).clamp(-bound, bound) as i32;
+    if last {
+        y
+    } else {
+        y.max(0)
+    }
+}
+
+/// [`activate`] of an accumulator held exactly in an `f64` (an integer, `|acc| < 2^51`), in
+/// `f64` operations the compiler can vectorise: `acc · 2^−shift` is exact, adding and removing
+/// 1.5·2^52 rounds it to the nearest integer, and one comparison turns that into the floor.
+#[inline(always)]
+fn activate_f64(acc: f64, scale: f64, last: bool) -> i32 {
+    const ROUND: f64 = 6_755_399_441_055_744.0; // 1.5 · 2^52
+    let y = acc * scale;
+    let r = (y + ROUND) - ROUND;
+    let floor = if r > y { r - 1.0 } else { r };
+    let bound = f64::from(VALUE_BOUND - 1);
+    floor.clamp(if last { -bound } else { 0.0 }, bound) as i32
+}
+
+impl Evaluator {
+    /// The evaluator of `mlp`, whose first layer takes `features` features and the 3 cell
+    /// coordinates (`inputs = features + 3`, as [`read_anchors`] checks).
+    pub fn new(mlp: &Mlp, features: usize) -> Evaluator {
+        let first = mlp.layers[0];
+        debug_assert_eq!(first.inputs, features + POSITION_INPUTS);
+        let (head, mut w) = mlp.weights.split_at(first.outputs * (first.inputs + 1));
+        let mut first_rows = Vec::with_capacity(first.outputs * (features + 1));
+        let mut first_cell = Vec::with_capacity(first.outputs);
+        for row in head.chunks_exact(first.inputs + 1) {
+            first_rows.extend_from_slice(&row[..features]);
+            first_rows.push(row[first.inputs]);
+            first_cell.push(std::array::from_fn(|k| i64::from(row[features + k])));
+        }
+        let mut rest = Vec::new();
+        for l in &mlp.layers[1..] {
+            let (rows, tail) = w.split_at(l.outputs * (l.inputs + 1));
+            w = tail;
+            let bias: Vec<i64> = rows.chunks_exact(l.inputs + 1).map(|r| i64::from(r[l.inputs])).collect();
+            let bound = i64::from(VALUE_BOUND - 1);
+            let exact = rows.chunks_exact(l.inputs + 1).all(|r| {
+                let sum: i128 = r[..l.inputs].iter().map(|&w| i128::from(w.unsigned_abs()) * i128::from(bound)).sum();
+                sum + i128::from(r[l.inputs].unsigned_abs()) < 1i128 << 51
+            });
+            let at = |k: usize, j: usize| rows[j * (l.inputs + 1) + k];
+            let weights = match exact {
+                true => {
+                    // Blocks of BLOCK outputs (the last padded with zero weights), input-major.
+                    let blocks = l.outputs.div_ceil(BLOCK);
+                    let order =
+                        (0..blocks).flat_map(|b| (0..l.inputs).flat_map(move |k| (b * BLOCK..(b + 1) * BLOCK).map(move |j| (k, j))));
+                    FastWeights::F64(order.map(|(k, j)| if j < l.outputs { f64::from(at(k, j)) } else { 0.0 }).collect())
+                }
+                false => FastWeights::I64((0..l.inputs).flat_map(|k| (0..l.outputs).map(move |j| i64::from(at(k, j)))).collect()),
+            };
+            rest.push(FastLayer { layer: *l, bias, weights });
+        }
+        Evaluator { features, first, first_rows, first_cell, rest }
+    }
+
+    /// Makes `scratch` hold anchor `a`'s first-layer feature sums (`features`: its F values).
+    fn anchor(&self, a: usize, features: &[i32], scratch: &mut Scratch) {
+        if scratch.anchor == Some(a) {
+            return;
+        }
+        scratch.anchor = Some(a);
+        scratch.first.clear();
+        scratch.first.extend(self.first_rows.chunks_exact(self.features + 1).map(|row| {
+            row[..self.features].iter().zip(features).fold(i64::from(row[self.features]), |s, (&w, &x)| s + i64::from(w) * i64::from(x))
+        }));
+    }
+
+    /// The outputs of the Gaussian of anchor `a` (features `features`) at cell `cell`, left in
+    /// the returned slice (equal to [`Mlp::forward`] on the features followed by `cell`).
+    pub fn eval<'s>(&self, a: usize, features: &[i32], cell: [i32; 3], s: &'s mut Scratch) -> &'s [i32] {
+        self.anchor(a, features, s);
+        let c = cell.map(i64::from);
+        let last = self.rest.is_empty();
+        s.y.clear();
+        s.y.extend(
+            s.first
+                .iter()
+                .zip(&self.first_cell)
+                .map(|(&p, w)| activate(p + w[0] * c[0] + w[1] * c[1] + w[2] * c[2], self.first.shift, last)),
+        );
+        for (li, l) in self.rest.iter().enumerate() {
+            std::mem::swap(&mut s.x, &mut s.y);
+            let last = li + 1 == self.rest.len();
+            let (n, shift) = (l.layer.outputs, l.layer.shift);
+            s.y.clear();
+            match &l.weights {
+                FastWeights::F64(w) => {
+                    let scale = f64::from_bits(u64::from(1023 - u16::from(shift)) << 52); // 2^−shift, shift ≤ 62
+                    for (b, block) in w.chunks_exact(BLOCK * l.layer.inputs).enumerate() {
+                        let outputs = b * BLOCK..n.min((b + 1) * BLOCK);
+                        let mut acc = [0.0f64; BLOCK];
+                        acc.iter_mut().zip(&l.bias[outputs.clone()]).for_each(|(a, &b)| *a = b as f64);
+                        for (row, &x) in block.chunks_exact(BLOCK).zip(&s.x) {
+                            let x = f64::from(x);
+                            acc.iter_mut().zip(row).for_each(|(a, &w)| *a += w * x);
+                        }
+                        s.y.extend(acc[..outputs.len()].iter().map(|&a| activate_f64(a, scale, last)));
+                    }
+                }
+                FastWeights::I64(w) => {
+                    s.acc_i.clone_from(&l.bias);
+                    for (row, &x) in w.chunks_exact(n).zip(&s.x) {
+                        let x = i64::from(x);
+                        s.acc_i.iter_mut().zip(row).for_each(|(a, &w)| *a += w * x);
+                    }
+                    s.y.extend(s.acc_i.iter().map(|&a| activate(a, shift, last)));
+                }
+            }
+        }
+        &s.y
     }
 }
 
@@ -239,6 +406,7 @@ pub fn expand(set: &AnchorSet, d: u8, degree: u8, out: &mut Splats) -> Result<()
     let rest = 3 * sh_rest_coeffs(degree);
     debug_assert!(degree <= d && set.out_steps.len() == outputs_per_gaussian(d));
     let n = set.positions.len();
+    let eval = Evaluator::new(&set.mlp, f);
     let mut s = Splats::new(degree);
     s.positions.clone_from(&set.positions);
     s.log_scales = vec![[0.0; 3]; n];
@@ -251,26 +419,20 @@ pub fn expand(set: &AnchorSet, d: u8, degree: u8, out: &mut Splats) -> Result<()
     let bad = (s.log_scales.par_iter_mut(), s.rotations.par_iter_mut(), s.opacity_logits.par_iter_mut(), s.sh_dc.par_iter_mut(), rest_rows)
         .into_par_iter()
         .enumerate()
-        .map_init(
-            || (Vec::with_capacity(f + POSITION_INPUTS), Vec::new(), Vec::new()),
-            |(x, tmp, o), (i, (ls, rot, op, dc, rs))| {
-                let a = set.anchor_of[i] as usize;
-                x.clear();
-                x.extend_from_slice(&set.feature_values[a * f..][..f]);
-                x.extend_from_slice(&set.local[i]);
-                set.mlp.forward(x, tmp, o);
-                let v = |c: usize| o[c] as f32 * set.out_steps[c];
-                *op = v(0);
-                *ls = std::array::from_fn(|j| v(1 + j) + set.base[3 * a + j]);
-                *rot = std::array::from_fn(|j| v(4 + j));
-                if rot.iter().all(|&c| c == 0.0) {
-                    *rot = [1.0, 0.0, 0.0, 0.0];
-                }
-                *dc = std::array::from_fn(|c| v(8 + c));
-                rs.iter_mut().enumerate().for_each(|(c, r)| *r = v(11 + c));
-                !(op.is_finite() && ls.iter().chain(rot.iter()).chain(dc.iter()).chain(rs.iter()).all(|x| x.is_finite()))
-            },
-        )
+        .map_init(Scratch::default, |scratch, (i, (ls, rot, op, dc, rs))| {
+            let a = set.anchor_of[i] as usize;
+            let o = eval.eval(a, &set.feature_values[a * f..][..f], set.local[i], scratch);
+            let v = |c: usize| o[c] as f32 * set.out_steps[c];
+            *op = v(0);
+            *ls = std::array::from_fn(|j| v(1 + j) + set.base[3 * a + j]);
+            *rot = std::array::from_fn(|j| v(4 + j));
+            if rot.iter().all(|&c| c == 0.0) {
+                *rot = [1.0, 0.0, 0.0, 0.0];
+            }
+            *dc = std::array::from_fn(|c| v(8 + c));
+            rs.iter_mut().enumerate().for_each(|(c, r)| *r = v(11 + c));
+            !(op.is_finite() && ls.iter().chain(rot.iter()).chain(dc.iter()).chain(rs.iter()).all(|x| x.is_finite()))
+        })
         .any(|bad| bad);
     if bad {
         return Err("decoded Gaussian value is not finite");
@@ -339,5 +501,45 @@ mod tests {
         let big = Mlp { layers: vec![Layer { inputs: 1, outputs: 1, shift: 0 }], weights: vec![VALUE_BOUND - 1, 0] };
         big.forward(&[-(VALUE_BOUND - 1)], &mut tmp, &mut out);
         assert_eq!(out, vec![-(VALUE_BOUND - 1)]);
+    }
+
+    /// The evaluator [`expand`] runs gives [`Mlp::forward`]'s integers: one to four layers,
+    /// widths around the `f64` block size, small weights (the `f64` path), weights up to 2^24
+    /// (the `i64` path), activations that saturate, and anchors revisited in any order.
+    #[test]
+    fn the_evaluator_equals_the_reference_mlp() {
+        let mut rng = crate::rng::Rng::new(7);
+        let mut paths = [0; 2];
+        for case in 0..60 {
+            let features = 1 + rng.below(20);
+            let depth = 1 + case % 4;
+            let mut inputs = features + POSITION_INPUTS;
+            let (mut layers, mut weights) = (Vec::new(), Vec::new());
+            for l in 0..depth {
+                let outputs = 1 + rng.below(if l + 1 == depth { 30 } else { 40 });
+                let bits = if case % 3 == 0 { 24 } else { 11 };
+                let shift = rng.below(20) as u8;
+                layers.push(Layer { inputs, outputs, shift });
+                for _ in 0..outputs * (inputs + 1) {
+                    let w = (rng.next_u64() % (1u64 << bits)) as i32 - (1 << (bits - 1));
+                    weights.push(w.clamp(-(VALUE_BOUND - 1), VALUE_BOUND - 1));
+                }
+                inputs = outputs;
+            }
+            let mlp = Mlp { layers, weights };
+            let eval = Evaluator::new(&mlp, features);
+            eval.rest.iter().for_each(|l| paths[usize::from(matches!(l.weights, FastWeights::I64(_)))] += 1);
+            let anchors: Vec<Vec<i32>> =
+                (0..4).map(|_| (0..features).map(|_| (rng.next_u64() % (1 << 25)) as i32 - (1 << 24) + 1).collect()).collect();
+            let (mut scratch, mut tmp, mut out) = (Scratch::default(), Vec::new(), Vec::new());
+            for _ in 0..20 {
+                let a = rng.below(anchors.len());
+                let cell = [0; 3].map(|_| rng.below(1 << 10) as i32);
+                let x: Vec<i32> = anchors[a].iter().copied().chain(cell).collect();
+                mlp.forward(&x, &mut tmp, &mut out);
+                assert_eq!(eval.eval(a, &anchors[a], cell, &mut scratch), &out[..], "case {case}");
+            }
+        }
+        assert!(paths[0] > 5 && paths[1] > 5, "both accumulations are tested: {paths:?}");
     }
 }
