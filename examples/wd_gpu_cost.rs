@@ -26,7 +26,7 @@ fn main() {
     s.rasterize(&mut enc, &cam).unwrap();
     gpu.queue.submit([enc.finish()]);
     let lr = [1e-5, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4];
-    let config = WdConfig::new(LossKind::Wdr, None, None, 1);
+    let config = WdConfig::new(LossKind::Wdr, None, None, None, 1);
     let mut cached = WdStage::new(&gpu, config, cam.width, cam.height).unwrap();
     let mut uncached = WdStage::new(&gpu, WdConfig { cache_bytes: 0, ..config }, cam.width, cam.height).unwrap();
 

@@ -376,6 +376,11 @@ fn unsupported_losses_are_input_errors() {
         let e = GpuLoss::new(kind, &FeatureSpec::Pyramid, None, Some(0.5)).check().unwrap_err();
         assert!(e.exit_code() == 2 && e.to_string().contains("--wd-sigma 0.5"), "{e}");
         GpuLoss::new(kind, &FeatureSpec::Pyramid, None, Some(2.0)).check().unwrap();
+        let e = GpuLoss::new(kind, &FeatureSpec::Pyramid, None, None).with_warmup(Some(1.0)).check().unwrap_err();
+        assert!(e.exit_code() == 2 && e.to_string().contains("--wd-warmup 1"), "{e}");
+        // the warm-up share sets the GPU WD stage's first iteration as the CPU loss's
+        let wc = |f| gscodec::train::gpu::wd::WdConfig::new(kind, None, None, f, 300).warmup;
+        assert_eq!((wc(Some(0.5)), wc(Some(0.0)), wc(None)), (150, 0, 30));
         GpuLoss::new(kind, &FeatureSpec::Pyramid, None, None).check().unwrap();
     }
     let _ = Mat3::IDENTITY;

@@ -19,6 +19,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
         loss: loss.into(),
         iters: None,
         wd_sigma: None,
+        wd_warmup: None,
         bytes: (bytes0 * scale).round() as u64,
         gaussians: (bytes0 / 10.0) as u64,
         psnr: Some(20.0 + 3.0 * q),
@@ -200,7 +201,7 @@ fn two_jobs_run_points_in_process_with_typed_reports() {
 }
 
 #[test]
-fn a_point_of_another_wd_sigma_is_redone() {
+fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     use gscodec::sweep::{Plan, Point};
     let tmp = tempfile::tempdir().unwrap();
     let plan = Plan {
@@ -210,6 +211,7 @@ fn a_point_of_another_wd_sigma_is_redone() {
         losses: vec!["l1ssim".into(), "wdr".into()],
         iters: None,
         wd_sigma: None,
+        wd_warmup: None,
         backend: gscodec::encoder::Backend::Cpu,
         dataset_args: Vec::new(),
     };
@@ -224,4 +226,10 @@ fn a_point_of_another_wd_sigma_is_redone() {
     assert!(plan.is_done(&l1) && s2.is_done(&l1));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), ..fake("wdr", 2.0, 1.0) });
     assert!(s2.is_done(&wdr) && !plan.is_done(&wdr) && !s4.is_done(&wdr));
+    // the warm-up share likewise: a result without one was trained with 0.1
+    let w5 = Plan { wd_warmup: Some(0.5), ..s2.clone() };
+    let w1 = Plan { wd_warmup: Some(0.1), ..s2.clone() };
+    assert!(s2.is_done(&wdr) && w1.is_done(&wdr) && !w5.is_done(&wdr) && w5.is_done(&l1));
+    write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), ..fake("wdr", 2.0, 1.0) });
+    assert!(w5.is_done(&wdr) && !s2.is_done(&wdr));
 }

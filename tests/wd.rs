@@ -632,6 +632,29 @@ fn loss_options_parse_and_fail_cleanly() {
         assert!((got - d(sigma)).abs() <= 1e-6 * got, "σ {sigma}: {got} vs {}", d(sigma));
     }
     assert!((d(2.0) - d(4.0)).abs() > 1e-3 * d(4.0), "σ changes the value");
+    // --wd-warmup: [0, 1); outside, or NaN, is bad input naming the range
+    for bad in ["1", "-0.1", "NaN", "2"] {
+        let c = Cli::try_parse_from(["x", "--loss", "wdr", &format!("--wd-warmup={bad}")]).unwrap();
+        let e = build_loss(&c.loss, 10, LossKind::L1ssim).err().expect("warm-up out of range");
+        assert_eq!(e.exit_code(), 2);
+        assert!(e.to_string().contains(&format!("--wd-warmup {bad}: must be in [0, 1)")), "{e}");
+    }
+    // the share given is the warm-up trained with: over 100 iterations, `wd` is L_orig (the
+    // L1-SSIM loss) before iteration 100·F and γ·d_WD from it on
+    let l_orig = build_loss(&Cli::try_parse_from(["x"]).unwrap().loss, 100, LossKind::L1ssim).unwrap().loss_and_grad(&a, &b, 0, 0).0;
+    for (args, first_wd) in [
+        (vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-warmup", "0.5"], 50),
+        (vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-warmup", "0"], 0),
+        (vec!["x", "--loss", "wd", "--wd-gamma", "1"], 10),
+    ] {
+        let c = Cli::try_parse_from(args).unwrap();
+        let mut loss = build_loss(&c.loss, 100, LossKind::L1ssim).unwrap();
+        if first_wd > 0 {
+            assert_eq!(loss.loss_and_grad(&a, &b, 0, first_wd - 1).0, l_orig, "warm-up {first_wd}");
+        }
+        let got = loss.loss_and_grad(&a, &b, 0, first_wd).0;
+        assert!((got - d(4.0)).abs() <= 1e-6 * got, "warm-up {first_wd}: {got} vs {}", d(4.0));
+    }
 }
 
 #[test]
@@ -683,7 +706,7 @@ fn train_cli_runs_wdr_on_the_tiny_sample() {
 }
 
 #[test]
-fn wd_sigma_out_of_range_is_bad_input_on_every_command() {
+fn wd_sigma_or_warmup_out_of_range_is_bad_input_on_every_command() {
     let dir = tempfile::tempdir().unwrap();
     let root = env!("CARGO_MANIFEST_DIR");
     let tiny = format!("{root}/samples/tiny");
@@ -693,16 +716,20 @@ fn wd_sigma_out_of_range_is_bad_input_on_every_command() {
         vec!["encode".into(), tiny.clone(), "-o".into(), out("e.gsc")],
         vec!["sweep".into(), tiny.clone(), "-o".into(), out("sw")],
     ];
-    for args in runs {
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_gscodec"))
-            .args(&args)
-            .args(["--iters", "5", "--wd-sigma", "0.5", "--quiet"])
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{}: {err}", args[0]);
-        assert_eq!(err.lines().count(), 1, "{}: {err}", args[0]);
-        assert!(err.starts_with("error: ") && err.contains("--wd-sigma 0.5: must be in [1, 32]"), "{}: {err}", args[0]);
+    for (flag, value, message) in
+        [("--wd-sigma", "0.5", "--wd-sigma 0.5: must be in [1, 32]"), ("--wd-warmup", "1", "--wd-warmup 1: must be in [0, 1)")]
+    {
+        for args in &runs {
+            let o = std::process::Command::new(env!("CARGO_BIN_EXE_gscodec"))
+                .args(args)
+                .args(["--iters", "5", flag, value, "--quiet"])
+                .output()
+                .unwrap();
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(2), "{} {flag}: {err}", args[0]);
+            assert_eq!(err.lines().count(), 1, "{} {flag}: {err}", args[0]);
+            assert!(err.starts_with("error: ") && err.contains(message), "{} {flag}: {err}", args[0]);
+        }
     }
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no partial output");
 }

@@ -29,6 +29,10 @@ pub struct Args {
     /// Pooling scale σ of `wd` / `wdr` (1 ≤ S ≤ 32) [default: 4].
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
+    /// Share of each encode's iterations trained with L1-SSIM before `wd` / `wdr`
+    /// (0 ≤ F < 1) [default: 0.1].
+    #[arg(long = "wd-warmup", value_name = "F")]
+    pub wd_warmup: Option<f64>,
     /// Training backend of every encode: cpu, gpu, or auto (a hardware GPU if there is one).
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
@@ -67,6 +71,7 @@ pub fn run(args: Args) -> Result<()> {
         losses,
         iters: args.iters,
         wd_sigma: args.wd_sigma,
+        wd_warmup: args.wd_warmup,
         backend: args.backend,
         dataset_args: args.dataset.to_args(),
     };

@@ -74,7 +74,8 @@ impl TrainBackend for GpuBackend {
     }
 
     fn train(&mut self, job: TrainJob<'_>, progress: &mut dyn FnMut(&Progress)) -> Result<(Splats, TrainReport)> {
-        let loss = crate::train::gpu::GpuLoss::new(job.loss.kind, &job.loss.features, job.loss.wd_gamma, job.loss.wd_sigma);
+        let loss = crate::train::gpu::GpuLoss::new(job.loss.kind, &job.loss.features, job.loss.wd_gamma, job.loss.wd_sigma)
+            .with_warmup(job.loss.wd_warmup);
         let refused = loss.check().err();
         match refused {
             Some(_) if self.fall_back_to_cpu => CpuBackend.train(job, progress),
@@ -101,18 +102,32 @@ pub struct LossSpec {
     pub wd_gamma: Option<f64>,
     /// Uniform pooling scale σ of WD / WD-R (None: [`crate::loss::wd::DEFAULT_SIGMA`]).
     pub wd_sigma: Option<f64>,
+    /// Share of the iterations trained with L1-SSIM before WD / WD-R (None:
+    /// [`crate::loss::wdr::WARMUP_FRACTION`]).
+    pub wd_warmup: Option<f64>,
 }
 
 impl LossSpec {
-    /// The loss `--loss`/`--features`/`--wd-gamma`/`--wd-sigma` describe, `default` when
-    /// `--loss` is absent.
+    /// The loss `--loss`/`--features`/`--wd-gamma`/`--wd-sigma`/`--wd-warmup` describe,
+    /// `default` when `--loss` is absent.
     pub fn from_args(args: &LossArgs, default: LossKind) -> LossSpec {
-        LossSpec { kind: args.loss.unwrap_or(default), features: args.features.clone(), wd_gamma: args.wd_gamma, wd_sigma: args.wd_sigma }
+        LossSpec {
+            kind: args.loss.unwrap_or(default),
+            features: args.features.clone(),
+            wd_gamma: args.wd_gamma,
+            wd_sigma: args.wd_sigma,
+            wd_warmup: args.wd_warmup,
+        }
     }
 
     /// WD's σ for reports: the value trained with for `wd` / `wdr`, None for `l1ssim`.
     pub fn reported_sigma(&self) -> Option<f64> {
         (self.kind != LossKind::L1ssim).then(|| self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA))
+    }
+
+    /// WD's warm-up share for reports: the value trained with for `wd` / `wdr`, None for `l1ssim`.
+    pub fn reported_warmup(&self) -> Option<f64> {
+        (self.kind != LossKind::L1ssim).then(|| self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION))
     }
 
     /// Short name (`l1ssim`, `wd`, `wdr`).
@@ -125,7 +140,13 @@ impl LossSpec {
     /// # Errors
     /// Unreadable VGG weights, a γ that is not a positive number or a σ out of range (exit 2).
     pub fn build(&self, iters: usize) -> Result<Box<dyn ImageLoss>> {
-        let args = LossArgs { loss: Some(self.kind), features: self.features.clone(), wd_gamma: self.wd_gamma, wd_sigma: self.wd_sigma };
+        let args = LossArgs {
+            loss: Some(self.kind),
+            features: self.features.clone(),
+            wd_gamma: self.wd_gamma,
+            wd_sigma: self.wd_sigma,
+            wd_warmup: self.wd_warmup,
+        };
         crate::loss::build_loss(&args, iters, self.kind)
     }
 }

@@ -159,6 +159,9 @@ impl EncoderConfig {
         if let Some(s) = self.loss.wd_sigma {
             crate::loss::check_wd_sigma(s)?;
         }
+        if let Some(f) = self.loss.wd_warmup {
+            crate::loss::check_wd_warmup(f)?;
+        }
         Ok(())
     }
 
@@ -200,6 +203,12 @@ pub enum InvalidConfig {
         value: f64,
         /// The largest accepted.
         max: f64,
+    },
+    /// The warm-up share of WD / WD-R must be in [0, 1).
+    #[error("--wd-warmup {value}: must be in [0, 1)")]
+    WdWarmup {
+        /// The value given.
+        value: f64,
     },
     /// A dataset is encoded by training: iterations must be ≥ 1.
     #[error("--iters 0: encoding a dataset needs training, at least 1 iteration")]

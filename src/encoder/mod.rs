@@ -363,6 +363,7 @@ impl Encoder {
             lambda: self.config.lambda,
             loss: train.as_ref().map(|_| self.config.loss.name()),
             wd_sigma: train.as_ref().and_then(|_| self.config.loss.reported_sigma()),
+            wd_warmup: train.as_ref().and_then(|_| self.config.loss.reported_warmup()),
             iters,
             backend: train.as_ref().map(|t| t.backend),
             file_bytes: bytes.len(),

@@ -53,6 +53,8 @@ pub struct EncodeReport {
     pub loss: Option<&'static str>,
     /// WD's uniform pooling scale σ (`--wd-sigma`), when the encode trained with `wd` / `wdr`.
     pub wd_sigma: Option<f64>,
+    /// WD's warm-up share (`--wd-warmup`), when the encode trained with `wd` / `wdr`.
+    pub wd_warmup: Option<f64>,
     /// Training iterations (0: coded as is).
     pub iters: usize,
     /// The training backend that ran (`cpu`, `gpu`), when the encode trained.

@@ -67,6 +67,10 @@ pub struct LossArgs {
     /// DESIGN §4; see docs/wd.md).
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
+    /// Share of the iterations trained with L1-SSIM alone before `wd` / `wdr` take over:
+    /// 0 ≤ F < 1 (default: 0.1, the paper's 3k of 30k; see docs/wd.md).
+    #[arg(long = "wd-warmup", value_name = "F")]
+    pub wd_warmup: Option<f64>,
 }
 
 /// Largest uniform σ WD accepts: 2^[`wd::NUM_LEVELS`] (ℓ = log2 σ ≤ NUM_LEVELS).
@@ -83,12 +87,24 @@ pub fn check_wd_sigma(sigma: f64) -> Result<(), crate::encoder::InvalidConfig> {
     }
 }
 
-/// Builds the loss for a run of `total_iters` iterations (the WD warm-up is 10 % of it);
+/// Checks a `--wd-warmup`: in [0, 1) (NaN is not).
+///
+/// # Errors
+/// [`InvalidConfig::WdWarmup`](crate::encoder::InvalidConfig::WdWarmup), naming the value.
+pub fn check_wd_warmup(fraction: f64) -> Result<(), crate::encoder::InvalidConfig> {
+    match (0.0..1.0).contains(&fraction) {
+        true => Ok(()),
+        false => Err(crate::encoder::InvalidConfig::WdWarmup { value: fraction }),
+    }
+}
+
+/// Builds the loss for a run of `total_iters` iterations (the WD warm-up is `--wd-warmup` of
+/// it, 10 % by default);
 /// `default` is used when `--loss` was not given.
 ///
 /// # Errors
 /// Bad input (exit 2) for an unreadable VGG weights file, a γ that is not a positive number or a
-/// σ out of [1, [`MAX_WD_SIGMA`]].
+/// σ out of [1, [`MAX_WD_SIGMA`]] or a warm-up share out of [0, 1).
 pub fn build_loss(args: &LossArgs, total_iters: usize, default: LossKind) -> crate::Result<Box<dyn ImageLoss>> {
     if let Some(g) = args.wd_gamma {
         if !(g.is_finite() && g > 0.0) {
@@ -98,16 +114,22 @@ pub fn build_loss(args: &LossArgs, total_iters: usize, default: LossKind) -> cra
     if let Some(s) = args.wd_sigma {
         check_wd_sigma(s)?;
     }
+    if let Some(f) = args.wd_warmup {
+        check_wd_warmup(f)?;
+    }
+    let warmup = wdr::warmup_iters(total_iters, args.wd_warmup.unwrap_or(wdr::WARMUP_FRACTION));
     let sigma = wd::Sigma::Constant(args.wd_sigma.unwrap_or(wd::DEFAULT_SIGMA));
     Ok(match args.loss.unwrap_or(default) {
         LossKind::L1ssim => Box::new(L1Ssim::default()),
         LossKind::Wd => {
             let mut l = wdr::WdLoss::new(args.features.build()?, total_iters).with_sigma(sigma);
             l.gamma = args.wd_gamma.unwrap_or(l.gamma);
+            l.warmup = warmup;
             Box::new(l)
         }
         LossKind::Wdr => {
-            let l = wdr::WdrLoss::new(args.features.build()?, total_iters).with_sigma(sigma);
+            let mut l = wdr::WdrLoss::new(args.features.build()?, total_iters).with_sigma(sigma);
+            l.warmup = warmup;
             Box::new(match args.wd_gamma {
                 Some(g) => l.with_fixed_gamma(g),
                 None => l,

@@ -25,9 +25,10 @@ pub const WARMUP_FRACTION: f64 = 0.1;
 /// Default memory budget of the per-view reference cache.
 pub const DEFAULT_CACHE_BYTES: usize = 2 << 30;
 
-/// Warm-up length for a run of `total_iters` iterations.
-pub fn warmup_iters(total_iters: usize) -> usize {
-    (total_iters as f64 * WARMUP_FRACTION).round() as usize
+/// Warm-up length for a run of `total_iters` iterations whose first `fraction` trains with
+/// `L_orig` alone (`--wd-warmup`; [`WARMUP_FRACTION`] by default).
+pub fn warmup_iters(total_iters: usize, fraction: f64) -> usize {
+    (total_iters as f64 * fraction).round() as usize
 }
 
 /// d_WD of rendered images against targets in a feature space, with per-view caching.
@@ -166,7 +167,7 @@ pub struct WdLoss {
 
 impl WdLoss {
     pub fn new(space: Box<dyn FeatureSpace<f32>>, total_iters: usize) -> Self {
-        WdLoss { distortion: WdDistortion::new(space), gamma: DEFAULT_GAMMA_WD, warmup: warmup_iters(total_iters) }
+        WdLoss { distortion: WdDistortion::new(space), gamma: DEFAULT_GAMMA_WD, warmup: warmup_iters(total_iters, WARMUP_FRACTION) }
     }
 
     /// The same loss with pooling scale `sigma` (see [`WdDistortion::with_sigma`]).
@@ -217,7 +218,7 @@ impl WdrLoss {
             distortion: WdDistortion::new(space),
             gamma: DEFAULT_GAMMA_WDR,
             beta: BETA,
-            warmup: warmup_iters(total_iters),
+            warmup: warmup_iters(total_iters, WARMUP_FRACTION),
             normalise: true,
             sums: (0.0, 0.0, 0),
         }

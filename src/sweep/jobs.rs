@@ -80,6 +80,7 @@ mod tests {
             losses: vec!["wdr".into()],
             iters: None,
             wd_sigma: None,
+            wd_warmup: None,
             backend: crate::encoder::Backend::Auto,
             dataset_args: Vec::new(),
         };

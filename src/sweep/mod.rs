@@ -77,6 +77,8 @@ pub struct Plan {
     pub iters: Option<usize>,
     /// `encode --wd-sigma` (None: the default σ).
     pub wd_sigma: Option<f64>,
+    /// `encode --wd-warmup` (None: the default share).
+    pub wd_warmup: Option<f64>,
     /// Training backend of every encode.
     pub backend: Backend,
     /// Dataset options (`--downscale N`, …) as command-line words, passed on to emitted jobs;
@@ -95,19 +97,23 @@ impl Plan {
         self.out.join("points").join(p.dir_name())
     }
 
-    /// Whether a point has a result file from the same settings (`--iters`, and `--wd-sigma` for
-    /// `wd` / `wdr`); a result from other settings, or an unreadable one, is redone.
+    /// Whether a point has a result file from the same settings (`--iters`, and `--wd-sigma` and
+    /// `--wd-warmup` for `wd` / `wdr`); a result from other settings, or an unreadable one, is
+    /// redone.
     pub fn is_done(&self, p: &Point) -> bool {
         let Ok(r) = results::read_result(&self.point_dir(p).join(RESULT_FILE)) else { return false };
-        // Results written before σ was an option were trained at the default σ.
-        let done_sigma = r.wd_sigma.or_else(|| (r.loss != "l1ssim").then_some(crate::loss::wd::DEFAULT_SIGMA));
-        r.iters == self.iters && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma)
+        // Results written before σ and the warm-up were options were trained with the defaults.
+        let wd = r.loss != "l1ssim";
+        let done_sigma = r.wd_sigma.or_else(|| wd.then_some(crate::loss::wd::DEFAULT_SIGMA));
+        let done_warmup = r.wd_warmup.or_else(|| wd.then_some(crate::loss::wdr::WARMUP_FRACTION));
+        r.iters == self.iters && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
     }
 
-    /// Checks λs, losses and σ.
+    /// Checks λs, losses, σ and the warm-up share.
     ///
     /// # Errors
-    /// A negative or non-finite λ, an unknown loss, an empty grid or a σ out of range (exit 2).
+    /// A negative or non-finite λ, an unknown loss, an empty grid, or a σ or warm-up share out
+    /// of range (exit 2).
     pub fn validate(&self) -> Result<()> {
         let arg = Path::new("sweep");
         if self.lambdas.is_empty() || self.losses.is_empty() {
@@ -122,6 +128,9 @@ impl Plan {
         if let Some(s) = self.wd_sigma {
             crate::loss::check_wd_sigma(s).map_err(|e| Error::input(arg, e))?;
         }
+        if let Some(f) = self.wd_warmup {
+            crate::loss::check_wd_warmup(f).map_err(|e| Error::input(arg, e))?;
+        }
         Ok(())
     }
 
@@ -133,6 +142,7 @@ impl Plan {
             "losses": self.losses,
             "iters": self.iters,
             "wd_sigma": self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA),
+            "wd_warmup": self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION),
         })
     }
 
@@ -154,6 +164,9 @@ impl Plan {
         }
         if let Some(s) = self.wd_sigma {
             c.extend(["--wd-sigma".into(), s.to_string()]);
+        }
+        if let Some(f) = self.wd_warmup {
+            c.extend(["--wd-warmup".into(), f.to_string()]);
         }
         c.extend(self.dataset_args.iter().cloned());
         if self.backend != Backend::Auto {
@@ -180,7 +193,7 @@ impl Plan {
     /// An unknown loss (exit 2); [`Plan::validate`] rules it out.
     pub fn loss_spec(&self, p: &Point) -> Result<LossSpec> {
         let kind = <LossKind as ValueEnum>::from_str(&p.loss, true).map_err(|e| Error::input(Path::new("--loss"), e))?;
-        Ok(LossSpec { kind, wd_sigma: self.wd_sigma, ..LossSpec::default() })
+        Ok(LossSpec { kind, wd_sigma: self.wd_sigma, wd_warmup: self.wd_warmup, ..LossSpec::default() })
     }
 }
 
@@ -263,6 +276,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
         loss: p.loss.clone(),
         iters: plan.iters,
         wd_sigma: plan.loss_spec(p)?.reported_sigma(),
+        wd_warmup: plan.loss_spec(p)?.reported_warmup(),
         bytes: out.bytes.len() as u64,
         gaussians: decoded.len() as u64,
         psnr: Some(m.psnr),
@@ -301,6 +315,7 @@ mod tests {
             losses: vec!["l1ssim".into(), "wdr".into()],
             iters: Some(300),
             wd_sigma: None,
+            wd_warmup: None,
             backend: Backend::Auto,
             dataset_args: Vec::new(),
         };
@@ -327,6 +342,16 @@ mod tests {
         assert_eq!(s2.encoder_config(&pts[3]).unwrap().loss.wd_sigma, Some(2.0));
         assert_eq!(s2.settings()["wd_sigma"], 2.0);
         assert_eq!((s2.loss_spec(&pts[0]).unwrap().reported_sigma(), s2.loss_spec(&pts[3]).unwrap().reported_sigma()), (None, Some(2.0)));
+        // --wd-warmup likewise
+        assert_eq!(plan.settings()["wd_warmup"], 0.1, "the default warm-up is recorded");
+        let w = Plan { wd_warmup: Some(0.5), ..plan.clone() };
+        w.validate().unwrap();
+        assert!(w.point_command(&pts[3]).join(" ").ends_with("--iters 300 --wd-warmup 0.5 --points-only --quiet"));
+        assert_eq!(w.encoder_config(&pts[3]).unwrap().loss.wd_warmup, Some(0.5));
+        assert_eq!(w.settings()["wd_warmup"], 0.5);
+        assert_eq!((w.loss_spec(&pts[0]).unwrap().reported_warmup(), w.loss_spec(&pts[3]).unwrap().reported_warmup()), (None, Some(0.5)));
+        let bad = Plan { wd_warmup: Some(1.0), ..plan.clone() };
+        assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --wd-warmup 1: must be in [0, 1)");
         let bad = Plan { wd_sigma: Some(0.5), ..plan.clone() };
         assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --wd-sigma 0.5: must be in [1, 32]");
         let bad = Plan { lambdas: vec![-1.0], ..plan.clone() };

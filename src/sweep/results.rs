@@ -44,6 +44,10 @@ pub struct PointResult {
     /// before σ was an option (σ = 4 then).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wd_sigma: Option<f64>,
+    /// WD's warm-up share (`--wd-warmup`) of a `wd` / `wdr` point; None for `l1ssim`, and in
+    /// results written before it was an option (0.1 then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wd_warmup: Option<f64>,
     /// Size of the `.gsc` bitstream.
     pub bytes: u64,
     /// Gaussians in the decoded scene.

@@ -53,13 +53,16 @@ pub struct GpuLoss {
     pub wd_gamma: Option<f64>,
     /// Uniform σ of `wd` / `wdr` (None: [`crate::loss::wd::DEFAULT_SIGMA`]).
     pub wd_sigma: Option<f64>,
+    /// Share of the iterations trained with L1-SSIM before `wd` / `wdr` (None:
+    /// [`crate::loss::wdr::WARMUP_FRACTION`]).
+    pub wd_warmup: Option<f64>,
     /// WD in VGG-16 features (refused: the GPU has only the built-in `pyramid` bank).
     pub vgg_features: bool,
 }
 
 impl Default for GpuLoss {
     fn default() -> Self {
-        GpuLoss { kind: LossKind::L1ssim, ssim_weight: 0.2, wd_gamma: None, wd_sigma: None, vgg_features: false }
+        GpuLoss { kind: LossKind::L1ssim, ssim_weight: 0.2, wd_gamma: None, wd_sigma: None, wd_warmup: None, vgg_features: false }
     }
 }
 
@@ -75,8 +78,13 @@ impl GpuLoss {
         GpuLoss { kind, wd_gamma, wd_sigma, vgg_features: matches!(features, FeatureSpec::Vgg16(_)), ..Default::default() }
     }
 
+    /// The same loss with the warm-up share `--wd-warmup` (None: the default).
+    pub fn with_warmup(self, wd_warmup: Option<f64>) -> Self {
+        GpuLoss { wd_warmup, ..self }
+    }
+
     /// The input error for a loss the GPU trainer does not have (WD in VGG-16 features), a γ
-    /// that is not a positive number or a σ out of range.
+    /// that is not a positive number, or a σ or warm-up share out of range.
     pub fn check(&self) -> Result<()> {
         if self.kind == LossKind::L1ssim {
             return Ok(());
@@ -88,6 +96,9 @@ impl GpuLoss {
         }
         if let Some(s) = self.wd_sigma {
             crate::loss::check_wd_sigma(s)?;
+        }
+        if let Some(f) = self.wd_warmup {
+            crate::loss::check_wd_warmup(f)?;
         }
         match self.wd_gamma {
             Some(g) if !(g.is_finite() && g > 0.0) => Err(Error::Input(format!("--wd-gamma must be a positive number, got {g}"))),
@@ -165,7 +176,7 @@ pub fn training_loss_and_grad(
     let tgt = gpu.storage_init("target", bytemuck::cast_slice(&target.data));
     let mut stage = match loss.kind {
         LossKind::L1ssim => None,
-        kind => Some(wd::WdStage::new(gpu, wd::WdConfig::new(kind, loss.wd_gamma, loss.wd_sigma, iters), w, h)?),
+        kind => Some(wd::WdStage::new(gpu, wd::WdConfig::new(kind, loss.wd_gamma, loss.wd_sigma, loss.wd_warmup, iters), w, h)?),
     };
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     s.loss(&mut enc, &tgt, loss.ssim_weight);
@@ -336,7 +347,8 @@ pub fn train_with(
     };
     // The WD stage, one per image size (laid out on first use); reference statistics are cached
     // by training-view index, so a streamed target works as well.
-    let wd_config = (loss.kind != LossKind::L1ssim).then(|| wd::WdConfig::new(loss.kind, loss.wd_gamma, loss.wd_sigma, cfg.iters));
+    let wd_config =
+        (loss.kind != LossKind::L1ssim).then(|| wd::WdConfig::new(loss.kind, loss.wd_gamma, loss.wd_sigma, loss.wd_warmup, cfg.iters));
     let mut wd_stages: Vec<wd::WdStage> = Vec::new();
     let log_every = (cfg.iters / 500).max(1);
     let mut n = session.scene.n;

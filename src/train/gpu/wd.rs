@@ -120,11 +120,12 @@ pub struct WdConfig {
 }
 
 impl WdConfig {
-    /// The config of a `kind` run of `iters` iterations (the warm-up of [`wdr::warmup_iters`]);
-    /// `sigma` None is [`DEFAULT_SIGMA`].
-    pub fn new(kind: LossKind, gamma: Option<f64>, sigma: Option<f64>, iters: usize) -> Self {
+    /// The config of a `kind` run of `iters` iterations (the warm-up of [`wdr::warmup_iters`]
+    /// with the share `warmup`, None: [`wdr::WARMUP_FRACTION`]); `sigma` None is [`DEFAULT_SIGMA`].
+    pub fn new(kind: LossKind, gamma: Option<f64>, sigma: Option<f64>, warmup: Option<f64>, iters: usize) -> Self {
         let sigma = sigma.unwrap_or(DEFAULT_SIGMA);
-        WdConfig { kind, gamma, sigma, warmup: wdr::warmup_iters(iters), cache_bytes: DEFAULT_CACHE_BYTES }
+        let warmup = wdr::warmup_iters(iters, warmup.unwrap_or(wdr::WARMUP_FRACTION));
+        WdConfig { kind, gamma, sigma, warmup, cache_bytes: DEFAULT_CACHE_BYTES }
     }
 
     fn normalise(&self) -> bool {
