@@ -211,7 +211,8 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         losses: vec!["l1ssim".into(), "wdr".into()],
         iters: None,
         wd_sigma: None,
-        wd_warmup: None,
+        // the share results from before --wd-warmup existed were trained with
+        wd_warmup: Some(0.1),
         backend: gscodec::encoder::Backend::Cpu,
         dataset_args: Vec::new(),
     };
@@ -226,10 +227,11 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(plan.is_done(&l1) && s2.is_done(&l1));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), ..fake("wdr", 2.0, 1.0) });
     assert!(s2.is_done(&wdr) && !plan.is_done(&wdr) && !s4.is_done(&wdr));
-    // the warm-up share likewise: a result without one was trained with 0.1
+    // the warm-up share likewise: a result without one was trained with the paper's 0.1, which is
+    // not today's default (0.5)
+    let default_warmup = Plan { wd_warmup: None, ..s2.clone() };
     let w5 = Plan { wd_warmup: Some(0.5), ..s2.clone() };
-    let w1 = Plan { wd_warmup: Some(0.1), ..s2.clone() };
-    assert!(s2.is_done(&wdr) && w1.is_done(&wdr) && !w5.is_done(&wdr) && w5.is_done(&l1));
+    assert!(s2.is_done(&wdr) && !default_warmup.is_done(&wdr) && !w5.is_done(&wdr) && w5.is_done(&l1));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), ..fake("wdr", 2.0, 1.0) });
-    assert!(w5.is_done(&wdr) && !s2.is_done(&wdr));
+    assert!(w5.is_done(&wdr) && default_warmup.is_done(&wdr) && !s2.is_done(&wdr));
 }

@@ -30,7 +30,7 @@ pub struct Args {
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
     /// Share of each encode's iterations trained with L1-SSIM before `wd` / `wdr`
-    /// (0 ≤ F < 1) [default: 0.1].
+    /// (0 ≤ F < 1) [default: 0.5].
     #[arg(long = "wd-warmup", value_name = "F")]
     pub wd_warmup: Option<f64>,
     /// Training backend of every encode: cpu, gpu, or auto (a hardware GPU if there is one).

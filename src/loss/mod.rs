@@ -68,7 +68,7 @@ pub struct LossArgs {
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
     /// Share of the iterations trained with L1-SSIM alone before `wd` / `wdr` take over:
-    /// 0 ≤ F < 1 (default: 0.1, the paper's 3k of 30k; see docs/wd.md).
+    /// 0 ≤ F < 1 (default: 0.5, where densification ends; the paper's is 0.1; see docs/wd.md).
     #[arg(long = "wd-warmup", value_name = "F")]
     pub wd_warmup: Option<f64>,
 }
@@ -99,7 +99,7 @@ pub fn check_wd_warmup(fraction: f64) -> Result<(), crate::encoder::InvalidConfi
 }
 
 /// Builds the loss for a run of `total_iters` iterations (the WD warm-up is `--wd-warmup` of
-/// it, 10 % by default);
+/// it, [`wdr::WARMUP_FRACTION`] by default);
 /// `default` is used when `--loss` was not given.
 ///
 /// # Errors

@@ -102,10 +102,11 @@ impl Plan {
     /// redone.
     pub fn is_done(&self, p: &Point) -> bool {
         let Ok(r) = results::read_result(&self.point_dir(p).join(RESULT_FILE)) else { return false };
-        // Results written before σ and the warm-up were options were trained with the defaults.
+        // Results written before σ and the warm-up were options were trained at σ = 4 with the
+        // paper's warm-up share.
         let wd = r.loss != "l1ssim";
         let done_sigma = r.wd_sigma.or_else(|| wd.then_some(crate::loss::wd::DEFAULT_SIGMA));
-        let done_warmup = r.wd_warmup.or_else(|| wd.then_some(crate::loss::wdr::WARMUP_FRACTION));
+        let done_warmup = r.wd_warmup.or_else(|| wd.then_some(crate::loss::wdr::PAPER_WARMUP_FRACTION));
         r.iters == self.iters && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
     }
 
@@ -343,13 +344,13 @@ mod tests {
         assert_eq!(s2.settings()["wd_sigma"], 2.0);
         assert_eq!((s2.loss_spec(&pts[0]).unwrap().reported_sigma(), s2.loss_spec(&pts[3]).unwrap().reported_sigma()), (None, Some(2.0)));
         // --wd-warmup likewise
-        assert_eq!(plan.settings()["wd_warmup"], 0.1, "the default warm-up is recorded");
-        let w = Plan { wd_warmup: Some(0.5), ..plan.clone() };
+        assert_eq!(plan.settings()["wd_warmup"], 0.5, "the default warm-up is recorded");
+        let w = Plan { wd_warmup: Some(0.25), ..plan.clone() };
         w.validate().unwrap();
-        assert!(w.point_command(&pts[3]).join(" ").ends_with("--iters 300 --wd-warmup 0.5 --points-only --quiet"));
-        assert_eq!(w.encoder_config(&pts[3]).unwrap().loss.wd_warmup, Some(0.5));
-        assert_eq!(w.settings()["wd_warmup"], 0.5);
-        assert_eq!((w.loss_spec(&pts[0]).unwrap().reported_warmup(), w.loss_spec(&pts[3]).unwrap().reported_warmup()), (None, Some(0.5)));
+        assert!(w.point_command(&pts[3]).join(" ").ends_with("--iters 300 --wd-warmup 0.25 --points-only --quiet"));
+        assert_eq!(w.encoder_config(&pts[3]).unwrap().loss.wd_warmup, Some(0.25));
+        assert_eq!(w.settings()["wd_warmup"], 0.25);
+        assert_eq!((w.loss_spec(&pts[0]).unwrap().reported_warmup(), w.loss_spec(&pts[3]).unwrap().reported_warmup()), (None, Some(0.25)));
         let bad = Plan { wd_warmup: Some(1.0), ..plan.clone() };
         assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --wd-warmup 1: must be in [0, 1)");
         let bad = Plan { wd_sigma: Some(0.5), ..plan.clone() };
