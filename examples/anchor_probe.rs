@@ -24,7 +24,7 @@ fn main() {
     let pruned = gscodec::rate::quantise::prune(&scene, 1.0 / 255.0);
     let sig = gscodec::rate::importance::significance(&pruned);
     let t = Instant::now();
-    let e = encode(&pruned, &sig, &cfg, (scene.len(), scene.sh_degree));
+    let e = encode(&pruned, &sig, &cfg, (scene.len(), scene.sh_degree), None);
     let secs = t.elapsed().as_secs_f64();
     let decoded = gscodec_decoder::decode(&e.bytes).expect("decodes");
     assert_eq!(decoded, e.decoded, "the file decodes to the encoder's scene");

@@ -6,7 +6,7 @@
 use gscodec_decoder::bitstream::params::Grid;
 use gscodec_decoder::bitstream::positions::{morton_decode, morton_encode};
 use gscodec_decoder::math::sh_rest_coeffs;
-use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
+use gscodec_decoder::{RenderOptions, Splats};
 
 use super::model::Model;
 use crate::optim::AdamRule;
@@ -161,14 +161,14 @@ pub(crate) fn rounded(v: &[f32], step: f32) -> Vec<f32> {
     v.iter().map(|x| (x / step).round() * step).collect()
 }
 
-/// Fine-tunes the model against `targets` (images of `cameras`) under L1 + SSIM, `iters` steps of
-/// one view each; base scales are rounded to their step in the forward pass (straight through).
-/// Returns the last loss.
-pub fn fine_tune(model: &mut Model, cameras: &[Camera], targets: &[Image], iters: usize, base_step: f32, seed: u64) -> f64 {
+/// Fine-tunes the model against `views` under L1 + SSIM, `iters` steps of one view each; base
+/// scales are rounded to their step in the forward pass (straight through). Returns the last loss.
+pub fn fine_tune(model: &mut Model, views: &super::FitViews, iters: usize, base_step: f32, seed: u64) -> f64 {
+    let (cameras, targets) = (&views.cameras, &views.images);
     let p = model.p();
     let rest = 3 * sh_rest_coeffs(model.degree);
     let loss_fn = crate::loss::l1::L1Ssim::default();
-    let opts = RenderOptions { background: [0.0; 3], max_sh_degree: 3 };
+    let opts = RenderOptions { background: views.background, max_sh_degree: 3 };
     let mut rng = Rng::new(seed ^ 0xA4C4);
     let (mut o1, mut o2, mut of) = (Adam::new(model.w1.len()), Adam::new(model.w2.len()), Adam::new(model.feat.len()));
     let mut ob = Adam::new(model.base.len());

@@ -4,14 +4,17 @@
 //! vector and a base log scale, and one small MLP shared by all anchors turns an anchor's
 //! features and a Gaussian's cell inside it into that Gaussian's opacity, scale, rotation and
 //! colour. The MLP and the features are distilled from the input's attributes
-//! ([`fit::distill`]), fine-tuned against renders of the input ([`fit::fine_tune`]), then the MLP
-//! is turned into the fixed-point one the decoder runs ([`fixed`]).
+//! ([`fit::distill`]), fine-tuned against renders of the input or against the images it was
+//! trained from ([`fit::fine_tune`], [`FitViews`]), then the MLP is turned into the fixed-point
+//! one the decoder runs ([`fixed`]).
 
 pub mod fit;
 pub mod fixed;
 pub mod model;
 
-use gscodec_decoder::Splats;
+use std::sync::Arc;
+
+use gscodec_decoder::{Camera, Image, Splats};
 use serde::Serialize;
 
 use crate::views::{training_cameras, UpAxis};
@@ -55,6 +58,39 @@ impl Default for AnchorConfig {
     }
 }
 
+/// The posed images the anchors are fine-tuned to.
+pub struct FitViews {
+    pub cameras: Vec<Camera>,
+    /// One per camera, at its size.
+    pub images: Vec<Arc<Image>>,
+    /// What the images show behind the scene.
+    pub background: [f32; 3],
+    /// `images` for a dataset's training views, `renders` for renders of the input scene.
+    pub kind: &'static str,
+}
+
+impl FitViews {
+    /// Renders of `scene` from [`training_cameras`] at the orbit size, on black: what a `.ply`
+    /// input is fine-tuned to.
+    pub fn renders(scene: &Splats) -> FitViews {
+        let size = crate::encoder::ORBIT_SIZE;
+        let cameras = training_cameras(scene, 8, size, size, UpAxis::NegY.vector());
+        let opts = gscodec_decoder::RenderOptions { background: [0.0; 3], max_sh_degree: 3 };
+        let images = cameras.iter().map(|c| Arc::new(gscodec_decoder::render::render(scene, c, &opts))).collect();
+        FitViews { cameras, images, background: [0.0; 3], kind: "renders" }
+    }
+
+    /// The training views of `dataset` (its held-out views are left out), as loaded.
+    ///
+    /// # Errors
+    /// An image that cannot be read (a dataset streamed from disk).
+    pub fn training_views(dataset: &crate::io::dataset::Dataset) -> crate::Result<FitViews> {
+        let frames = dataset.split(crate::io::dataset::Split::Train);
+        let images = frames.iter().map(|f| f.image.get()).collect::<crate::Result<Vec<_>>>()?;
+        Ok(FitViews { cameras: frames.iter().map(|f| f.camera.clone()).collect(), images, background: dataset.background, kind: "images" })
+    }
+}
+
 /// What an anchor encode did.
 #[derive(Debug, Clone, Serialize)]
 pub struct AnchorReport {
@@ -67,6 +103,8 @@ pub struct AnchorReport {
     pub sh_degree: u8,
     pub distill_loss: f64,
     pub fine_tune_loss: f64,
+    /// What the fine-tuning fitted: `renders` of the input scene or the dataset's training `images`.
+    pub fine_tuned_to: &'static str,
     /// PSNR of the float model (before the fixed-point MLP) against this encoder's input scene
     /// (for `encode`, the explicit search's pruned scene), `eval --orbit 8`'s measure.
     pub float_psnr: f64,
@@ -85,7 +123,9 @@ pub struct AnchorEncoded {
 /// the distillation; Gaussians the renderer never draws (opacity below 1/255) should be pruned
 /// before. `input` (Gaussians, SH degree) is what the encoder's caller started from, for the
 /// file's info section.
-pub fn encode(scene: &Splats, sig: &[f32], cfg: &AnchorConfig, input: (usize, u8)) -> AnchorEncoded {
+///
+/// `views` are the images the fine-tuning fits; `None`: [`FitViews::renders`] of `scene`.
+pub fn encode(scene: &Splats, sig: &[f32], cfg: &AnchorConfig, input: (usize, u8), views: Option<&FitViews>) -> AnchorEncoded {
     let degree = cfg.max_sh_degree.min(scene.sh_degree);
     let bits = cfg
         .position_bits
@@ -97,12 +137,16 @@ pub fn encode(scene: &Splats, sig: &[f32], cfg: &AnchorConfig, input: (usize, u8
     let weight: Vec<f32> = placed.order.iter().map(|&g| (f64::from(sig[g]) / mean.max(1e-12)).clamp(0.01, 100.0).sqrt() as f32).collect();
     let distill_loss = fit::distill(&mut model, scene, &placed.order, &weight, cfg.distill_iters);
     let mut fine_tune_loss = f64::NAN;
+    let own;
+    let views = match views {
+        Some(v) => v,
+        None => {
+            own = FitViews::renders(scene);
+            &own
+        }
+    };
     if cfg.iters > 0 {
-        let size = crate::encoder::ORBIT_SIZE;
-        let cams = training_cameras(scene, 8, size, size, UpAxis::NegY.vector());
-        let opts = gscodec_decoder::RenderOptions { background: [0.0; 3], max_sh_degree: 3 };
-        let targets: Vec<_> = cams.iter().map(|c| gscodec_decoder::render::render(scene, c, &opts)).collect();
-        fine_tune_loss = fit::fine_tune(&mut model, &cams, &targets, cfg.iters, cfg.base_step, cfg.seed);
+        fine_tune_loss = fit::fine_tune(&mut model, views, cfg.iters, cfg.base_step, cfg.seed);
     }
     // The float model's scene (base rounded as coded): how much the fixed-point MLP costs.
     let act = model.forward();
@@ -119,6 +163,7 @@ pub fn encode(scene: &Splats, sig: &[f32], cfg: &AnchorConfig, input: (usize, u8
         sh_degree: degree,
         distill_loss,
         fine_tune_loss,
+        fine_tuned_to: views.kind,
         float_psnr,
         bytes: sizes,
     };
@@ -140,7 +185,7 @@ mod tests {
 
     fn run(scene: &Splats, cfg: &AnchorConfig) -> AnchorEncoded {
         let sig = crate::rate::importance::significance(scene);
-        encode(scene, &sig, cfg, (scene.len(), scene.sh_degree))
+        encode(scene, &sig, cfg, (scene.len(), scene.sh_degree), None)
     }
 
     #[test]
@@ -268,5 +313,22 @@ mod tests {
         let tuned = psnr(&AnchorConfig { distill_iters: 200, iters: 150, ..quick() });
         assert!(distilled > raw + 3.0, "distillation: {raw:.2} → {distilled:.2} dB");
         assert!(tuned > distilled + 0.5, "fine-tuning: {distilled:.2} → {tuned:.2} dB");
+    }
+
+    /// Fine-tuning fits the views it is given (a dataset's images), not renders of the scene:
+    /// given views of the scene with its colours changed, the file moves towards them.
+    #[test]
+    fn fine_tuning_fits_the_given_views() {
+        let scene = tiny();
+        let mut other = scene.clone();
+        other.sh_dc.iter_mut().for_each(|c| c[0] += 0.8);
+        let views = FitViews { kind: "images", ..FitViews::renders(&other) };
+        let sig = crate::rate::importance::significance(&scene);
+        let cfg = AnchorConfig { distill_iters: 200, iters: 150, ..quick() };
+        let to_views = encode(&scene, &sig, &cfg, (scene.len(), scene.sh_degree), Some(&views));
+        let to_scene = run(&scene, &cfg);
+        assert_eq!((to_views.report.fine_tuned_to, to_scene.report.fine_tuned_to), ("images", "renders"));
+        let psnr = |e: &AnchorEncoded| crate::encoder::orbit_psnr(&other, &e.decoded);
+        assert!(psnr(&to_views) > psnr(&to_scene) + 1.0, "{:.2} vs {:.2} dB", psnr(&to_views), psnr(&to_scene));
     }
 }

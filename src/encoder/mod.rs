@@ -114,12 +114,14 @@ impl Encoder {
         let explicit_iters = if self.config.profile == Profile::Anchor { Some(0) } else { self.config.iters };
         let explicit = Encoder { config: self.config.clone().with_iters(explicit_iters) };
         let e = explicit.encode_explicit(trials, orbit, progress)?;
-        self.with_anchors(e, trials.scene(), orbit)
+        self.with_anchors(e, trials.scene(), orbit, None)
     }
 
     /// The explicit result `e` of `scene` replaced by the anchor profile's file where the profile
     /// asks for it: always for [`Profile::Anchor`], when its `J` is lower for [`Profile::Auto`].
-    fn with_anchors(&self, e: Encoded, scene: &Splats, orbit: &Orbit) -> Result<Encoded> {
+    /// The anchors are fine-tuned to `views` (a dataset's training images), else to renders of
+    /// `scene`.
+    fn with_anchors(&self, e: Encoded, scene: &Splats, orbit: &Orbit, views: Option<&crate::anchor::FitViews>) -> Result<Encoded> {
         let start = Instant::now();
         let prepared = rate::prepared(scene, &e.config, None);
         if prepared.is_empty() {
@@ -135,7 +137,7 @@ impl Encoder {
             seed: self.config.seed,
             ..d
         };
-        let a = crate::anchor::encode(&prepared, &sig, &cfg, (scene.len(), scene.sh_degree));
+        let a = crate::anchor::encode(&prepared, &sig, &cfg, (scene.len(), scene.sh_degree), views);
         let orbit_psnr = orbit.psnr(&a.decoded);
         let j = |d: &Splats, bytes: usize| orbit.distortion(d) + self.config.lambda.rate_cost(bytes);
         let alternative = (e.bytes.len(), e.report.orbit_psnr);
@@ -268,8 +270,11 @@ impl Encoder {
         let e = self.finish(&orbit, &trained, &config, iters, start, stages, series, Some(r), Some(dataset))?;
         match self.config.profile {
             Profile::Explicit => Ok(e),
-            // The anchors are fitted to the trained scene (against its renders).
-            _ => Encoder { config: self.config.clone().with_iters(None) }.with_anchors(e, &trained, &orbit),
+            // The anchors are distilled from the trained scene, then fine-tuned to the images.
+            _ => {
+                let views = crate::anchor::FitViews::training_views(dataset)?;
+                Encoder { config: self.config.clone().with_iters(None) }.with_anchors(e, &trained, &orbit, Some(&views))
+            }
         }
     }
 
