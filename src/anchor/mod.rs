@@ -103,7 +103,8 @@ pub struct AnchorReport {
     pub sh_degree: u8,
     pub distill_loss: f64,
     pub fine_tune_loss: f64,
-    /// What the fine-tuning fitted: `renders` of the input scene or the dataset's training `images`.
+    /// What the fine-tuning fitted: `renders` of the input scene, the dataset's training
+    /// `images`, or `none` (no fine-tuning steps).
     pub fine_tuned_to: &'static str,
     /// PSNR of the float model (before the fixed-point MLP) against this encoder's input scene
     /// (for `encode`, the explicit search's pruned scene), `eval --orbit 8`'s measure.
@@ -136,17 +137,18 @@ pub fn encode(scene: &Splats, sig: &[f32], cfg: &AnchorConfig, input: (usize, u8
     let mean = sig.iter().map(|&s| f64::from(s)).sum::<f64>() / sig.len().max(1) as f64;
     let weight: Vec<f32> = placed.order.iter().map(|&g| (f64::from(sig[g]) / mean.max(1e-12)).clamp(0.01, 100.0).sqrt() as f32).collect();
     let distill_loss = fit::distill(&mut model, scene, &placed.order, &weight, cfg.distill_iters);
-    let mut fine_tune_loss = f64::NAN;
-    let own;
-    let views = match views {
-        Some(v) => v,
-        None => {
-            own = FitViews::renders(scene);
-            &own
-        }
-    };
+    let (mut fine_tune_loss, mut fine_tuned_to) = (f64::NAN, "none");
     if cfg.iters > 0 {
+        let own;
+        let views = match views {
+            Some(v) => v,
+            None => {
+                own = FitViews::renders(scene);
+                &own
+            }
+        };
         fine_tune_loss = fit::fine_tune(&mut model, views, cfg.iters, cfg.base_step, cfg.seed);
+        fine_tuned_to = views.kind;
     }
     // The float model's scene (base rounded as coded): how much the fixed-point MLP costs.
     let act = model.forward();
@@ -163,7 +165,7 @@ pub fn encode(scene: &Splats, sig: &[f32], cfg: &AnchorConfig, input: (usize, u8
         sh_degree: degree,
         distill_loss,
         fine_tune_loss,
-        fine_tuned_to: views.kind,
+        fine_tuned_to,
         float_psnr,
         bytes: sizes,
     };
