@@ -150,7 +150,7 @@ fn regenerate() {
             let scene = vector_scene(name);
             let sig = gscodec::rate::importance::significance(&scene);
             let cfg = AnchorConfig { features: 8, hidden: 16, distill_iters: 200, iters: 0, ..AnchorConfig::default() };
-            gscodec::anchor::encode(&scene, &sig, &cfg, (scene.len(), scene.sh_degree)).bytes
+            gscodec::anchor::encode(&scene, &sig, &cfg, (scene.len(), scene.sh_degree), None).bytes
         } else {
             // `levels`: the tiny scene in importance levels (format 4.0, SPEC §3.1). `vq`: the tiny
             // scene to SH degree 2, band 1 by a codebook of 16 rows, band 2 per coefficient
