@@ -70,14 +70,14 @@ pub struct FitViews {
 }
 
 impl FitViews {
-    /// Renders of `scene` from [`training_cameras`] at the orbit size, on black: what a `.ply`
-    /// input is fine-tuned to.
+    /// Renders of `scene` from [`training_cameras`] at the orbit size, on black
+    /// ([`render_targets`](crate::train::targets::render_targets)): what a `.ply` input is
+    /// fine-tuned to.
     pub fn renders(scene: &Splats) -> FitViews {
         let size = crate::encoder::ORBIT_SIZE;
         let cameras = training_cameras(scene, 8, size, size, UpAxis::NegY.vector());
-        let opts = gscodec_decoder::RenderOptions { background: [0.0; 3], max_sh_degree: 3 };
-        let images = cameras.iter().map(|c| Arc::new(gscodec_decoder::render::render(scene, c, &opts))).collect();
-        FitViews { cameras, images, background: [0.0; 3], kind: "renders" }
+        let targets = crate::train::targets::render_targets(scene, &cameras, [0.0; 3]);
+        Self::of_frames(targets.frames.iter(), targets.background, "renders").expect("rendered images are in memory")
     }
 
     /// The training views of `dataset` (its held-out views are left out), as loaded.
@@ -85,9 +85,16 @@ impl FitViews {
     /// # Errors
     /// An image that cannot be read (a dataset streamed from disk).
     pub fn training_views(dataset: &crate::io::dataset::Dataset) -> crate::Result<FitViews> {
-        let frames = dataset.split(crate::io::dataset::Split::Train);
-        let images = frames.iter().map(|f| f.image.get()).collect::<crate::Result<Vec<_>>>()?;
-        Ok(FitViews { cameras: frames.iter().map(|f| f.camera.clone()).collect(), images, background: dataset.background, kind: "images" })
+        Self::of_frames(dataset.split(crate::io::dataset::Split::Train).into_iter(), dataset.background, "images")
+    }
+
+    fn of_frames<'a>(
+        frames: impl Iterator<Item = &'a crate::io::dataset::Frame> + Clone,
+        background: [f32; 3],
+        kind: &'static str,
+    ) -> crate::Result<FitViews> {
+        let images = frames.clone().map(|f| f.image.get()).collect::<crate::Result<Vec<_>>>()?;
+        Ok(FitViews { cameras: frames.map(|f| f.camera.clone()).collect(), images, background, kind })
     }
 }
 

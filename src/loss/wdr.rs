@@ -24,7 +24,7 @@ pub const DEFAULT_GAMMA_WD: f64 = 0.03;
 /// reference 30k, [`crate::train::Schedule`]), so WD / WD-R refine the Gaussians L1-SSIM grew.
 /// The paper warms up for 3k of 30k and tunes γ per scene to keep the splat count; measured
 /// against that share (0.1, [`PAPER_WARMUP_FRACTION`]) in docs/wd.md §8.
-pub const WARMUP_FRACTION: f64 = 0.5;
+pub const WARMUP_FRACTION: f64 = crate::train::DENSIFY_UNTIL_SHARE;
 /// The paper's warm-up share (3k of 30k iterations), this crate's default before `--wd-warmup`
 /// (what results that record no share were trained with).
 pub const PAPER_WARMUP_FRACTION: f64 = 0.1;

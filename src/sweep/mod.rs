@@ -272,12 +272,13 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
     let decode_s = t.elapsed().as_secs_f64();
     let (per_view, _) = crate::cli::eval::measure(&decoded, &input.views, input.background, &mut || {})?;
     let m = crate::metrics::view::mean(&per_view).ok_or_else(|| Error::input(&plan.input, "no views to measure"))?;
+    let spec = plan.loss_spec(p)?;
     let result = PointResult {
         lambda: p.lambda,
         loss: p.loss.clone(),
         iters: plan.iters,
-        wd_sigma: plan.loss_spec(p)?.reported_sigma(),
-        wd_warmup: plan.loss_spec(p)?.reported_warmup(),
+        wd_sigma: spec.reported_sigma(),
+        wd_warmup: spec.reported_warmup(),
         bytes: out.bytes.len() as u64,
         gaussians: decoded.len() as u64,
         psnr: Some(m.psnr),

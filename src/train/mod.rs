@@ -95,6 +95,9 @@ pub struct Schedule {
     pub opacity_reset_every: usize,
 }
 
+/// Share of a run during which it densifies (15,000 of the reference 30,000 iterations); WD and
+/// WD-R take over when it ends ([`crate::loss::wdr::WARMUP_FRACTION`]).
+pub const DENSIFY_UNTIL_SHARE: f64 = 0.5;
 /// Fewest iterations between two densification steps.
 pub const MIN_DENSIFY_EVERY: usize = 50;
 /// Fewest iterations between two opacity resets (and before the first).
@@ -114,7 +117,7 @@ impl Schedule {
     pub fn for_iters(iters: usize) -> Self {
         let s = iters as f64 / 30_000.0;
         let at = |v: f64| ((v * s).round() as usize).max(1);
-        let densify_until = at(15_000.0);
+        let densify_until = at(30_000.0 * DENSIFY_UNTIL_SHARE);
         let reset = at(3000.0).max(MIN_OPACITY_RESET_EVERY);
         Schedule {
             sh_up_every: at(1000.0),
