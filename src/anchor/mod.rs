@@ -94,7 +94,7 @@ impl FitViews {
         kind: &'static str,
     ) -> crate::Result<FitViews> {
         let images = frames.clone().map(|f| f.image.get()).collect::<crate::Result<Vec<_>>>()?;
-        Ok(FitViews { cameras: frames.map(|f| f.camera.clone()).collect(), images, background, kind })
+        Ok(FitViews { cameras: frames.map(|f| f.camera).collect(), images, background, kind })
     }
 }
 
