@@ -90,7 +90,7 @@ fn bench_stages(c: &mut Criterion) {
         stage("loss", &mut |s, enc| s.loss(enc, &target, 0.2));
         stage("backward", &mut |s, enc| s.backward(enc, &cam, true));
         stage("adam", &mut |s, enc| s.adam(enc, lr));
-        let wdr = WdConfig::new(LossKind::Wdr, None, None, 1);
+        let wdr = WdConfig::new(LossKind::Wdr, None, None, None, 1);
         let mut wd = WdStage::new(&gpu, wdr, w, h).unwrap();
         let mut wd_uncached = WdStage::new(&gpu, WdConfig { cache_bytes: 0, ..wdr }, w, h).unwrap();
         stage("wd stage (wdr)", &mut |s, enc| wd.record(s, enc, 0, &target, true).unwrap());
