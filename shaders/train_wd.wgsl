@@ -6,10 +6,12 @@
 // the op's uniform), so the host lays out features, statistics and gradients once per image
 // size. `refs` holds the reference view's cached statistics. Prepended by the host (from the
 // CPU code): TG / TD1 / TD2 (7 taps of g, g', g''), ODD / EVEN (steering), GAIN, MEAN / STD
-// (ImageNet), NORMALISE_VIEWS.
+// (ImageNet), NORMALISE_VIEWS, STRIPES.
 //
 // acc: [0] d_WD of this iteration, [1] Σ(∇L_orig)², [2] Σ(∇d_WD + β∇L_orig)², [3] γ,
-// [4] Σ‖∇L_orig‖, [5] Σ‖∇(d_WD + β L_orig)‖, [6] views measured (f32 bit patterns).
+// [4] Σ‖∇L_orig‖, [5] Σ‖∇(d_WD + β L_orig)‖, [6] views measured (f32 bit patterns); from [8],
+// STRIPES partial sums for each of [0], [1], [2], which workgroups add into by their index and
+// scalars() folds in order.
 
 struct Op {
     c: u32,
@@ -78,10 +80,12 @@ fn reduce(li: u32, v: vec2<f32>) -> vec2<f32> {
     return red[0];
 }
 
-fn acc_add(slot: u32, v: f32) {
-    var old = atomicLoad(&acc[slot]);
+// Adds v to sum `slot` (0..3) in the stripe of workgroup `wg` (scalars() folds the stripes).
+fn acc_add(slot: u32, wg: u32, v: f32) {
+    let w = 8u + slot * STRIPES + wg % STRIPES;
+    var old = atomicLoad(&acc[w]);
     loop {
-        let r = atomicCompareExchangeWeak(&acc[slot], old, bitcast<u32>(bitcast<f32>(old) + v));
+        let r = atomicCompareExchangeWeak(&acc[w], old, bitcast<u32>(bitcast<f32>(old) + v));
         if (r.exchanged) {
             break;
         }
@@ -331,7 +335,7 @@ fn level_grad(
     }
     let t = reduce(li, vec2<f32>(part, 0.0));
     if (li == 0u && t.x != 0.0) {
-        acc_add(0u, t.x * op.fscale);
+        acc_add(0u, i >> 8u, t.x * op.fscale);
     }
 }
 
@@ -419,7 +423,7 @@ fn array_grad(
     if (has(HAS0)) {
         let t = reduce(li, vec2<f32>(part, 0.0));
         if (li == 0u && t.x != 0.0) {
-            acc_add(0u, t.x * op.fscale);
+            acc_add(0u, i >> 8u, t.x * op.fscale);
         }
     }
 }
@@ -570,8 +574,8 @@ fn norms(
     }
     let t = reduce(li, a);
     if (li == 0u) {
-        acc_add(1u, t.x);
-        acc_add(2u, t.y);
+        acc_add(1u, i >> 8u, t.x);
+        acc_add(2u, i >> 8u, t.y);
     }
 }
 
@@ -579,6 +583,14 @@ fn norms(
 // (the session's scalar ring).
 @compute @workgroup_size(1)
 fn scalars() {
+    // The sums d_WD, Σ(∇L_orig)², Σ(∇d_WD + β∇L_orig)²: their stripes, in order.
+    for (var k = 0u; k < 3u; k++) {
+        var t = 0.0;
+        for (var j = 0u; j < STRIPES; j++) {
+            t += bitcast<f32>(atomicLoad(&acc[8u + k * STRIPES + j]));
+        }
+        atomicStore(&acc[k], bitcast<u32>(t));
+    }
     var gamma = accf(3u);
     if (has(NORMALISE) && accf(6u) < f32(NORMALISE_VIEWS)) {
         let no = sqrt(accf(1u));

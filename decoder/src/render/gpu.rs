@@ -124,16 +124,29 @@ fn dims(groups: u32) -> (u32, u32) {
     }
 }
 
-impl GpuRenderer {
-    /// Picks the default adapter (any backend wgpu was built with) and compiles the kernels.
-    pub fn new() -> Result<Self, GpuError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-        let adapter = block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+/// The default adapter (any backend wgpu was built with, high-performance preferred), from the
+/// process's one wgpu instance.
+///
+/// The instance is created on first use and kept until the process exits. Dropping the last
+/// instance unloads the Vulkan driver; on an NVIDIA H100 (driver 580) a sweep whose GPU trainings
+/// each made and dropped their own instance crashed in a jump to unmapped code, the mark of a
+/// driver thread still running after its library was unloaded.
+pub fn default_adapter() -> Result<wgpu::Adapter, GpuError> {
+    static INSTANCE: std::sync::OnceLock<wgpu::Instance> = std::sync::OnceLock::new();
+    let instance = INSTANCE.get_or_init(|| wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env()));
+    block_on(
+        instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             ..Default::default()
-        }))
-        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
-        Self::with_adapter(&adapter)
+        }),
+    )
+    .map_err(|e| GpuError::NoAdapter(e.to_string()))
+}
+
+impl GpuRenderer {
+    /// Picks the default adapter ([`default_adapter`]) and compiles the kernels.
+    pub fn new() -> Result<Self, GpuError> {
+        Self::with_adapter(&default_adapter()?)
     }
 
     /// Uses a given adapter.

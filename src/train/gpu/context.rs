@@ -133,14 +133,7 @@ pub struct Gpu {
 }
 
 fn adapter() -> Option<wgpu::Adapter> {
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-    block_on(
-        instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            ..Default::default()
-        }),
-    )
-    .ok()
+    gscodec_decoder::render::gpu::default_adapter().ok()
 }
 
 /// Whether a hardware (not CPU/software, e.g. lavapipe) GPU adapter is available.
@@ -160,6 +153,20 @@ impl Gpu {
     pub fn new() -> Result<Option<Gpu>> {
         let Some(adapter) = adapter() else { return Ok(None) };
         Gpu::with_adapter(&adapter).map(Some)
+    }
+
+    /// The process's training device: opened by the first call ([`Gpu::new`]) and kept, so every
+    /// training in the process (a sweep's concurrent points included) shares one device and its
+    /// compiled kernels, and no device is destroyed while another trains. `Ok(None)` when there is
+    /// no adapter. Sharing means an uncaptured validation error is reported by whichever training
+    /// checks first, and [`Gpu::readbacks`] counts every training's read-backs.
+    pub fn shared() -> Result<Option<Arc<Gpu>>> {
+        static SHARED: Mutex<Option<Arc<Gpu>>> = Mutex::new(None);
+        let mut slot = SHARED.lock().unwrap_or_else(|p| p.into_inner());
+        if slot.is_none() {
+            *slot = Gpu::new()?.map(Arc::new);
+        }
+        Ok(slot.clone())
     }
 
     pub fn with_adapter(adapter: &wgpu::Adapter) -> Result<Gpu> {

@@ -112,9 +112,10 @@ impl GpuLoss {
     }
 }
 
-/// The default adapter's device, or the input error saying there is none.
-pub fn gpu_or_error() -> Result<Gpu> {
-    Gpu::new()?.ok_or_else(|| Error::Input("GPU training: no GPU adapter available (install a Vulkan driver, or use --backend cpu)".into()))
+/// The process's shared training device ([`Gpu::shared`]), or the input error saying there is none.
+pub fn gpu_or_error() -> Result<std::sync::Arc<Gpu>> {
+    Gpu::shared()?
+        .ok_or_else(|| Error::Input("GPU training: no GPU adapter available (install a Vulkan driver, or use --backend cpu)".into()))
 }
 
 /// Renders `splats` on the GPU, backpropagates the host-given image gradient `dl_dimg` and

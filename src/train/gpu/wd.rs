@@ -22,6 +22,16 @@ use crate::{Error, Result};
 
 const SHADER: &str = include_str!("../../../shaders/train_wd.wgsl");
 
+/// Words of the scalar buffer `acc` that the kernels read (d_WD, the two gradient norms, γ, γ's
+/// running sums and views measured: `train_wd.wgsl`'s header).
+const ACC_WORDS: usize = 8;
+/// The first words of `acc` that are sums over workgroups (d_WD and the two norms).
+const ACC_SUMS: usize = 3;
+/// Each sum is accumulated in this many slots after [`ACC_WORDS`], a workgroup adding into the
+/// slot of its index modulo this: every workgroup adding into one word (a compare-exchange loop
+/// on its bit pattern) serialises them, which at 1280×960 is tens of thousands of workgroups per
+/// level. `scalars` folds the slots in order.
+const ACC_STRIPES: usize = 256;
 /// Default budget of the per-view reference cache (the CPU's [`wdr::DEFAULT_CACHE_BYTES`]).
 pub const DEFAULT_CACHE_BYTES: u64 = wdr::DEFAULT_CACHE_BYTES as u64;
 
@@ -170,6 +180,7 @@ fn constants_wgsl() -> String {
     s += &wgsl_array("MEAN", "f32", &IMAGENET_MEAN.map(f));
     s += &wgsl_array("STD", "f32", &IMAGENET_STD.map(f));
     s += &format!("const GAIN: f32 = {};\nconst NORMALISE_VIEWS: u32 = {}u;\n", f(pyramid::GAIN), NORMALISE_VIEWS);
+    s += &format!("const STRIPES: u32 = {ACC_STRIPES}u;\n");
     s
 }
 
@@ -591,7 +602,9 @@ impl WdStage {
             gpu.queue.write_buffer(&arena, *off as u64 * 4, bytemuck::cast_slice(data));
         }
         let g0 = config.initial_gamma() as f32;
-        let acc = gpu.storage_init("wd scalars", bytemuck::cast_slice(&[0.0f32, 0.0, 0.0, g0, 0.0, 0.0, 0.0, 0.0]));
+        let mut words = vec![0.0f32; ACC_WORDS + ACC_SUMS * ACC_STRIPES];
+        words[3] = g0;
+        let acc = gpu.storage_init("wd scalars", bytemuck::cast_slice(&words));
         gpu.check()?;
         Ok(WdStage {
             config,
@@ -693,7 +706,7 @@ impl WdStage {
         };
         let bg_ref = fill.then(|| bind0(target));
         let bg = bind0(&img.image);
-        enc.clear_buffer(&self.acc, 0, Some(12));
+        enc.clear_buffer(&self.acc, 4 * ACC_WORDS as u64, Some(4 * (ACC_SUMS * ACC_STRIPES) as u64));
         s.wd_timed.set(true);
         let mut pass = s.timed_pass(enc, (Some(WD_TIMESTAMPS.0), Some(WD_TIMESTAMPS.1)));
         let run = |pass: &mut wgpu::ComputePass, o: &Op| {
