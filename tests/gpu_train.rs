@@ -9,7 +9,8 @@
 //!   trainer, the same report shape (points, evaluations), similar scene size;
 //! - WD (built-in features) value and image gradient, and the whole WD-R loss (fixed and
 //!   normalised γ, warm-up), against `gscodec::loss::{wd, wdr}`; 60 WD-R iterations on
-//!   `samples/tiny` through `--backend gpu`: held-out PSNR within 0.3 dB of the CPU trainer.
+//!   `samples/tiny` through `--backend gpu`: held-out PSNR within 0.3 dB of the CPU trainer;
+//! - one shared training device per process, on which two trainings run at once.
 //!
 //! Tolerances: per value `|gpu − cpu| ≤ ATOL·max|cpu over the group| + RTOL·|cpu|` with
 //! ATOL = 1e-3, RTOL = 1e-3. The GPU sums per-pixel terms with float atomics in any order and
@@ -321,6 +322,37 @@ fn fifty_iterations_read_back_four_times() {
     assert_eq!(r.points.len(), 50, "a point per iteration (iters / 500 < 1)");
     assert!(r.points.iter().all(|p| p.loss.is_finite() && p.loss > 0.0), "{:?}", r.points);
     assert!(r.stages.rasterize > 0.0 || !gpu.timestamps);
+}
+
+/// The process's shared training device (what `--backend gpu|auto` trains on): one device,
+/// whoever asks, and two trainings at once on it (a sweep's `--jobs`) both run to the end.
+#[test]
+fn trainings_share_one_device_and_run_at_once() {
+    if device().is_none() {
+        return;
+    }
+    let a = Gpu::shared().unwrap().expect("an adapter exists");
+    let b = Gpu::shared().unwrap().expect("an adapter exists");
+    assert!(std::sync::Arc::ptr_eq(&a, &b), "one device per process");
+    let ds = toy_dataset();
+    let reports: Vec<TrainReport> = std::thread::scope(|s| {
+        let runs: Vec<_> = [1u64, 2]
+            .into_iter()
+            .map(|seed| {
+                let (gpu, ds) = (a.clone(), &ds);
+                s.spawn(move || {
+                    let cfg = TrainConfig { iters: 40, seed, init_points: 300, eval_interval: 0, densify: false, ..Default::default() };
+                    gpu::train_on(&gpu, ds, None, &cfg, &GpuLoss::default(), &mut |_| {}).unwrap().1
+                })
+            })
+            .collect();
+        runs.into_iter().map(|r| r.join().unwrap()).collect()
+    });
+    for r in &reports {
+        assert_eq!((r.backend, r.points.len()), ("gpu", 40));
+        assert!(r.points.iter().all(|p| p.loss.is_finite() && p.loss > 0.0), "{:?}", r.points);
+        assert!(r.test_psnr.is_some_and(|p| p.is_finite() && p > 5.0), "{:?}", r.test_psnr);
+    }
 }
 
 /// Checkpoints on the GPU backend, in the CPU trainer's format: 300 iterations on the toy dataset
