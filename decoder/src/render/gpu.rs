@@ -127,10 +127,10 @@ fn dims(groups: u32) -> (u32, u32) {
 /// The default adapter (any backend wgpu was built with, high-performance preferred), from the
 /// process's one wgpu instance.
 ///
-/// The instance is created on first use and kept until the process exits. Dropping the last
-/// instance unloads the Vulkan driver; on an NVIDIA H100 (driver 580) a sweep whose GPU trainings
-/// each made and dropped their own instance crashed in a jump to unmapped code, the mark of a
-/// driver thread still running after its library was unloaded.
+/// The instance is created on first use and kept until the process exits, so the Vulkan loader
+/// and driver stay loaded: on an NVIDIA H100 (driver 580) a GPU sweep whose trainings each made
+/// and dropped their own instance and device crashed in a jump to unmapped code, which is what
+/// running code of an unloaded library looks like (docs/train.md).
 pub fn default_adapter() -> Result<wgpu::Adapter, GpuError> {
     static INSTANCE: std::sync::OnceLock<wgpu::Instance> = std::sync::OnceLock::new();
     let instance = INSTANCE.get_or_init(|| wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env()));
