@@ -6,10 +6,10 @@
 // the op's uniform), so the host lays out features, statistics and gradients once per image
 // size. `refs` holds the reference view's cached statistics. Prepended by the host (from the
 // CPU code): TG / TD1 / TD2 (7 taps of g, g', g''), ODD / EVEN (steering), GAIN, MEAN / STD
-// (ImageNet), NORMALISE_VIEWS, STRIPES.
+// (ImageNet), NORMALISE_VIEWS, SUMS_AT / SUMS / STRIPES (the layout of acc's sums).
 //
 // acc: [0] d_WD of this iteration, [1] Σ(∇L_orig)², [2] Σ(∇d_WD + β∇L_orig)², [3] γ,
-// [4] Σ‖∇L_orig‖, [5] Σ‖∇(d_WD + β L_orig)‖, [6] views measured (f32 bit patterns); from [8],
+// [4] Σ‖∇L_orig‖, [5] Σ‖∇(d_WD + β L_orig)‖, [6] views measured (f32 bit patterns); from [SUMS_AT],
 // STRIPES partial sums for each of [0], [1], [2], which workgroups add into by their index and
 // scalars() folds in order.
 
@@ -80,9 +80,9 @@ fn reduce(li: u32, v: vec2<f32>) -> vec2<f32> {
     return red[0];
 }
 
-// Adds v to sum `slot` (0..3) in the stripe of workgroup `wg` (scalars() folds the stripes).
+// Adds v to sum `slot` (below SUMS) in the stripe of workgroup `wg` (scalars() folds the stripes).
 fn acc_add(slot: u32, wg: u32, v: f32) {
-    let w = 8u + slot * STRIPES + wg % STRIPES;
+    let w = SUMS_AT + slot * STRIPES + wg % STRIPES;
     var old = atomicLoad(&acc[w]);
     loop {
         let r = atomicCompareExchangeWeak(&acc[w], old, bitcast<u32>(bitcast<f32>(old) + v));
@@ -584,10 +584,10 @@ fn norms(
 @compute @workgroup_size(1)
 fn scalars() {
     // The sums d_WD, Σ(∇L_orig)², Σ(∇d_WD + β∇L_orig)²: their stripes, in order.
-    for (var k = 0u; k < 3u; k++) {
+    for (var k = 0u; k < SUMS; k++) {
         var t = 0.0;
         for (var j = 0u; j < STRIPES; j++) {
-            t += bitcast<f32>(atomicLoad(&acc[8u + k * STRIPES + j]));
+            t += bitcast<f32>(atomicLoad(&acc[SUMS_AT + k * STRIPES + j]));
         }
         atomicStore(&acc[k], bitcast<u32>(t));
     }

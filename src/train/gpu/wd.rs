@@ -180,7 +180,7 @@ fn constants_wgsl() -> String {
     s += &wgsl_array("MEAN", "f32", &IMAGENET_MEAN.map(f));
     s += &wgsl_array("STD", "f32", &IMAGENET_STD.map(f));
     s += &format!("const GAIN: f32 = {};\nconst NORMALISE_VIEWS: u32 = {}u;\n", f(pyramid::GAIN), NORMALISE_VIEWS);
-    s += &format!("const STRIPES: u32 = {ACC_STRIPES}u;\n");
+    s += &format!("const SUMS_AT: u32 = {ACC_WORDS}u;\nconst SUMS: u32 = {ACC_SUMS}u;\nconst STRIPES: u32 = {ACC_STRIPES}u;\n");
     s
 }
 
