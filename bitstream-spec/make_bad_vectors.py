@@ -4,7 +4,8 @@
 deterministically from the good vectors `vectors/hand.gsc`, (for the levels section of
 format 4.0, SPEC §3.1) `vectors/levels.gsc`, (for the codebooks of format 5.0, SPEC §3.2)
 `vectors/vq.gsc`, (for the parameter sections per level of format 6.0, SPEC §4)
-`vectors/classes.gsc` and (for the anchor profile of format 7.0, SPEC §12) `vectors/anchor.gsc`.
+`vectors/classes.gsc`, (for the anchor profile of format 7.0, SPEC §12) `vectors/anchor.gsc` and
+(for the neighbour-context tables of format 8.0, SPEC §4.3) `vectors/neighbour.gsc`.
 
 Each bad vector breaks exactly one rule of SPEC.md; every other byte, including every CRC that
 is not the point of the vector, is kept valid, so that a decoder has to reach the broken rule
@@ -143,7 +144,7 @@ def replace_table(params, index, new_table_bytes):
     for j in range(params[0]):
         step = rd.take(4)
         start = rd.pos
-        specdec.read_channel_table(rd, allow_context=True)
+        specdec.read_channel_table(rd, allow_context=True, allow_neighbour=True)
         out += step + (new_table_bytes if j == index else params[start:rd.pos])
     return bytes(out)
 
@@ -182,8 +183,8 @@ def make(good):
     add("truncated", good[: len(good) - 7], "format", "the file ends 7 bytes before the last payload does")
     add("magic", b"\x8aGSD" + good[4:], "format", "magic is 8A 47 53 44, not 8A 47 53 43")
     f = edit()
-    f.major = 8
-    add("version", f.write(), "unsupported", "version_major 8 (header CRC valid)")
+    f.major = 9
+    add("version", f.write(), "unsupported", "version_major 9 (header CRC valid)")
     add("header-crc", edit().write(header_crc_xor=1), "checksum", "header CRC off by one bit")
     f = edit()
     s = f.section(0x24)
@@ -247,8 +248,8 @@ def make(good):
     add("table-size", f.write(), "limits", "a coded table with n = 4097 symbols (4098 weights present)")
     f = edit()
     s = f.section(0x13)
-    s[3] = replace_table(s[3], 0, bytes([3]) + varint(zigzag(0)))
-    add("table-mode", f.write(), "format", "channel table mode 3")
+    s[3] = replace_table(s[3], 0, bytes([4]) + varint(zigzag(0)))
+    add("table-mode", f.write(), "format", "channel table mode 4")
     f = edit()
     s = f.section(0x13)
     s[3] = replace_table(s[3], 0, bytes([1]) + varint(zigzag(0x7FFFFFFF - 1)) + varint(2) + b"\x01\x01\x01")
@@ -419,6 +420,71 @@ def make_classes(good):
     return out
 
 
+def neighbour_table(reach, start, prev_at, lower_at, contexts):
+    """§4.3: the bytes of a mode-3 table; contexts are (mix, centre, ratio)."""
+    out = bytearray([3]) + varint(reach) + varint(zigzag(start))
+    for at in (prev_at, lower_at):
+        out += bytes([len(at)]) + b"".join(varint(zigzag(t)) for t in at)
+    for mix, centre, ratio in contexts:
+        out += bytes([mix]) + varint(zigzag(centre)) + bytes([ratio])
+    return bytes(out)
+
+
+def make_neighbour(good):
+    """{name: (bytes, class, reason)}: the neighbour-context tables (SPEC §4.3), from
+    neighbour.gsc (8.0), whose scale channel 0 (level 0) has a mode-3 table."""
+    out = {}
+
+    def add(name, data, cls, reason):
+        out[name] = (data, cls, reason)
+
+    f0 = File(good)
+    assert f0.major == 8
+    (_, t0) = specdec.parse_group_params(1, f0.section(0x11)[3], None, True)[0]
+    assert t0.mode == 3 and not t0.lower_at
+    ctx = [(mix, centre, 0) for mix, centre, _ in t0.contexts]
+    f = File(good)
+    f.major = 6
+    add("neighbour-in-6", f.write(), "format", "a 6.0 file with mode-3 tables (the first met: in the sh_band1 codebook)")
+
+    def with_table(table):
+        f = File(good)
+        s = f.section(0x11)
+        s[3] = replace_table(s[3], 0, table)
+        return f.write()
+
+    lower = neighbour_table(t0.reach, t0.start, t0.prev_at, [0], ctx * 2)
+    add("neighbour-lower-0", with_table(lower), "format", "scale channel 0's mode-3 table has a threshold on a channel below")
+    add("neighbour-reach", with_table(neighbour_table(2048, t0.start, t0.prev_at, [], ctx)), "format", "a mode-3 table of reach E = 2048")
+    bad_ratio = [(m, c, 64 if i == 0 else r) for i, (m, c, r) in enumerate(ctx)]
+    add("neighbour-ratio", with_table(neighbour_table(t0.reach, t0.start, t0.prev_at, [], bad_ratio)), "format", "a mode-3 context of ratio index 64")
+    bad_mix = [(5 if i == 0 else m, c, r) for i, (m, c, r) in enumerate(ctx)]
+    add("neighbour-mix", with_table(neighbour_table(t0.reach, t0.start, t0.prev_at, [], bad_mix)), "format", "a mode-3 context of mix 5")
+    many = list(range(16))
+    add("neighbour-thresholds", with_table(neighbour_table(t0.reach, t0.start, many, [], [(0, 0, 0)] * 17)), "format", "a mode-3 table with 16 thresholds")
+    # Start at 2^31 − 1, predict the previous value (mix 4) and code a difference of +1 first:
+    # the value leaves i32 (§4.3). Every later value repeats its predecessor (difference 0).
+    table = neighbour_table(1, 0x7FFFFFFF, [], [], [(4, 0, 0)])
+    cdf = specdec.window_cdf(0, 1)
+    f = File(good)
+    s = f.section(0x11)
+    s[3] = replace_table(s[3], 0, table)
+    data = f.section(0x21)
+    streams = streams_of(data[3], 3)
+    n0 = level0_size(f0)
+    symbols = [2] + [1] * (n0 - 1)
+    streams[0] = ans_encode([(cdf[x], cdf[x + 1] - cdf[x]) for x in symbols])
+    data[3] = section_of(streams)
+    add("neighbour-overflow", f.write(), "format", "scale channel 0: a value predicted as 2^31 − 1 with a difference of +1 leaves i32")
+    return out
+
+
+def level0_size(f):
+    """Gaussians of level 0 of a file with a levels section (§3.1)."""
+    sizes, level_of = specdec.read_levels(f.section(0x01)[3], f.n)
+    return sum(k for k, l in zip(sizes, level_of) if l == 0)
+
+
 def anchor_layout(payload, n):
     """The parts of a valid anchor section (SPEC §12.1): a dict of its header fields and the
     byte offsets where each part ends (`layers`, `steps`, `weights`, `grid`, `positions`,
@@ -571,11 +637,12 @@ def main(argv):
     vectors.update(make_codebooks(open(os.path.join(VECTORS, "vq.gsc"), "rb").read()))
     vectors.update(make_classes(open(os.path.join(VECTORS, "classes.gsc"), "rb").read()))
     vectors.update(make_anchor(open(os.path.join(VECTORS, "anchor.gsc"), "rb").read(), open(os.path.join(VECTORS, "classes.gsc"), "rb").read()))
+    vectors.update(make_neighbour(open(os.path.join(VECTORS, "neighbour.gsc"), "rb").read()))
     os.makedirs(out_dir, exist_ok=True)
     for old in os.listdir(out_dir):
         if old.startswith("bad-") and old.endswith(".gsc"):
             os.remove(os.path.join(out_dir, old))
-    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc, levels.gsc, vq.gsc, classes.gsc and anchor.gsc"]
+    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc, levels.gsc, vq.gsc, classes.gsc, anchor.gsc and neighbour.gsc"]
     for name, (data, cls, reason) in sorted(vectors.items()):
         with open(os.path.join(out_dir, f"bad-{name}.gsc"), "wb") as fh:
             fh.write(data)

@@ -14,9 +14,20 @@ import zlib
 import numpy as np
 
 MAGIC = b"\x8aGSC"
-VERSION_MAJORS = (3, 4, 5, 6, 7)  # §2, §11: 4.x adds the levels section (§3.1), 5.x codebooks (§3.2),
-# 6.x parameter sections per level (§4), 7.x the anchor profile (§12)
+VERSION_MAJORS = (3, 4, 5, 6, 7, 8)  # §2, §11: 4.x adds the levels section (§3.1), 5.x codebooks (§3.2),
+# 6.x parameter sections per level (§4), 7.x the anchor profile (§12), 8.x neighbour tables (§4.3)
 ANCHOR_MAJOR = 7
+NEIGHBOUR_MAJOR = 8
+# §4.3: the window ratios r_ρ · 2^16, ρ = 0..63
+RATIOS = [
+    115, 283, 617, 1200, 2125, 3466, 5274, 7557, 10287, 13399, 16807, 20411, 24109, 27809, 31429, 34905,
+    38190, 41250, 44069, 46637, 48958, 51039, 52894, 54537, 55986, 57259, 58374, 59346, 60193, 60928,
+    61565, 62117, 62594, 63006, 63361, 63667, 63930, 64157, 64352, 64520, 64664, 64788, 64894, 64985,
+    65064, 65131, 65189, 65238, 65280, 65317, 65348, 65375, 65398, 65418, 65434, 65449, 65461, 65472,
+    65481, 65489, 65496, 65501, 65506, 65511,
+]
+MAX_REACH = 2047
+MAX_THRESHOLDS = 15
 MAX_SECTIONS = 4096
 MAX_N = 1 << 26
 MAX_TABLE_N = 4096
@@ -143,7 +154,7 @@ def build_cdf(weights):
 
 class ChannelTable:
     def __init__(self, mode, value=0, lo=0, n=0, centre=0, cdfs=()):
-        self.mode = mode      # 0 constant, 1 coded, 2 context
+        self.mode = mode      # 0 constant, 1 coded, 2 context, 3 neighbour (fields set by read_neighbour)
         self.value = value
         self.lo = lo
         self.n = n
@@ -168,7 +179,46 @@ def read_lo_n(rd):
     return lo, n
 
 
-def read_channel_table(rd, allow_context):
+def window_cdf(ratio, reach):
+    """§4.3: the window of ratio index `ratio` and reach E over 2E + 2 symbols."""
+    w = [0] * (2 * reach + 2)
+    x = 1 << 30
+    for d in range(reach + 1):
+        w[reach + d] = w[reach - d] = x
+        x = (x * RATIOS[ratio]) >> 16
+    return build_cdf(w)
+
+
+def read_neighbour(rd):
+    """§4.3: a mode-3 table after its mode byte."""
+    t = ChannelTable(3)
+    t.reach = rd.varint()
+    if not 1 <= t.reach <= MAX_REACH:
+        raise corrupt(f"{rd.what}: window reach {t.reach}")
+    t.start = rd.svarint()
+    ats = []
+    for _ in range(2):
+        k = rd.u8()
+        if k > MAX_THRESHOLDS:
+            raise corrupt(f"{rd.what}: {k} thresholds")
+        ats.append([rd.svarint() for _ in range(k)])
+    t.prev_at, t.lower_at = ats
+    count = (len(t.prev_at) + 1) * (len(t.lower_at) + 1)
+    if 3 * count > rd.remaining():
+        raise DecodeError("truncation", f"{rd.what}: {count} contexts cannot fit")
+    t.contexts = []
+    cdfs = {}
+    for _ in range(count):
+        mix, centre, ratio = rd.u8(), rd.svarint(), rd.u8()
+        if mix > 4 or ratio > 63:
+            raise corrupt(f"{rd.what}: context mix {mix} or ratio {ratio}")
+        if ratio not in cdfs:
+            cdfs[ratio] = window_cdf(ratio, t.reach)
+        t.contexts.append((mix, centre, cdfs[ratio]))
+    return t
+
+
+def read_channel_table(rd, allow_context, allow_neighbour=False):
     mode = rd.u8()
     if mode == 0:
         return ChannelTable(0, value=rd.svarint())
@@ -180,6 +230,8 @@ def read_channel_table(rd, allow_context):
         lo, n = read_lo_n(rd)
         cdfs = [build_cdf(read_weights(rd, n + 1)) for _ in range(4)]
         return ChannelTable(2, lo=lo, n=n, centre=centre, cdfs=cdfs)
+    if mode == 3 and allow_neighbour:
+        return read_neighbour(rd)
     raise corrupt(f"{rd.what}: bad table mode {mode}")
 
 
@@ -252,6 +304,21 @@ def table_for(table, prev):
         return table.cdfs[0]
     d = abs(prev - table.centre)  # Python integers: no overflow
     return table.cdfs[0 if d == 0 else 1 if d == 1 else 2 if d <= 3 else 3]
+
+
+def read_neighbour_value(dec, t, prev, lower):
+    """§4.3: one value of a mode-3 channel after `prev`, with `lower` below it."""
+    bp = sum(1 for x in t.prev_at if prev >= x)
+    bl = sum(1 for x in t.lower_at if lower >= x)
+    mix, centre, cdf = t.contexts[bp * (len(t.lower_at) + 1) + bl]
+    mu = (mix * prev + (4 - mix) * centre + 2) >> 2  # Python integers: floor, no overflow
+    s = dec.symbol(cdf)
+    if s == 2 * t.reach + 1:
+        return unzigzag(dec.raw_bits(32))
+    v = mu + s - t.reach
+    if not -(1 << 31) <= v < (1 << 31):
+        raise corrupt(f"{dec.what}: predicted value {v} outside i32")
+    return v
 
 
 def read_value(dec, table, state):
@@ -412,32 +479,37 @@ def read_grid(rd):
     return origin, step, bits, table
 
 
-def read_group_channels(rd, g, expected):
+def read_group_channels(rd, g, expected, neighbours=False):
+    """§4; `neighbours`: mode 3 is allowed (an 8.0 file, §4.3), never with thresholds on the
+    channel below for channel 0."""
     c = rd.u8()
     if c != expected:
         raise corrupt(f"group {g}: channel count {c}, expected {expected}")
     channels = []
-    for _ in range(c):
+    for j in range(c):
         step = rd.f32()
-        channels.append((step, read_channel_table(rd, allow_context=True)))
+        table = read_channel_table(rd, allow_context=True, allow_neighbour=neighbours)
+        if table.mode == 3 and j == 0 and table.lower_at:
+            raise corrupt(f"group {g}: channel 0 has thresholds on a channel below")
+        channels.append((step, table))
     return channels
 
 
-def parse_group_params(g, payload, expected=None):
+def parse_group_params(g, payload, expected=None, neighbours=False):
     """§4; `expected` = 1 for an SH band with a codebook (§3.2: the index channel)."""
     rd = Reader(payload, f"parameters of group {g}")
-    channels = read_group_channels(rd, g, GROUP_CHANNELS[g] if expected is None else expected)
+    channels = read_group_channels(rd, g, GROUP_CHANNELS[g] if expected is None else expected, neighbours)
     rd.expect_end()
     return channels
 
 
-def parse_codebook(g, payload, n):
+def parse_codebook(g, payload, n, neighbours=False):
     """§3.2: (channels [(step, table)], K × C integer rows)."""
     rd = Reader(payload, f"codebook of group {g}")
     k = rd.varint()
     if not 1 <= k <= min(n, MAX_CODEBOOK_ROWS):
         raise corrupt(f"codebook of {k} rows (N = {n})")
-    channels = read_group_channels(rd, g, GROUP_CHANNELS[g])
+    channels = read_group_channels(rd, g, GROUP_CHANNELS[g], neighbours)
     rows = decode_channels(rd.take(rd.remaining()), k, channels, f"codebook of group {g}")
     return channels, rows
 
@@ -496,11 +568,17 @@ def decode_channels(payload, k, channels, what):
     for j, (_, table) in enumerate(channels):
         if table.mode == 0:
             values[:, j] = table.value
-    for j, stream in zip(coded, streams):
+    for j, stream in zip(coded, streams):  # in channel order: channel j − 1 is known (§4.3)
         table = channels[j][1]
         dec = AnsDecoder(stream, f"{what} channel {j}")
-        state = [table.centre]
-        col = [read_value(dec, table, state) for _ in range(k)]
+        if table.mode == 3:
+            col, prev = [], table.start
+            for i in range(k):
+                prev = read_neighbour_value(dec, table, prev, int(values[i, j - 1]) if j > 0 else 0)
+                col.append(prev)
+        else:
+            state = [table.centre]
+            col = [read_value(dec, table, state) for _ in range(k)]
         dec.finish()
         values[:, j] = col
     return values
@@ -660,12 +738,13 @@ def decode(data):
         if n > 0:
             cols = decode_anchor(known[(KIND_ANCHOR, 0)], n, degree)
     elif n > 0:
-        books = {g: parse_codebook(g, known[(KIND_CODEBOOK, g - 4)], n) for g in range(5, groups) if (KIND_CODEBOOK, g - 4) in known}
+        nb = major == NEIGHBOUR_MAJOR
+        books = {g: parse_codebook(g, known[(KIND_CODEBOOK, g - 4)], n, nb) for g in range(5, groups) if (KIND_CODEBOOK, g - 4) in known}
         # §4: one set of parameter sections per parameter chunk (per level in 6.0, else chunk 0).
         params = {}
         for p in sorted(set(params_of)):
             position = parse_position_params(known[(0x10, p)])
-            params[p] = (position, {g: parse_group_params(g, known[(0x10 + g, p)], 1 if g in books else None) for g in range(1, groups)})
+            params[p] = (position, {g: parse_group_params(g, known[(0x10 + g, p)], 1 if g in books else None, nb) for g in range(1, groups)})
         ints = {g: [] for g in range(groups)}
         for c, k in enumerate(sizes):
             (_, _, bits, ltable), group_params = params[params_of[c]]

@@ -12,7 +12,7 @@
 //! `cargo run --release --example ctx_probe -- SCENE.ply LAMBDA`
 use gscodec::io::ply::read_ply;
 use gscodec::rate::{self, quantise, tables};
-use gscodec_decoder::entropy::{symbol_of, ChannelTable};
+use gscodec_decoder::entropy::{symbol_of, ChannelTable, FreqTable};
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -70,6 +70,101 @@ fn adaptive(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, freqs: &[f64], pr
     bits
 }
 
+/// The decoder's version: integer counts seeded by the stored table's frequencies (sum 2^16),
+/// `inc` per symbol, the coding table rebuilt (SPEC §4.2) when a context has seen 1, 2, 4, …,
+/// `cap` symbols and every `cap` after.
+fn adaptive_int(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, base: &FreqTable, inc: u32, cap: usize) -> f64 {
+    let m = base.len();
+    let n = m - 1;
+    let init: Vec<u32> = (0..m).map(|s| base.freq(s)).collect();
+    let mut counts = vec![init.clone(); nctx];
+    let mut tables: Vec<FreqTable> = vec![base.clone(); nctx];
+    let mut seen = vec![0usize; nctx];
+    let mut bits = 0.0;
+    for (i, &v) in vals.iter().enumerate() {
+        let c = ctx[i];
+        let s = symbol_of(lo, n, v);
+        bits += tables[c].bits(s) + if s == n { 32.0 } else { 0.0 };
+        counts[c][s] += inc;
+        seen[c] += 1;
+        let k = seen[c];
+        if (k <= cap && k.is_power_of_two()) || k % cap == 0 {
+            tables[c] = FreqTable::from_weights(&counts[c]);
+        }
+    }
+    bits
+}
+
+/// Per context a two-sided geometric window `r^|s − μ|` (μ the context's median symbol, r the
+/// best of 64 ratios), alone or times the channel's stored frequencies: the cost of the values
+/// plus `head` bits per used context for (μ, r).
+fn parametric(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, base: &FreqTable, with_base: bool, head: f64) -> f64 {
+    let m = base.len();
+    let n = m - 1;
+    let mut by: Vec<Vec<usize>> = vec![vec![]; nctx];
+    for (i, &v) in vals.iter().enumerate() {
+        by[ctx[i]].push(symbol_of(lo, n, v));
+    }
+    let mut bits = 0.0;
+    for syms in by.iter().filter(|s| !s.is_empty()) {
+        let mut sorted: Vec<usize> = syms.iter().copied().filter(|&s| s < n).collect();
+        sorted.sort_unstable();
+        let mu = if sorted.is_empty() { 0 } else { sorted[sorted.len() / 2] } as i64;
+        let mut best = f64::INFINITY;
+        for k in 0..64 {
+            let r = 1.0 - (k as f64 + 0.5) / 64.0 * 0.999;
+            let r = r.powf(1.5);
+            let w: Vec<f64> = (0..m)
+                .map(|s| {
+                    let g = if s == n { 1e-4 } else { r.powi((s as i64 - mu).unsigned_abs() as i32).max(1e-9) };
+                    if with_base {
+                        g * base.freq(s) as f64
+                    } else {
+                        g
+                    }
+                })
+                .collect();
+            let t: f64 = w.iter().sum();
+            let c: f64 = syms.iter().map(|&s| -(w[s] / t).log2() + if s == n { 32.0 } else { 0.0 }).sum();
+            best = best.min(c);
+        }
+        bits += best + head;
+    }
+    bits
+}
+
+/// μ = the previous value's symbol (DPCM), per context only the ratio r (`head` bits).
+fn parametric_prev(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, n: usize, head: f64, mix: bool) -> f64 {
+    let mut by: Vec<Vec<(usize, i64)>> = vec![vec![]; nctx];
+    for (i, &v) in vals.iter().enumerate() {
+        let p = if i > 0 { vals[i - 1] } else { lo + n as i32 / 2 };
+        by[ctx[i]].push((symbol_of(lo, n, v), (i64::from(p) - i64::from(lo)).clamp(0, n as i64 - 1)));
+    }
+    let mut bits = 0.0;
+    for syms in by.iter().filter(|s| !s.is_empty()) {
+        let mut sorted: Vec<usize> = syms.iter().map(|x| x.0).filter(|&s| s < n).collect();
+        sorted.sort_unstable();
+        let med = if sorted.is_empty() { 0 } else { sorted[sorted.len() / 2] } as i64;
+        let mut best = f64::INFINITY;
+        for a in if mix { vec![0i64, 1, 2, 3, 4] } else { vec![4] } {
+            for k in 0..64 {
+                let r = 1.0 - (k as f64 + 0.5) / 64.0 * 0.999;
+                let r = r.powf(1.5);
+                let mut c = 0.0;
+                for &(s, p) in syms {
+                    let mu = (a * p + (4 - a) * med + 2) / 4;
+                    let w = |s: usize| if s == n { 1e-4 } else { r.powi((s as i64 - mu).unsigned_abs() as i32).max(1e-9) };
+                    let t: f64 = (0..=n).map(w).sum();
+                    c += -(w(s) / t).log2() + if s == n { 32.0 } else { 0.0 };
+                }
+                best = best.min(c);
+            }
+        }
+        bits += best + head;
+    }
+    bits
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let scene = read_ply(Path::new(&args[1])).unwrap();
@@ -113,13 +208,15 @@ fn main() {
         q.codebooks.iter().map(|c| c.0).collect::<Vec<_>>(),
         q.levels
     );
-    let mut tot = [0.0f64; 6];
+    let mut tot = [0.0f64; 10];
+    let mut etot = [0.0f64; 14];
     for (g, _, chans) in &q.groups {
         if q.codebooks.iter().any(|c| c.0 == *g) {
             println!("{:?}: codebook, skipped", g);
             continue;
         }
-        let mut t = [0.0f64; 6];
+        let mut t = [0.0f64; 10];
+        let mut extra = [0.0f64; 14];
         for (j, ch) in chans.iter().enumerate() {
             let n = ch.len();
             let cmp = tables::histogram_only(ch, Some(&[0..n]));
@@ -161,28 +258,122 @@ fn main() {
             t[3] += tb + adaptive(ch, &both, 16, *lo, &freqs, 64.0, 1.0);
             t[4] += tb + adaptive(ch, &rich, 24, *lo, &freqs, 64.0, 1.0);
             t[5] += tb + adaptive(ch, &rich, 24, *lo, &freqs, 16.0, 1.0);
+            let sclass = |d: i32| -> usize {
+                match d {
+                    i32::MIN..=-4 => 0,
+                    -3..=-2 => 1,
+                    -1 => 2,
+                    0 => 3,
+                    1 => 4,
+                    2..=3 => 5,
+                    _ => 6,
+                }
+            };
+            let sprev: Vec<usize> = (0..n).map(|i| sclass(if i > 0 { ch[i - 1] - centre } else { 0 })).collect();
+            t[6] += tb + adaptive(ch, &sprev, 7, *lo, &freqs, 64.0, 1.0);
+            let lcentre = if j > 0 {
+                let mut v = chans[j - 1].clone();
+                *v.select_nth_unstable(n / 2).1
+            } else {
+                0
+            };
+            let slower: Vec<usize> = (0..n).map(|i| if j > 0 { sclass(chans[j - 1][i] - lcentre) } else { 3 }).collect();
+            let sboth: Vec<usize> = (0..n).map(|i| sprev[i] * 7 + slower[i]).collect();
+            t[7] += tb + adaptive(ch, &sboth, 49, *lo, &freqs, 64.0, 1.0);
+            let s2: Vec<usize> = (0..n)
+                .map(|i| {
+                    let a = if i > 0 { ch[i - 1] - centre } else { 0 };
+                    let b = if i > 1 { ch[i - 2] - centre } else { 0 };
+                    sclass((a + b).div_euclid(2)) * 7 + slower[i]
+                })
+                .collect();
+            t[8] += tb + adaptive(ch, &s2, 49, *lo, &freqs, 64.0, 1.0);
+            t[9] += tb + adaptive(ch, &s2, 49, *lo, &freqs, 16.0, 1.0);
+            // quantile buckets of the previous Gaussian's value (thresholds would be stored)
+            let qb = |c: &Vec<i32>, k: usize| -> Vec<i32> {
+                let mut v = c.clone();
+                v.sort_unstable();
+                (1..k).map(|t| v[t * v.len() / k]).collect()
+            };
+            let th = qb(ch, 8);
+            let bucket = |th: &Vec<i32>, x: i32| th.iter().filter(|&&t| x >= t).count();
+            let q8: Vec<usize> = (0..n).map(|i| if i > 0 { bucket(&th, ch[i - 1]) } else { 4 }).collect();
+            t[6] = t[6] - 0.0; // keep
+            let q8s: Vec<usize> = (0..n).map(|i| q8[i] * 7 + slower[i]).collect();
+            let lth = if j > 0 { qb(&chans[j - 1], 8) } else { vec![] };
+            let q8q8: Vec<usize> = (0..n).map(|i| q8[i] * 8 + if j > 0 { bucket(&lth, chans[j - 1][i]) } else { 0 }).collect();
+            extra[0] += tb + adaptive(ch, &q8, 8, *lo, &freqs, 64.0, 1.0);
+            extra[1] += tb + adaptive(ch, &q8s, 56, *lo, &freqs, 64.0, 1.0);
+            extra[2] += tb + adaptive(ch, &q8q8, 64, *lo, &freqs, 64.0, 1.0);
+            extra[3] += tb + adaptive(ch, &q8q8, 64, *lo, &freqs, 16.0, 1.0);
+            extra[4] += tb + adaptive_int(ch, &q8q8, 64, *lo, table, 4096, 256);
+            extra[5] += tb + adaptive_int(ch, &q8s, 56, *lo, table, 4096, 256);
+            extra[6] += tb + adaptive_int(ch, &q8q8, 64, *lo, table, 4096, 64);
+            extra[7] += tb + adaptive_int(ch, &q8q8, 64, *lo, table, 4096, 1);
+            extra[8] += tb + parametric_prev(ch, &q8, 8, *lo, table.len() - 1, 8.0, false);
+            extra[12] += tb + parametric_prev(ch, &q8, 8, *lo, table.len() - 1, 24.0, true);
+            extra[13] += tb + parametric_prev(ch, &q8q8, 64, *lo, table.len() - 1, 24.0, true);
+            let th16 = qb(ch, 16);
+            let q16: Vec<usize> = (0..n).map(|i| if i > 0 { bucket(&th16, ch[i - 1]) } else { 8 }).collect();
+            extra[9] += tb + parametric(ch, &q16, 16, *lo, table, false, 24.0);
+            extra[10] += tb + parametric(ch, &q8s, 56, *lo, table, false, 24.0);
+            extra[11] += tb + parametric(ch, &q8q8, 64, *lo, table, false, 24.0);
         }
         println!(
-            "{:?}: stored {:.0} | ad-none {:.0} | ad-prev {:.0} | ad-prev×lower {:.0} | ad-rich {:.0} | rich p16 {:.0}",
+            "{:?}: stored {:.0} | ad-none {:.0} | ad-prev {:.0} | ad-prev×lower {:.0} | ad-rich {:.0} | rich p16 {:.0} | sprev {:.0} | sprev×slower {:.0} | s2×slower {:.0} | p16 {:.0}",
             g,
             t[0] / 8.0,
             t[1] / 8.0,
             t[2] / 8.0,
             t[3] / 8.0,
             t[4] / 8.0,
-            t[5] / 8.0
+            t[5] / 8.0,
+            t[6] / 8.0,
+            t[7] / 8.0,
+            t[8] / 8.0,
+            t[9] / 8.0
         );
-        for k in 0..6 {
+        println!("   q8 {:.0} | q8×slower {:.0} | q8×q8 {:.0} | p16 {:.0}", extra[0] / 8.0, extra[1] / 8.0, extra[2] / 8.0, extra[3] / 8.0);
+        for k in 0..14 {
+            etot[k] += extra[k];
+        }
+        for k in 0..10 {
             tot[k] += t[k];
         }
     }
     println!(
-        "total B: stored {:.0} | none {:.3} | prev {:.3} | prev×lower {:.3} | rich {:.3} | rich p16 {:.3}",
+        "total B: stored {:.0} | none {:.3} | prev {:.3} | prev×lower {:.3} | rich {:.3} | rich p16 {:.3} | sprev {:.3} | sprev×slower {:.3} | s2×slower {:.3} | p16 {:.3}",
         tot[0] / 8.0,
         tot[1] / tot[0],
         tot[2] / tot[0],
         tot[3] / tot[0],
         tot[4] / tot[0],
-        tot[5] / tot[0]
+        tot[5] / tot[0],
+        tot[6] / tot[0],
+        tot[7] / tot[0],
+        tot[8] / tot[0],
+        tot[9] / tot[0]
     );
+    println!(
+        "q8 {:.3} | q8×slower {:.3} | q8×q8 {:.3} | p16 {:.3}",
+        etot[0] / tot[0],
+        etot[1] / tot[0],
+        etot[2] / tot[0],
+        etot[3] / tot[0]
+    );
+    println!(
+        "int q8×q8 p16 cap256 {:.3} | int q8×slower p16 {:.3} | int cap64 {:.3} | int p64 {:.3}",
+        etot[4] / tot[0],
+        etot[5] / tot[0],
+        etot[6] / tot[0],
+        etot[7] / tot[0]
+    );
+    println!(
+        "param μ=prev q8 {:.3} | q16 {:.3} | q8×slower {:.3} | q8×q8 {:.3}",
+        etot[8] / tot[0],
+        etot[9] / tot[0],
+        etot[10] / tot[0],
+        etot[11] / tot[0]
+    );
+    println!("mixed μ q8 {:.3} | mixed μ q8×q8 {:.3}", etot[12] / tot[0], etot[13] / tot[0]);
 }

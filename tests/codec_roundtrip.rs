@@ -4,7 +4,7 @@ use glam::Vec3;
 use gscodec::rate::{self, quantise, EncodeConfig};
 use gscodec::rng::Rng;
 use gscodec::testkit::{extreme_splats, random_splats_in, rig_cameras, SceneRanges};
-use gscodec_decoder::bitstream::VERSION_MAJOR_ANCHORS;
+use gscodec_decoder::bitstream::VERSION_MAJOR_NEIGHBOURS;
 use gscodec_decoder::render::render;
 use gscodec_decoder::{decode, decode_with, Camera, DecodeError, FormatErrorKind, Limits, RenderOptions, Splats};
 
@@ -185,8 +185,8 @@ fn typed_errors_for_bad_files() {
     let e = decode(b"PK\x03\x04").unwrap_err();
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::BadMagic));
     let mut newer = bytes.clone();
-    newer[4] = VERSION_MAJOR_ANCHORS + 1;
-    assert!(matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR_ANCHORS + 1, 0))));
+    newer[4] = VERSION_MAJOR_NEIGHBOURS + 1;
+    assert!(matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR_NEIGHBOURS + 1, 0))));
     let e = decode(&bytes[..bytes.len() - 1]).unwrap_err();
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::Truncated));
     // Hostile Gaussian count: refused before anything is allocated.
@@ -208,7 +208,8 @@ fn context_coded_channels_round_trip_across_chunk_boundaries() {
             s.sh_rest[i * k3 + c] = if active { 0.3 * (p[2] * 5.0 + c as f32).sin() } else { 0.0 };
         }
     }
-    let config = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
+    // Mode 2 (format 3.0); neighbour contexts have their own test.
+    let config = EncodeConfig { learned_tables: false, neighbour_tables: false, ..EncodeConfig::default() };
     let (bytes, report, q) = rate::encode(&s, &config).unwrap();
     let band1 = report.groups.iter().find(|g| g.group == "sh_band1").unwrap();
     assert!(band1.context_channels > 0, "contexts not chosen: {band1:?}");
@@ -219,6 +220,47 @@ fn context_coded_channels_round_trip_across_chunk_boundaries() {
     }
     let est = report.estimated_bits() / 8.0;
     assert!((est - bytes.len() as f64).abs() / (bytes.len() as f64) < 0.01, "estimated {est} actual {}", bytes.len());
+}
+
+/// Neighbour-context tables (mode 3, format 8.0): a scene whose attributes vary smoothly in space
+/// (each Gaussian's values predict its Morton neighbour's) takes them on most channels, SH bands
+/// included, and decodes bit-exactly: whole and to a lower SH degree, on 1 and 3 threads,
+/// across a chunk boundary (70,000 Gaussians), while the decoder splits the 21 channels of band
+/// 3 into jobs (a job whose first channel reads the channel below decodes that one too). The
+/// rate estimate stays exact, and the same scene without them is larger.
+#[test]
+fn neighbour_tables_round_trip_bit_exactly() {
+    let mut s = scene(70_000, 3, 1.0, 17);
+    let k3 = s.rest_coeffs() * 3;
+    for i in 0..s.len() {
+        let p = s.positions[i];
+        let f = |a: f32, b: f32| (p[0] * a + b).sin() * (p[1] * (a + 1.0)).cos() + 0.3 * (p[2] * 2.0 * a).sin();
+        s.log_scales[i] = [-5.0 + f(3.0, 0.0), -5.5 + f(2.0, 1.0), -6.0 + f(4.0, 2.0)];
+        s.sh_dc[i] = [f(2.5, 0.3), f(3.5, 0.7), f(1.5, 0.9)];
+        for c in 0..k3 {
+            s.sh_rest[i * k3 + c] = 0.2 * f(2.0 + (c / 3) as f32 * 0.3, c as f32);
+        }
+    }
+    let config = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
+    let (bytes, report, q) = rate::encode(&s, &config).unwrap();
+    assert_eq!(bytes[4], VERSION_MAJOR_NEIGHBOURS, "neighbour tables make an 8.0 file");
+    for g in ["scale", "sh_dc", "sh_band3"] {
+        let r = report.groups.iter().find(|r| r.group == g).unwrap();
+        assert!(r.neighbour_channels > 0, "{g}: {r:?}");
+    }
+    let info = gscodec_decoder::inspect(&bytes).unwrap();
+    assert!(info.neighbour_channels.iter().any(|c| c.starts_with("sh_band3/")), "{:?}", info.neighbour_channels);
+    let expected = quantise::dequantise(&q);
+    for threads in [1, 3] {
+        assert_eq!(decode_threads(&bytes, threads).unwrap(), expected, "{threads} threads");
+    }
+    let one = decode_with(&bytes, &Limits { max_sh_degree: 1, ..Limits::default() }).unwrap();
+    assert_eq!(one, expected.with_sh_degree(1));
+    let est = report.estimated_bits() / 8.0;
+    assert!((est - bytes.len() as f64).abs() / (bytes.len() as f64) < 0.01, "estimated {est} actual {}", bytes.len());
+    let (without, _, q0) = rate::encode(&s, &EncodeConfig { neighbour_tables: false, ..config }).unwrap();
+    assert_eq!(decode(&without).unwrap(), quantise::dequantise(&q0));
+    assert!(bytes.len() < without.len() * 9 / 10, "{} against {} without", bytes.len(), without.len());
 }
 
 /// Decodes with `threads` worker threads (0: the global pool) through the reader door.
@@ -245,7 +287,9 @@ fn gaussian_multiset(s: &Splats) -> Vec<Vec<u32>> {
 #[test]
 fn progressive_file_is_the_same_scene_most_significant_first() {
     let s = scene(3000, 2, 1.0, 5);
-    let (plain, _, _) = rate::encode(&s, &EncodeConfig::default()).unwrap();
+    // Without neighbour tables (format 8.0) one level is a 3.0 file; a progressive file never
+    // has them (its levels share one set of parameter sections).
+    let (plain, _, _) = rate::encode(&s, &EncodeConfig { neighbour_tables: false, ..EncodeConfig::default() }).unwrap();
     let (levels, _, q) = rate::encode(&s, &EncodeConfig { progressive: true, ..EncodeConfig::default() }).unwrap();
     assert_eq!((plain[4], levels[4]), (3, 4), "one level is a 3.0 file, levels a 4.0 one");
     let (a, b) = (decode(&plain).unwrap(), decode(&levels).unwrap());
@@ -297,7 +341,7 @@ fn prefixes_decode_to_prefixes(pb: &[u8], full: &Splats) {
 #[test]
 fn codebook_bands_round_trip_bit_exactly() {
     let s = scene(3000, 3, 1.0, 21);
-    let config = EncodeConfig { sh_vq: [16, 0, 300], ..EncodeConfig::default() };
+    let config = EncodeConfig { sh_vq: [16, 0, 300], neighbour_tables: false, ..EncodeConfig::default() };
     let (bytes, report, q) = rate::encode(&s, &config).unwrap();
     assert_eq!(bytes[4], 5, "codebooks make a 5.0 file");
     let decoded = decode(&bytes).unwrap();
@@ -323,7 +367,7 @@ fn codebook_bands_round_trip_bit_exactly() {
     assert_eq!(full, quantise::dequantise(&pq));
     prefixes_decode_to_prefixes(&pb, &full);
     // No codebook: 3.0, as before.
-    assert_eq!(rate::encode(&s, &EncodeConfig::default()).unwrap().0[4], 3);
+    assert_eq!(rate::encode(&s, &EncodeConfig { neighbour_tables: false, ..EncodeConfig::default() }).unwrap().0[4], 3);
 }
 
 /// Importance classes (format 6.0, SPEC §4): the less significant Gaussians in a level of their
@@ -336,7 +380,12 @@ fn importance_classes_round_trip_bit_exactly() {
     use gscodec::rate::CoarseTail;
     use gscodec_decoder::bitstream::{layout::Group, params::read_all_params, parse};
     let s = scene(3000, 3, 1.0, 31);
-    let config = EncodeConfig { sh_vq: [16, 0, 0], tail: CoarseTail { share: 0.5, factor: 2.0 }, ..EncodeConfig::default() };
+    let config = EncodeConfig {
+        sh_vq: [16, 0, 0],
+        tail: CoarseTail { share: 0.5, factor: 2.0 },
+        neighbour_tables: false,
+        ..EncodeConfig::default()
+    };
     let (bytes, _, q) = rate::encode(&s, &config).unwrap();
     assert_eq!(bytes[4], 6, "parameters per level make a 6.0 file");
     let decoded = decode(&bytes).unwrap();

@@ -14,7 +14,8 @@ use gscodec_decoder::bitstream::{self, Header, VERSION_MAJOR_UNIFORM, VERSION_MI
 use gscodec_decoder::{decode, Decoder, Limits, Splats};
 use sha2::{Digest, Sha256};
 
-const NAMES: [&str; 12] = ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels", "vq", "classes", "anchor"];
+const NAMES: [&str; 14] =
+    ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels", "vq", "classes", "anchor", "neighbour", "nbedge"];
 /// Vectors made by `bitstream-spec/make_bad_vectors.py`, not by our encoder.
 const SCRIPTED: [&str; 1] = ["quirks"];
 /// Vectors whose expected `.ply` is given by its SHA-256 only.
@@ -125,8 +126,8 @@ fn vector_scene(name: &str) -> Splats {
         "empty" => Splats::new(0),
         "one" => one_scene(),
         "hand" => hand_scene(),
-        "edge" => edge_scene(),
-        "tiny" | "levels" | "vq" | "classes" | "anchor" => {
+        "edge" | "nbedge" => edge_scene(),
+        "tiny" | "levels" | "vq" | "classes" | "anchor" | "neighbour" => {
             gscodec::io::read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap()
         }
         "chunks" => chunks_scene(),
@@ -156,17 +157,18 @@ fn regenerate() {
             // scene to SH degree 2, band 1 by a codebook of 16 rows, band 2 per coefficient
             // (format 5.0, SPEC §3.2). `classes`: `vq` with its less significant half in a level
             // of its own, coded with twice the steps and a grid of one bit less (format 6.0:
-            // parameters per level, SPEC §4).
+            // parameters per level, SPEC §4). `neighbour`: `classes` with neighbour-context tables
+            // (format 8.0, SPEC §4.3), codebook rows included; `nbedge`: `edge` with them, escapes
+            // included. The others are written without them, in the format they stand for.
+            let old = EncodeConfig { neighbour_tables: false, ..EncodeConfig::default() };
+            let classes = EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], tail: CoarseTail { share: 0.5, factor: 2.0 }, ..old };
             let config = match name {
-                "levels" => EncodeConfig { progressive: true, ..EncodeConfig::default() },
-                "vq" => EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], ..EncodeConfig::default() },
-                "classes" => EncodeConfig {
-                    max_sh_degree: 2,
-                    sh_vq: [16, 0, 0],
-                    tail: CoarseTail { share: 0.5, factor: 2.0 },
-                    ..EncodeConfig::default()
-                },
-                _ => EncodeConfig::default(),
+                "levels" => EncodeConfig { progressive: true, ..old },
+                "vq" => EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], ..old },
+                "classes" => classes,
+                "neighbour" => EncodeConfig { neighbour_tables: true, ..classes },
+                "nbedge" => EncodeConfig::default(),
+                _ => old,
             };
             rate::encode(&vector_scene(name), &config).unwrap().0
         };

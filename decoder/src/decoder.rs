@@ -120,6 +120,8 @@ pub struct FileInfo {
     pub constant_channels: Vec<String>,
     /// Channels coded with one table per context, as `group/channel`.
     pub context_channels: Vec<String>,
+    /// Channels coded with neighbour contexts (SPEC §4.3, format 8.0), as `group/channel`.
+    pub neighbour_channels: Vec<String>,
     /// SH bands coded by vector quantisation (SPEC §3.2): (band, codebook rows K).
     pub codebooks: Vec<(u8, usize)>,
     /// A 6.0 file's parameters per level (SPEC §4): per level, its scale step over level 0's
@@ -381,6 +383,7 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
         chunks: layout.chunk_sizes.iter().map(|&k| k as usize).collect(),
         constant_channels: Vec::new(),
         context_channels: Vec::new(),
+        neighbour_channels: Vec::new(),
         codebooks: Vec::new(),
         level_step_factors: Vec::new(),
         anchors: None,
@@ -407,6 +410,7 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
                 match t {
                     ChannelTable::Constant(_) => info.constant_channels.push(name(i)),
                     ChannelTable::Context { .. } => info.context_channels.push(name(i)),
+                    ChannelTable::Neighbour(_) => info.neighbour_channels.push(name(i)),
                     ChannelTable::Coded { .. } => {}
                 }
             }
@@ -438,6 +442,7 @@ fn inspect_anchors(c: &sections::Container<'_>, file_bytes: u64) -> Result<FileI
         chunks: Vec::new(),
         constant_channels: Vec::new(),
         context_channels: Vec::new(),
+        neighbour_channels: Vec::new(),
         codebooks: Vec::new(),
         level_step_factors: Vec::new(),
         anchors,

@@ -175,7 +175,8 @@ pub struct AnchorBytes {
 fn block(columns: &[Vec<i32>], steps: &[f32]) -> Vec<u8> {
     let rows = columns.first().map_or(0, Vec::len);
     let all = 0..rows; // each column is one stream (one context run)
-    let chosen: Vec<tables::ChosenTable> = columns.par_iter().map(|c| tables::compare(c, Some(std::slice::from_ref(&all))).best).collect();
+    let chosen: Vec<tables::ChosenTable> =
+        columns.par_iter().map(|c| tables::compare(c, Some(std::slice::from_ref(&all)), None).best).collect();
     let mut out = write_channel_params(steps, chosen.iter().map(|t| &t.bytes[..]));
     let refs: Vec<&ChannelTable> = chosen.iter().map(|t| &t.table).collect();
     let cols: Vec<&[i32]> = columns.iter().map(Vec::as_slice).collect();
@@ -198,7 +199,7 @@ pub fn write(fixed: &Fixed, input: (usize, u8)) -> (Vec<u8>, AnchorBytes) {
         let (layer, tail) = rest.split_at(l.outputs * (l.inputs + 1));
         let z: Vec<u64> = layer.iter().map(|&w| u64::from(zigzag(w))).collect();
         let lens: Vec<i32> = z.iter().map(|&v| delta_length(v) as i32).collect();
-        let t = tables::compare(&lens, None).best; // lengths are never context-coded (SPEC §12.1)
+        let t = tables::compare(&lens, None, None).best; // lengths are never context-coded (SPEC §12.1)
         weights.extend_from_slice(&t.bytes);
         weights.extend(write_position_stream(&t.table, &z));
         rest = tail;
@@ -206,7 +207,7 @@ pub fn write(fixed: &Fixed, input: (usize, u8)) -> (Vec<u8>, AnchorBytes) {
     // The positions are one stream (SPEC §12.1).
     let deltas = morton_deltas(&fixed.morton, std::slice::from_ref(&(0..fixed.morton.len())));
     let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
-    let t = tables::compare(&lens, None).best; // position lengths are never context-coded (SPEC §4)
+    let t = tables::compare(&lens, None, None).best; // position lengths are never context-coded (SPEC §4)
     let mut positions = write_position_params(&fixed.grid, &t.bytes);
     positions.extend(write_position_stream(&t.table, &deltas));
     let feature_block = block(&columns(&set.feature_values, set.features), &vec![1.0; set.features]);

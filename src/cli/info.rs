@@ -60,6 +60,7 @@ pub fn run(args: Args) -> crate::Result<()> {
                 "constant_channels": info.constant_channels,
             },
             "context_channels": info.context_channels,
+            "neighbour_channels": info.neighbour_channels,
             "profile": if info.anchors.is_some() { "anchor" } else { "explicit" },
             "anchors": info.anchors.as_ref().map(|a| json!({
                 "anchors": a.anchors,
@@ -113,6 +114,9 @@ pub fn run(args: Args) -> crate::Result<()> {
         }
         if !info.context_channels.is_empty() {
             println!("context-coded: {}", info.context_channels.join(", "));
+        }
+        if !info.neighbour_channels.is_empty() {
+            println!("neighbour-coded: {}", info.neighbour_channels.join(", "));
         }
         if !info.constant_channels.is_empty() {
             println!("stored once (constant): {}", info.constant_channels.join(", "));

@@ -17,7 +17,8 @@ use gscodec_decoder::bitstream::positions::{delta_length, delta_raw_bits, morton
 use gscodec_decoder::bitstream::sections::write_padded;
 use gscodec_decoder::bitstream::stream::write_channel_streams;
 use gscodec_decoder::bitstream::{
-    Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MAJOR_CODEBOOKS, VERSION_MAJOR_LEVELS, VERSION_MAJOR_UNIFORM, VERSION_MINOR,
+    Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MAJOR_CODEBOOKS, VERSION_MAJOR_LEVELS, VERSION_MAJOR_NEIGHBOURS,
+    VERSION_MAJOR_UNIFORM, VERSION_MINOR,
 };
 use gscodec_decoder::entropy::ChannelTable;
 
@@ -48,6 +49,8 @@ pub struct GroupReport {
     pub context_bits: f64,
     /// Channels stored with context-coded tables.
     pub context_channels: usize,
+    /// Channels stored with neighbour-context tables (format 8.0).
+    pub neighbour_channels: usize,
 }
 
 /// What an encode produced.
@@ -70,8 +73,19 @@ impl EncodeReport {
     }
 }
 
+/// Which table models a group's channels may use besides the static histogram and its contexts.
+#[derive(Debug, Clone, Copy)]
+struct Models {
+    /// The learned (trained Laplace) density.
+    learned: bool,
+    /// Neighbour contexts (table mode 3, format 8.0).
+    neighbours: bool,
+}
+
 struct GroupPlan {
     group: Group,
+    /// Whether a table of the group (or of its codebook) has neighbour contexts (format 8.0).
+    neighbours: bool,
     params: Vec<u8>,
     /// The codebook section of an SH band coded by vector quantisation, and its rows.
     codebook: Option<(Vec<u8>, usize)>,
@@ -82,24 +96,27 @@ struct GroupPlan {
 }
 
 /// Plans the groups `todo` of `q` (0 = position, `i` = `q.groups[i − 1]`; ascending).
-fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool, todo: &[usize]) -> Vec<GroupPlan> {
-    fn compare_with(learned: bool, v: &[i32], contexts: Option<&[Range<usize>]>) -> tables::Compared {
-        if learned {
-            tables::compare(v, contexts)
+fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], models: Models, todo: &[usize]) -> Vec<GroupPlan> {
+    // `lower`: the values of the channel below (empty for a first channel), for mode 3.
+    let compare = |v: &[i32], contexts: Option<&[Range<usize>]>, lower: &[i32]| {
+        let neighbours = Some(lower).filter(|_| models.neighbours);
+        if models.learned {
+            tables::compare(v, contexts, neighbours)
         } else {
-            tables::histogram_only(v, contexts)
+            tables::histogram_only(v, contexts, neighbours)
         }
-    }
-    let compare = |v: &[i32], contexts| compare_with(learned, v, contexts);
+    };
+    let uses_neighbours = |ts: &[ChosenTable]| ts.iter().any(|t| matches!(t.table, ChannelTable::Neighbour(_)));
     let mut plans = Vec::new();
     if todo.contains(&0) {
         let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
-        let cmp = compare(&lens, None); // position lengths are never context-coded (SPEC §4)
+        let cmp = if models.learned { tables::compare(&lens, None, None) } else { tables::histogram_only(&lens, None, None) }; // position lengths are never context-coded (SPEC §4)
         let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
         let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
         let t = cmp.best;
         plans.push(GroupPlan {
             group: Group::Position,
+            neighbours: false,
             params: write_position_params(&q.grid, &t.bytes),
             codebook: None,
             tables: vec![t],
@@ -115,27 +132,50 @@ fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool, t
             // Gaussians, and the band's one channel, the row index.
             let k = cb.len();
             let cols: Vec<Vec<i32>> = (0..cb.channels).map(|j| cb.column(j)).collect();
-            let cts: Vec<ChosenTable> = cols.par_iter().map(|c| compare_with(learned, c, Some(&[0..k])).best).collect();
+            let cts: Vec<ChosenTable> = (0..cols.len())
+                .into_par_iter()
+                .map(|j| compare(&cols[j], Some(&[0..k]), if j > 0 { &cols[j - 1] } else { &[] }).best)
+                .collect();
             let book_params = write_channel_params(steps, cts.iter().map(|t| &t.bytes[..]));
             let refs: Vec<&ChannelTable> = cts.iter().map(|t| &t.table).collect();
             let values: Vec<&[i32]> = cols.iter().map(|c| &c[..]).collect();
             let book = write_codebook(k, &book_params, &write_channel_streams(&refs, &values));
             let index: Vec<i32> = cb.index.iter().map(|&i| i as i32).collect();
-            let c = compare(&index, Some(chunks));
+            let c = compare(&index, Some(chunks), &[]);
             let (histogram_bits, learned_bits, context_bits) = (c.histogram_bits, c.learned_bits, c.context_bits);
             let params = write_channel_params(&[1.0], [&c.best.bytes[..]].into_iter());
             let tables = vec![c.best];
-            plans.push(GroupPlan { group: *g, params, codebook: Some((book, k)), tables, histogram_bits, learned_bits, context_bits });
+            let neighbours = uses_neighbours(&cts) || uses_neighbours(&tables);
+            plans.push(GroupPlan {
+                group: *g,
+                neighbours,
+                params,
+                codebook: Some((book, k)),
+                tables,
+                histogram_bits,
+                learned_bits,
+                context_bits,
+            });
             continue;
         }
-        let cmps: Vec<tables::Compared> = chans.par_iter().map(|c| compare(c, Some(chunks))).collect();
+        let cmps: Vec<tables::Compared> =
+            (0..chans.len()).into_par_iter().map(|j| compare(&chans[j], Some(chunks), if j > 0 { &chans[j - 1] } else { &[] })).collect();
         let histogram_bits = cmps.iter().map(|c| c.histogram_bits).sum();
         let learned_bits = cmps.iter().map(|c| c.learned_bits).sum();
         // A channel where contexts were not tried (a constant) costs its histogram bits.
         let context_bits = cmps.iter().map(|c| if c.context_bits.is_nan() { c.histogram_bits } else { c.context_bits }).sum();
         let ts: Vec<ChosenTable> = cmps.into_iter().map(|c| c.best).collect();
         let params = write_channel_params(steps, ts.iter().map(|t| &t.bytes[..]));
-        plans.push(GroupPlan { group: *g, params, codebook: None, tables: ts, histogram_bits, learned_bits, context_bits });
+        plans.push(GroupPlan {
+            group: *g,
+            neighbours: uses_neighbours(&ts),
+            params,
+            codebook: None,
+            tables: ts,
+            histogram_bits,
+            learned_bits,
+            context_bits,
+        });
     }
     plans
 }
@@ -183,9 +223,9 @@ pub(crate) fn key128(feed: impl Fn(&mut std::collections::hash_map::DefaultHashe
 }
 
 /// The cache key of group `i` of `q` (numbered as in [`plan`]).
-fn group_key(q: &Quantised, chunks: &[Range<usize>], learned: bool, i: usize) -> (u64, u64) {
+fn group_key(q: &Quantised, chunks: &[Range<usize>], models: Models, i: usize) -> (u64, u64) {
     key128(|h| {
-        (learned, chunks.iter().map(|r| (r.start, r.end)).collect::<Vec<_>>()).hash(h);
+        (models.learned, models.neighbours, chunks.iter().map(|r| (r.start, r.end)).collect::<Vec<_>>()).hash(h);
         if i == 0 {
             let (lo, step, bits) = &q.grid;
             (lo.map(f32::to_bits), step.map(f32::to_bits), bits, &q.morton).hash(h);
@@ -201,9 +241,9 @@ fn group_key(q: &Quantised, chunks: &[Range<usize>], learned: bool, i: usize) ->
 
 /// Plans and codes every group of `q` (numbered as in [`plan`]), taking those `cache` holds
 /// from it and adding the others.
-fn code_groups(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: bool, cache: Option<&GroupCache>) -> Vec<Arc<CodedGroup>> {
+fn code_groups(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], models: Models, cache: Option<&GroupCache>) -> Vec<Arc<CodedGroup>> {
     let count = q.groups.len() + 1;
-    let keys: Vec<Option<(u64, u64)>> = (0..count).map(|i| cache.map(|_| group_key(q, chunks, learned, i))).collect();
+    let keys: Vec<Option<(u64, u64)>> = (0..count).map(|i| cache.map(|_| group_key(q, chunks, models, i))).collect();
     let mut coded: Vec<Option<Arc<CodedGroup>>> = match cache {
         Some(c) => {
             let map = c.groups.lock().expect("not poisoned");
@@ -212,7 +252,7 @@ fn code_groups(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], learned: 
         None => vec![None; count],
     };
     let todo: Vec<usize> = (0..count).filter(|&i| coded[i].is_none()).collect();
-    let plans = plan(q, chunks, deltas, learned, &todo);
+    let plans = plan(q, chunks, deltas, models, &todo);
     let jobs: Vec<(usize, usize)> = (0..plans.len()).flat_map(|p| (0..chunks.len()).map(move |c| (p, c))).collect();
     let mut streams = jobs.par_iter().map(|&(p, c)| encode_chunk(q, &plans[p], deltas, chunks[c].clone())).collect::<Vec<_>>().into_iter();
     for (plan, i) in plans.into_iter().zip(todo) {
@@ -272,24 +312,26 @@ fn level_part(q: &Quantised, l: usize, r: Range<usize>) -> Quantised {
 /// by chunk, then info. Without levels it is a 3.0 file (same order, one level). A scene with SH
 /// codebooks ([`Quantised::codebooks`]) is a 5.0 file (always with a levels section), its
 /// codebooks right after the parameter sections.
-pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool) -> (Vec<u8>, EncodeReport) {
-    write_cached(q, input, learned_tables, None)
+pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool, neighbour_tables: bool) -> (Vec<u8>, EncodeReport) {
+    write_cached(q, input, learned_tables, neighbour_tables, None)
 }
 
 /// [`write`], taking the groups `cache` holds from it and adding the others: the same bytes and
 /// report.
-pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cache: Option<&GroupCache>) -> (Vec<u8>, EncodeReport) {
+pub fn write_cached(
+    q: &Quantised,
+    input: (usize, u8),
+    learned_tables: bool,
+    neighbour_tables: bool,
+    cache: Option<&GroupCache>,
+) -> (Vec<u8>, EncodeReport) {
     let n = q.len();
     let progressive = !q.levels.is_empty();
     let codebooks = n > 0 && !q.codebooks.is_empty();
     let per_level = n > 0 && !q.level_factors.is_empty();
-    let version_major = match (per_level, codebooks, progressive) {
-        (true, ..) => VERSION_MAJOR,
-        (false, true, _) => VERSION_MAJOR_CODEBOOKS,
-        (false, false, true) => VERSION_MAJOR_LEVELS,
-        (false, false, false) => VERSION_MAJOR_UNIFORM,
-    };
-    let header = Header { version_major, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
+    // Neighbour contexts need a format-8.0 file, whose levels each have their own parameter
+    // sections: so not for a progressive file whose levels share one set.
+    let models = Models { learned: learned_tables, neighbours: neighbour_tables && (!progressive || per_level) };
     let info = write_info(&EncoderInfo { input_gaussians: input.0.min(u32::MAX as usize) as u32, input_sh_degree: input.1 });
     let mut report = EncodeReport {
         gaussians: n,
@@ -302,12 +344,10 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
     let mut payloads: Vec<(u16, u16, u32, &[u8])> = Vec::new();
     let levels;
     let coded;
+    let mut neighbours = false;
     if n > 0 {
         let layout = q.layout();
         levels = layout.write();
-        if progressive || codebooks || per_level {
-            payloads.push((LEVELS_KIND, 0, 0, &levels));
-        }
         let chunks = layout.chunk_ranges();
         // The parts coded with one set of parameter sections each (SPEC §4): every level of a
         // 6.0 file, else the whole scene. Per part: the scene and its chunks.
@@ -329,9 +369,13 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
             .iter()
             .map(|(pq, ch)| {
                 let deltas = morton_deltas(&pq.morton, ch);
-                (code_groups(pq, ch, &deltas, learned_tables, cache), deltas)
+                (code_groups(pq, ch, &deltas, models, cache), deltas)
             })
             .collect::<Vec<_>>();
+        neighbours = coded.iter().any(|(gs, _)| gs.iter().any(|g| g.plan.neighbours));
+        if progressive || codebooks || per_level || neighbours {
+            payloads.push((LEVELS_KIND, 0, 0, &levels));
+        }
         // Global chunk c → (part, chunk within the part).
         let chunk_of: Vec<(usize, usize)> = parts.iter().enumerate().flat_map(|(p, (_, ch))| (0..ch.len()).map(move |j| (p, j))).collect();
         // Chunk-major for the base groups, then band-major for SH (groups are in group order).
@@ -359,6 +403,7 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
                 r.learned_bits += p.learned_bits;
                 r.context_bits += p.context_bits;
                 r.context_channels += p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Context { .. })).count();
+                r.neighbour_channels += p.tables.iter().filter(|t| matches!(t.table, ChannelTable::Neighbour(_))).count();
             }
         }
         for p in coded[0].0.iter().map(|g| &g.plan) {
@@ -378,6 +423,14 @@ pub fn write_cached(q: &Quantised, input: (usize, u8), learned_tables: bool, cac
     }
     payloads.push((INFO_KIND, 0, SECTION_OPTIONAL, &info));
     let sections: Vec<Section> = payloads.iter().map(|(k, c, f, d)| Section { kind: *k, chunk: *c, flags: *f, data: d }).collect();
+    let version_major = match (neighbours, per_level, codebooks, progressive) {
+        (true, ..) => VERSION_MAJOR_NEIGHBOURS,
+        (false, true, ..) => VERSION_MAJOR,
+        (false, false, true, _) => VERSION_MAJOR_CODEBOOKS,
+        (false, false, false, true) => VERSION_MAJOR_LEVELS,
+        (false, false, false, false) => VERSION_MAJOR_UNIFORM,
+    };
+    let header = Header { version_major, version_minor: VERSION_MINOR, gaussians: n as u32, sh_degree: q.sh_degree };
     let bytes = write_padded(&header, &sections);
     report.file_bytes = bytes.len();
     report.container_bytes = bytes.len() - report.groups.iter().map(|g| g.table_bytes + g.stream_bytes).sum::<usize>();

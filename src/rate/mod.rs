@@ -47,6 +47,9 @@ pub struct EncodeConfig {
     /// Also fit the learned density per channel and store it where it is cheaper than the
     /// static histogram (slower; the RD search turns it off for its trial encodes).
     pub learned_tables: bool,
+    /// Also fit neighbour-context tables (table mode 3, SPEC §4.3) and store them where they are
+    /// cheaper: such a file is format 8.0. Off: the file is what a 3.0–6.0 reader reads.
+    pub neighbour_tables: bool,
     /// Write the Gaussians in importance levels ([`importance::levels`], SPEC §3.1, format 4.0)
     /// so that a player can draw the most important ones from a prefix of the file; off = one
     /// level (format 3.0).
@@ -128,6 +131,7 @@ impl Default for EncodeConfig {
             sh_vq: [0; 3],
             max_sh_degree: 3,
             learned_tables: true,
+            neighbour_tables: true,
             progressive: false,
             tail: CoarseTail::OFF,
         }
@@ -244,7 +248,7 @@ pub fn encode_cached(
         let nonempty: Vec<f32> = factors.into_iter().zip(&counts).filter(|x| *x.1 > 0).map(|x| x.0).collect();
         quantise::apply_level_factors(&mut q, &s, &order, &config.steps, &nonempty);
     }
-    let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, cache);
+    let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, config.neighbour_tables, cache);
     Ok((bytes, report, q))
 }
 

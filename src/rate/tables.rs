@@ -1,9 +1,12 @@
 //! Choosing a channel's integer table: range, escape and weight precision that minimise
 //! table bytes plus coded bits (the static-histogram model), and its exact cost.
 
+use std::collections::HashMap;
 use std::ops::Range;
+use std::sync::{Arc, Mutex};
 
 use gscodec_decoder::bitstream::ByteWriter;
+use gscodec_decoder::entropy::neighbour::{self, window_weights, Neighbour, NeighbourContext, MAX_MIX, MAX_REACH, RATIOS};
 use gscodec_decoder::entropy::{in_context, symbol_of, ChannelTable, FreqTable, SymbolEncoder, CONTEXTS, MAX_SYMBOLS};
 
 /// A channel's table as it will be written, with its cost on the values it codes.
@@ -116,6 +119,128 @@ pub fn with_contexts(values: &[i32], base: &ChosenTable, chunks: &[Range<usize>]
     Some(ChosenTable { table: ChannelTable::Context { lo, centre, tables: Box::new([t0, t1, t2, t3]) }, bytes: w.buf, bits })
 }
 
+/// Bits of a difference of magnitude `d` under each window of reach `e` (SPEC §4.3):
+/// `bits[ρ][d]` for `d = 0..=e`, and at `d = e + 1` an escape (its symbol and 32 raw bits).
+/// The tables depend on `e` alone, so they are kept for every `e` met (a few MB at most).
+fn window_bits(e: u32) -> Arc<Vec<Vec<f64>>> {
+    static MEMO: Mutex<Option<HashMap<u32, Arc<Vec<Vec<f64>>>>>> = Mutex::new(None);
+    if let Some(b) = MEMO.lock().expect("memo").get_or_insert_with(HashMap::new).get(&e) {
+        return b.clone();
+    }
+    let eu = e as usize;
+    let bits: Vec<Vec<f64>> = RATIOS
+        .iter()
+        .map(|&r| {
+            let t = FreqTable::from_weights(&window_weights(r, e));
+            (0..=eu).map(|d| t.bits(eu + d)).chain([t.bits(2 * eu + 1) + 32.0]).collect()
+        })
+        .collect();
+    let bits = Arc::new(bits);
+    let mut memo = MEMO.lock().expect("memo");
+    let memo = memo.get_or_insert_with(HashMap::new);
+    if memo.len() >= 256 {
+        memo.clear();
+    }
+    memo.insert(e, bits.clone());
+    bits
+}
+
+/// Up to `buckets − 1` thresholds splitting the sorted `values` into about equal parts (each
+/// above the smallest value, none repeated).
+fn quantile_thresholds(sorted: &[i32], buckets: usize) -> Vec<i32> {
+    let mut t: Vec<i32> = (1..buckets).map(|k| sorted[k * sorted.len() / buckets]).filter(|&x| x > sorted[0]).collect();
+    t.dedup();
+    t
+}
+
+/// One context's best prediction and window for its `(prev, value)` pairs: the centre is the
+/// values' median; every mix and (coarse to fine) every ratio is tried. With its bits.
+fn fit_context(pairs: &[(i32, i32)], reach: u32, bits: &[Vec<f64>]) -> (NeighbourContext, f64) {
+    let mut vs: Vec<i32> = pairs.iter().map(|p| p.1).collect();
+    let half = vs.len() / 2;
+    let centre = *vs.select_nth_unstable(half).1;
+    let mut best = (NeighbourContext { mix: 0, centre, ratio: 0 }, f64::INFINITY);
+    // How often each |difference| occurs (the escape at reach + 1), and which ones do.
+    let mut counts = vec![0u32; reach as usize + 2];
+    let mut seen: Vec<usize> = Vec::new();
+    for mix in 0..=MAX_MIX {
+        let k = NeighbourContext { mix, centre, ratio: 0 };
+        for &(prev, v) in pairs {
+            let d = (i64::from(v) - k.predict(prev)).unsigned_abs().min(u64::from(reach) + 1) as usize;
+            if counts[d] == 0 {
+                seen.push(d);
+            }
+            counts[d] += 1;
+        }
+        let runs: Vec<(usize, f64)> = seen.drain(..).map(|d| (d, f64::from(std::mem::take(&mut counts[d])))).collect();
+        let cost = |r: usize| runs.iter().map(|&(x, c)| c * bits[r][x]).sum::<f64>();
+        let coarse = (0..RATIOS.len()).step_by(4).min_by(|&a, &b| cost(a).total_cmp(&cost(b))).expect("ratios");
+        let fine = (coarse.saturating_sub(3)..(coarse + 4).min(RATIOS.len())).min_by(|&a, &b| cost(a).total_cmp(&cost(b))).expect("ratios");
+        let c = cost(fine);
+        if c < best.1 {
+            best = (NeighbourContext { mix, centre, ratio: fine as u8 }, c);
+        }
+    }
+    best
+}
+
+/// The neighbour-context table (mode 3, SPEC §4.3) of a channel: `lower` holds the values of
+/// the channel below (empty for channel 0), `chunks` the streams (each restarts the previous
+/// value). Thresholds split the previous values (and the values below) into up to 8 equal
+/// parts; fewer parts are tried too, and the cheapest table (bytes + bits) is kept. `None` for
+/// a constant channel.
+pub fn with_neighbours(values: &[i32], lower: &[i32], chunks: &[Range<usize>]) -> Option<ChosenTable> {
+    let (Some(&min), Some(&max)) = (values.iter().min(), values.iter().max()) else { return None };
+    if min == max {
+        return None;
+    }
+    let reach = (i64::from(max) - i64::from(min)).min(i64::from(MAX_REACH)) as u32;
+    let bits = window_bits(reach);
+    let mut sorted = values.to_vec();
+    sorted.sort_unstable();
+    let start = sorted[sorted.len() / 2];
+    let mut lower_sorted = lower.to_vec();
+    lower_sorted.sort_unstable();
+    let lower_of = |i: usize| if lower.is_empty() { 0 } else { lower[i] };
+    // The cheapest candidate: (table bytes, its fields, bits).
+    let mut best: Option<(Vec<u8>, (Vec<i32>, Vec<i32>, Vec<NeighbourContext>), f64)> = None;
+    for (pb, lb) in [(8, 8), (8, 1), (4, 4), (4, 1), (2, 1)] {
+        if lb > 1 && lower.is_empty() {
+            continue;
+        }
+        let prev_at = quantile_thresholds(&sorted, pb);
+        let lower_at = if lb > 1 { quantile_thresholds(&lower_sorted, lb) } else { vec![] };
+        let mut pairs: Vec<Vec<(i32, i32)>> = vec![Vec::new(); (prev_at.len() + 1) * (lower_at.len() + 1)];
+        for chunk in chunks {
+            let mut prev = start;
+            for i in chunk.clone() {
+                pairs[neighbour::context(&prev_at, &lower_at, prev, lower_of(i))].push((prev, values[i]));
+                prev = values[i];
+            }
+        }
+        let mut total = 0.0;
+        let contexts: Vec<NeighbourContext> = pairs
+            .iter()
+            .map(|p| {
+                if p.is_empty() {
+                    return NeighbourContext { mix: 0, centre: start, ratio: 0 };
+                }
+                let (k, b) = fit_context(p, reach, &bits);
+                total += b;
+                k
+            })
+            .collect();
+        let mut w = ByteWriter::new();
+        ChannelTable::write_neighbour(&mut w, reach, start, &prev_at, &lower_at, &contexts);
+        if best.as_ref().is_none_or(|b| total + 8.0 * (w.buf.len() as f64) < b.2 + 8.0 * (b.0.len() as f64)) {
+            best = Some((w.buf, (prev_at, lower_at, contexts), total));
+        }
+    }
+    let (bytes, (prev_at, lower_at, contexts), bits) = best?;
+    let table = ChannelTable::Neighbour(Box::new(Neighbour::new(reach, start, prev_at, lower_at, contexts)));
+    Some(ChosenTable { table, bytes, bits })
+}
+
 /// The models for one channel: the static histogram, the learned (trained Laplace) density and
 /// the context-coded histograms, each with its table; the cheapest (table bytes + coded bits)
 /// is the one to store.
@@ -127,26 +252,34 @@ pub struct Compared {
     pub learned_bits: f64,
     /// Total bits (table + stream) with one histogram per context (NaN when not tried).
     pub context_bits: f64,
+    /// Total bits (table + stream) with neighbour contexts (NaN when not tried).
+    pub neighbour_bits: f64,
 }
 
-/// The static histogram, and its context-coded version when `contexts` gives the chunks (the
-/// learned cost is NaN).
-pub fn histogram_only(values: &[i32], contexts: Option<&[Range<usize>]>) -> Compared {
+/// The static histogram, and its context-coded versions when `contexts` gives the chunks (the
+/// learned cost is NaN): one histogram per context (mode 2), and with `neighbours` (the values
+/// of the channel below, empty for a first channel) neighbour contexts (mode 3, format 8.0).
+pub fn histogram_only(values: &[i32], contexts: Option<&[Range<usize>]>, neighbours: Option<&[i32]>) -> Compared {
     let hist = choose(values);
     let h = hist.total_bits();
     let ctx = contexts.and_then(|chunks| with_contexts(values, &hist, chunks));
     let c = ctx.as_ref().map_or(f64::NAN, ChosenTable::total_bits);
-    let best = match ctx {
+    let nb = contexts.zip(neighbours).and_then(|(chunks, lower)| with_neighbours(values, lower, chunks));
+    let nbits = nb.as_ref().map_or(f64::NAN, ChosenTable::total_bits);
+    let mut best = match ctx {
         Some(ctx) if c < h => ctx,
         _ => hist,
     };
-    Compared { best, histogram_bits: h, learned_bits: f64::NAN, context_bits: c }
+    if let Some(nb) = nb.filter(|_| nbits < best.total_bits()) {
+        best = nb;
+    }
+    Compared { best, histogram_bits: h, learned_bits: f64::NAN, context_bits: c, neighbour_bits: nbits }
 }
 
 /// Builds all the tables for `values` (contexts only when `contexts` gives the chunks, each one
-/// stream) and keeps the cheapest.
-pub fn compare(values: &[i32], contexts: Option<&[Range<usize>]>) -> Compared {
-    let mut out = histogram_only(values, contexts);
+/// stream; neighbour contexts as [`histogram_only`]) and keeps the cheapest.
+pub fn compare(values: &[i32], contexts: Option<&[Range<usize>]>, neighbours: Option<&[i32]>) -> Compared {
+    let mut out = histogram_only(values, contexts, neighbours);
     if matches!(out.best.table, ChannelTable::Constant(_)) {
         out.learned_bits = out.histogram_bits;
         return out;
@@ -208,6 +341,37 @@ mod tests {
         assert!((t.bits - exact).abs() < 1e-6);
         // Entropy of (1/4, 3/4) is 0.811 bits per value.
         assert!((t.bits / 1000.0 - 0.811).abs() < 0.01, "{}", t.bits / 1000.0);
+    }
+
+    /// A channel that follows its neighbours and the channel below, in two streams, with one
+    /// value too far for any window: the neighbour table's cost is exactly what the coder spends
+    /// (escape included), it is far below the static histogram's, and its bytes read back to it.
+    #[test]
+    fn neighbour_tables_cost_exactly_what_they_code() {
+        let n = 5000;
+        let lower: Vec<i32> = (0..n).map(|i| ((i as f32 * 0.01).sin() * 40.0) as i32).collect();
+        let values: Vec<i32> = (0..n).map(|i| lower[i] / 2 + ((i * 7919) % 5) as i32 - 2 + if i == 1234 { 100_000 } else { 0 }).collect();
+        let chunks = [0..3000, 3000..n];
+        let t = with_neighbours(&values, &lower, &chunks).expect("not constant");
+        let ChannelTable::Neighbour(nb) = &t.table else { panic!("{:?}", t.table) };
+        assert_eq!(nb.reach, 2047, "the outlier's range is beyond any window");
+        let mut exact = 0.0;
+        for c in &chunks {
+            let mut prev = nb.start;
+            for i in c.clone() {
+                exact += SymbolEncoder::neighbour_bits(nb, prev, lower[i], values[i]);
+                prev = values[i];
+            }
+        }
+        assert!((t.bits - exact).abs() <= 1e-9 * exact, "{} against {exact}", t.bits);
+        let hist = choose(&values).total_bits();
+        assert!(t.total_bits() < 0.6 * hist, "{} against {hist}", t.total_bits());
+        let read = ChannelTable::read(&mut gscodec_decoder::bitstream::ByteReader::new(&t.bytes)).unwrap();
+        assert_eq!(read, t.table);
+        // Constants have no neighbour table; without a channel below the table has no thresholds on one.
+        assert!(with_neighbours(&[3; 10], &[], &[0..10]).is_none());
+        let ChannelTable::Neighbour(alone) = with_neighbours(&values, &[], &chunks).unwrap().table else { panic!() };
+        assert!(alone.lower_at.is_empty());
     }
 
     #[test]

@@ -294,7 +294,7 @@ impl AnchorSet {
 /// as integers (`f32`, exact) with `integer`.
 fn read_block(r: &mut ByteReader<'_>, channels: usize, rows: usize, integer: bool) -> Result<Vec<f32>, DecodeError> {
     let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None, codebook: None };
-    read_channel_tables(r, channels, &mut p)?;
+    read_channel_tables(r, channels, &mut p, false)?; // mode 3 is explicit-profile only (8.0)
     let scale = if integer { vec![1.0; channels] } else { p.steps.clone() };
     let mut vals = vec![0f32; rows * channels];
     decode_channels(&p, r, &scale, 0..channels, &mut vals)?;
@@ -352,7 +352,7 @@ pub fn read_anchors(r: &mut ByteReader<'_>, n: usize, d: u8) -> Result<AnchorSet
     for l in &layers {
         let at = r.place();
         let table = ChannelTable::read(r)?;
-        if matches!(table, ChannelTable::Context { .. }) {
+        if !matches!(table, ChannelTable::Constant(_) | ChannelTable::Coded { .. }) {
             return Err(at.corrupt("context-coded weight lengths"));
         }
         decode_lengths(&table, r, l.outputs * (l.inputs + 1), WEIGHT_LENGTH_BITS, |z, at| {

@@ -44,8 +44,11 @@ pub const MAGIC: [u8; 4] = [0x8A, b'G', b'S', b'C'];
 /// [`VERSION_MAJOR_LEVELS`] and [`VERSION_MAJOR_UNIFORM`] are read too.
 pub const VERSION_MAJOR: u8 = 6;
 /// Format 7.0: the anchor profile (SPEC §12), an anchor section instead of the explicit
-/// profile's levels, groups and codebooks. The newest major version this crate reads.
+/// profile's levels, groups and codebooks.
 pub const VERSION_MAJOR_ANCHORS: u8 = 7;
+/// Format 8.0: the explicit profile of 6.0 with neighbour-context tables (table mode 3, SPEC
+/// §4.3), written for files that use one. The newest major version this crate reads.
+pub const VERSION_MAJOR_NEIGHBOURS: u8 = 8;
 /// Format 5.0: SH codebooks (SPEC §3.2), written for files with codebooks whose levels share one
 /// set of parameter sections.
 pub const VERSION_MAJOR_CODEBOOKS: u8 = 5;

@@ -42,16 +42,33 @@ pub struct Codebook {
     pub values: Vec<f32>,
 }
 
-/// `u8 C` (which must be `channels`), then C × (f32 step, channel table) (SPEC §4).
-pub(crate) fn read_channel_tables(r: &mut ByteReader<'_>, channels: usize, p: &mut GroupParams) -> Result<(), DecodeError> {
+/// `u8 C` (which must be `channels`), then C × (f32 step, channel table) (SPEC §4). Tables of
+/// mode 3 only with `neighbours` (a file of format 8, SPEC §4.3), and never with thresholds on
+/// the value below for channel 0.
+pub(crate) fn read_channel_tables(
+    r: &mut ByteReader<'_>,
+    channels: usize,
+    p: &mut GroupParams,
+    neighbours: bool,
+) -> Result<(), DecodeError> {
     let at = r.place();
     let n = r.u8("channel count")? as usize;
     if n != channels {
         return Err(at.corrupt("wrong channel count"));
     }
-    for _ in 0..n {
+    for j in 0..n {
         p.steps.push(r.f32("channel step")?);
-        p.tables.push(ChannelTable::read(r)?);
+        let at = r.place();
+        let t = ChannelTable::read(r)?;
+        if let ChannelTable::Neighbour(nb) = &t {
+            if !neighbours {
+                return Err(at.corrupt("neighbour-context table before format 8.0"));
+            }
+            if j == 0 && nb.uses_lower() {
+                return Err(at.corrupt("channel 0 with thresholds on a channel below"));
+            }
+        }
+        p.tables.push(t);
     }
     Ok(())
 }
@@ -60,14 +77,14 @@ pub(crate) fn read_channel_tables(r: &mut ByteReader<'_>, channels: usize, p: &m
 /// (1 ≤ K ≤ min(N, 65536)), the codebook's channel tables as a parameter section, then its K
 /// rows as the streams of a data section; it must be consumed exactly. The rows are
 /// dequantised with the codebook's steps (SPEC §8) and must be finite.
-pub fn read_codebook(g: Group, r: &mut ByteReader<'_>, n: usize) -> Result<Codebook, DecodeError> {
+pub fn read_codebook(g: Group, r: &mut ByteReader<'_>, n: usize, neighbours: bool) -> Result<Codebook, DecodeError> {
     let at = r.place();
     let k = r.varint("codebook rows")? as usize;
     if k == 0 || k > MAX_CODEBOOK_ROWS || k > n {
         return Err(at.corrupt("codebook rows outside 1..=min(N, 65536)"));
     }
     let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None, codebook: None };
-    read_channel_tables(r, g.channels(), &mut p)?;
+    read_channel_tables(r, g.channels(), &mut p, neighbours)?;
     let mut values = vec![0.0; k * g.channels()];
     super::stream::decode_channels(&p, r, &p.steps, 0..g.channels(), &mut values)?;
     if r.remaining() != 0 {
@@ -88,14 +105,19 @@ pub fn write_codebook(rows: usize, params: &[u8], streams: &[u8]) -> Vec<u8> {
 
 /// Reads the parameter section of group `g`; it must be consumed exactly. With `codebook` (an SH
 /// band coded by vector quantisation, SPEC §3.2) it holds one channel, the row index, whose
-/// step is ignored.
-pub fn read_params(g: Group, r: &mut ByteReader<'_>, codebook: Option<Arc<Codebook>>) -> Result<GroupParams, DecodeError> {
+/// step is ignored. `neighbours`: mode-3 tables are allowed (format 8).
+pub fn read_params(
+    g: Group,
+    r: &mut ByteReader<'_>,
+    codebook: Option<Arc<Codebook>>,
+    neighbours: bool,
+) -> Result<GroupParams, DecodeError> {
     let channels = if codebook.is_some() { 1 } else { g.channels() };
     let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None, codebook };
     if g == Group::Position {
         p = read_position_params(r)?;
     } else {
-        read_channel_tables(r, channels, &mut p)?;
+        read_channel_tables(r, channels, &mut p, neighbours)?;
     }
     if r.remaining() != 0 {
         return Err(r.corrupt("trailing bytes in a parameter section"));
@@ -115,7 +137,7 @@ pub(crate) fn read_position_params(r: &mut ByteReader<'_>) -> Result<GroupParams
     }
     let at = r.place();
     let lengths = ChannelTable::read(r)?;
-    if matches!(lengths, ChannelTable::Context { .. }) {
+    if !matches!(lengths, ChannelTable::Constant(_) | ChannelTable::Coded { .. }) {
         return Err(at.corrupt("context-coded position lengths"));
     }
     Ok(GroupParams { steps: Vec::new(), tables: vec![lengths], grid: Some((origin, step, bits)), codebook: None })
@@ -172,7 +194,7 @@ pub fn read_all_params(c: &Container<'_>, degree: u8, levels: usize) -> Result<P
     let codebooks: Vec<Option<Arc<Codebook>>> = groups
         .par_iter()
         .map(|&g| match c.codebook(g)? {
-            Some(mut r) => Ok(Some(Arc::new(read_codebook(g, &mut r, c.header.gaussians as usize)?))),
+            Some(mut r) => Ok(Some(Arc::new(read_codebook(g, &mut r, c.header.gaussians as usize, header.has_neighbours())?))),
             None => Ok(None),
         })
         .collect::<Result<_, DecodeError>>()?;
@@ -186,7 +208,7 @@ pub fn read_all_params(c: &Container<'_>, degree: u8, levels: usize) -> Result<P
             if c.section(g.params_kind(), chunk).is_none() {
                 return Err(c.missing(SectionId { kind: g.params_kind(), chunk }, g.params_name()));
             }
-            Ok((g, read_params(g, &mut c.reader(g.params_kind(), chunk), codebooks[gi].clone())?))
+            Ok((g, read_params(g, &mut c.reader(g.params_kind(), chunk), codebooks[gi].clone(), header.has_neighbours())?))
         })
         .collect::<Result<Vec<_>, DecodeError>>()?
         .into_iter();
@@ -204,18 +226,18 @@ mod tests {
         ChannelTable::write_coded(&mut t, 0, &[3, 1, 1]);
         let grid = ([1.0, -2.0, 0.5], [0.25, 0.25, 0.125], 7);
         let bytes = write_position_params(&grid, &t.buf);
-        let p = read_params(Group::Position, &mut ByteReader::new(&bytes), None).unwrap();
+        let p = read_params(Group::Position, &mut ByteReader::new(&bytes), None, false).unwrap();
         assert_eq!(p.grid, Some(grid));
         assert_eq!(p.tables.len(), 1);
         let mut c = ByteWriter::new();
         ChannelTable::write_constant(&mut c, 4);
         let bytes = write_channel_params(&[0.5, 0.25, -1.0], [&c.buf[..], &t.buf, &c.buf].into_iter());
-        let p = read_params(Group::Scale, &mut ByteReader::new(&bytes), None).unwrap();
+        let p = read_params(Group::Scale, &mut ByteReader::new(&bytes), None, false).unwrap();
         assert_eq!((p.steps, p.tables[0].clone()), (vec![0.5, 0.25, -1.0], ChannelTable::Constant(4)));
         // Scale has 3 channels, not 1; and a parameter section must be consumed exactly.
-        assert_eq!(read_params(Group::Opacity, &mut ByteReader::new(&bytes), None).unwrap_err().class(), "format");
+        assert_eq!(read_params(Group::Opacity, &mut ByteReader::new(&bytes), None, false).unwrap_err().class(), "format");
         let mut longer = bytes.clone();
         longer.push(0);
-        assert_eq!(read_params(Group::Scale, &mut ByteReader::new(&longer), None).unwrap_err().class(), "format");
+        assert_eq!(read_params(Group::Scale, &mut ByteReader::new(&longer), None, false).unwrap_err().class(), "format");
     }
 }

@@ -9,6 +9,7 @@ use super::layout::Group;
 use super::params::GroupParams;
 use super::tables::ChannelTable;
 use super::{ByteReader, ByteWriter};
+use crate::entropy::neighbour::Neighbour;
 use crate::entropy::{context, in_context, Lookup, SymbolDecoder, SymbolEncoder, CONTEXTS};
 use crate::error::{DecodeError, Place};
 
@@ -36,19 +37,30 @@ pub(crate) fn stream_decoder(data: &[u8], at: Place) -> Result<SymbolDecoder<'_>
 /// `channels[j]` are channel j's values for the chunk's Gaussians.
 pub fn write_channel_streams(tables: &[&ChannelTable], channels: &[&[i32]]) -> Vec<u8> {
     let mut section = ByteWriter::new();
-    for (t, values) in tables.iter().zip(channels) {
-        if let Some((_, centre, _)) = t.contexts() {
-            let mut e = SymbolEncoder::new();
-            in_context(values, centre).for_each(|(ctx, v)| e.value(t, ctx, v));
-            push_stream(&mut section, e);
+    for (j, (t, values)) in tables.iter().zip(channels).enumerate() {
+        let mut e = SymbolEncoder::new();
+        match t {
+            ChannelTable::Constant(_) => continue,
+            ChannelTable::Neighbour(nb) => {
+                let lower = |i: usize| if j > 0 { channels[j - 1][i] } else { 0 };
+                let prevs = std::iter::once(nb.start).chain(values.iter().copied());
+                prevs.zip(values.iter()).enumerate().for_each(|(i, (prev, &v))| e.neighbour_value(nb, prev, lower(i), v));
+            }
+            _ => {
+                let (_, centre, _) = t.contexts().expect("a coded table");
+                in_context(values, centre).for_each(|(ctx, v)| e.value(t, ctx, v));
+            }
         }
+        push_stream(&mut section, e);
     }
     section.buf
 }
 
 /// One coded channel being decoded: its stream, tables and the previous value (the context).
 struct Lane<'a> {
-    col: usize,
+    /// The channel, and its column in the output (`None`: decoded only for the channel above).
+    j: usize,
+    col: Option<usize>,
     lo: i32,
     centre: i32,
     prev: i32,
@@ -59,13 +71,47 @@ struct Lane<'a> {
 }
 
 impl Lane<'_> {
-    /// The lane's next value into `row` (`CONTEXT`: pick the table by the previous value).
+    /// The lane's next value into `row` and `ints` (`CONTEXT`: pick the table by the previous value).
     #[inline(always)]
-    fn decode<const CONTEXT: bool>(&mut self, row: &mut [f32]) {
+    fn decode<const CONTEXT: bool>(&mut self, row: &mut [f32], ints: &mut [i32]) {
         let table = if CONTEXT { self.tables[context(self.prev, self.centre)] } else { self.tables[0] };
         let v = self.d.coded_value(self.lo, table);
         self.prev = v;
-        row[self.col] = dequantise_value(v, self.scale);
+        ints[self.j] = v;
+        if let Some(col) = self.col {
+            row[col] = dequantise_value(v, self.scale);
+        }
+    }
+}
+
+/// A neighbour-context channel being decoded (SPEC §4.3).
+struct NeighbourLane<'a> {
+    j: usize,
+    col: Option<usize>,
+    table: &'a Neighbour,
+    lookups: Vec<Lookup<'a>>,
+    prev: i32,
+    scale: f32,
+    d: SymbolDecoder<'a>,
+    at: Place,
+    /// A value left `i32` (reported when the lane finishes, so the loop has no early exit).
+    overflow: bool,
+}
+
+impl NeighbourLane<'_> {
+    /// The lane's next value; the value below it is `ints[j − 1]`, already decoded.
+    #[inline(always)]
+    fn decode(&mut self, row: &mut [f32], ints: &mut [i32]) {
+        let lower = if self.j > 0 { ints[self.j - 1] } else { 0 };
+        let v = self.d.neighbour_value(self.table, &self.lookups, self.prev, lower).unwrap_or_else(|| {
+            self.overflow = true;
+            0
+        });
+        self.prev = v;
+        ints[self.j] = v;
+        if let Some(col) = self.col {
+            row[col] = dequantise_value(v, self.scale);
+        }
     }
 }
 
@@ -84,23 +130,48 @@ pub(crate) fn decode_channels(
     for t in &p.tables {
         streams.push(match t {
             ChannelTable::Constant(_) => (&[][..], r.place()),
-            ChannelTable::Coded { .. } | ChannelTable::Context { .. } => next_stream(r)?,
+            ChannelTable::Coded { .. } | ChannelTable::Context { .. } | ChannelTable::Neighbour(_) => next_stream(r)?,
         });
     }
     let w = channels.len();
-    // Channels with one table and context-coded ones decode in separate lanes, so that the former
-    // skip the context computation.
-    let (mut plain, mut contextual) = (Vec::with_capacity(w), Vec::new());
-    for (col, j) in channels.enumerate() {
-        match p.tables[j].contexts() {
-            None => {
-                let v = if let ChannelTable::Constant(v) = p.tables[j] { v } else { 0 };
-                vals.iter_mut().skip(col).step_by(w).for_each(|x| *x = dequantise_value(v, scale[j]));
+    // A neighbour-context channel whose context reads the channel below needs that channel
+    // decoded too (SPEC §4.3), and so on down: decode from the first channel the wanted ones need.
+    let mut first = channels.start;
+    while first > 0 && matches!(&p.tables[first], ChannelTable::Neighbour(t) if t.uses_lower()) {
+        first -= 1;
+    }
+    // Every value of the current row as an integer, for the neighbour lanes' contexts.
+    let mut ints = vec![0i32; channels.end];
+    // Channels with one table, context-coded ones and neighbour-coded ones decode in separate
+    // lanes, so that the first skip the context computation; neighbour lanes run last, in
+    // channel order, so that the channel below each is decoded when it runs.
+    let (mut plain, mut contextual, mut neighbours) = (Vec::with_capacity(w), Vec::new(), Vec::new());
+    for j in first..channels.end {
+        let col = j.checked_sub(channels.start);
+        let (data, at) = streams[j];
+        match &p.tables[j] {
+            ChannelTable::Constant(v) => {
+                ints[j] = *v;
+                if let Some(col) = col {
+                    vals.iter_mut().skip(col).step_by(w).for_each(|x| *x = dequantise_value(*v, scale[j]));
+                }
             }
-            Some((lo, centre, tables)) => {
-                let lanes = if matches!(p.tables[j], ChannelTable::Context { .. }) { &mut contextual } else { &mut plain };
-                let (data, at) = streams[j];
+            ChannelTable::Neighbour(table) => neighbours.push(NeighbourLane {
+                j,
+                col,
+                table,
+                lookups: (0..table.contexts.len()).map(|c| table.table(c).lookup_table()).collect(),
+                prev: table.start,
+                scale: scale[j],
+                d: stream_decoder(data, at)?,
+                at,
+                overflow: false,
+            }),
+            t => {
+                let (lo, centre, tables) = t.contexts().expect("a coded table");
+                let lanes = if matches!(t, ChannelTable::Context { .. }) { &mut contextual } else { &mut plain };
                 lanes.push(Lane {
+                    j,
                     col,
                     lo,
                     centre,
@@ -114,10 +185,17 @@ pub(crate) fn decode_channels(
         }
     }
     for row in vals.chunks_exact_mut(w) {
-        plain.iter_mut().for_each(|l| l.decode::<false>(row));
-        contextual.iter_mut().for_each(|l| l.decode::<true>(row));
+        plain.iter_mut().for_each(|l| l.decode::<false>(row, &mut ints));
+        contextual.iter_mut().for_each(|l| l.decode::<true>(row, &mut ints));
+        neighbours.iter_mut().for_each(|l| l.decode(row, &mut ints));
     }
     plain.into_iter().chain(contextual).try_for_each(|l| l.d.finish().map_err(|what| l.at.corrupt(what)))?;
+    for l in neighbours {
+        if l.overflow {
+            return Err(l.at.corrupt("neighbour prediction plus difference outside i32"));
+        }
+        l.d.finish().map_err(|what| l.at.corrupt(what))?;
+    }
     if !vals.iter().fold(true, |ok, x| ok & x.is_finite()) {
         return Err(r.corrupt("dequantised value is not finite"));
     }

@@ -1,8 +1,9 @@
 //! Channel tables (SPEC §4.1): how one integer channel is stored — a constant, one coded table,
-//! or one table per context — read and written here; the tables' probabilities are
-//! [`FreqTable`]s (SPEC §4.2).
+//! one table per context, or neighbour contexts (SPEC §4.3) — read and written here; the tables'
+//! probabilities are [`FreqTable`]s (SPEC §4.2).
 
 use super::{ByteReader, ByteWriter};
+use crate::entropy::neighbour::{Neighbour, NeighbourContext, MAX_MIX, MAX_REACH, MAX_THRESHOLDS, RATIOS};
 use crate::entropy::{FreqTable, CONTEXTS, MAX_SYMBOLS};
 use crate::error::{self, DecodeError, Limit};
 
@@ -28,14 +29,17 @@ pub enum ChannelTable {
         /// One table per context, all over the same symbols.
         tables: Box<[FreqTable; CONTEXTS]>,
     },
+    /// Predicted from the previous value and the value below, contexts chosen by thresholds
+    /// (mode 3, format 8.0, SPEC §4.3).
+    Neighbour(Box<Neighbour>),
 }
 
 impl ChannelTable {
     /// `(lo, centre, table per context)` of a coded channel (a single table serves every context);
-    /// `None` for a constant.
+    /// `None` for a constant and for neighbour contexts.
     pub fn contexts(&self) -> Option<(i32, i32, [&FreqTable; CONTEXTS])> {
         match self {
-            ChannelTable::Constant(_) => None,
+            ChannelTable::Constant(_) | ChannelTable::Neighbour(_) => None,
             ChannelTable::Coded { lo, table } => Some((*lo, 0, [table; CONTEXTS])),
             ChannelTable::Context { lo, centre, tables } => Some((*lo, *centre, [&tables[0], &tables[1], &tables[2], &tables[3]])),
         }
@@ -66,6 +70,29 @@ impl ChannelTable {
         }
     }
 
+    /// Serialises a neighbour-context channel: `u8 3, varint E, svarint start, u8 P, P ×
+    /// svarint threshold, u8 L, L × svarint threshold`, then per context `u8 mix, svarint
+    /// centre, u8 ratio`.
+    pub fn write_neighbour(w: &mut ByteWriter, reach: u32, start: i32, prev_at: &[i32], lower_at: &[i32], contexts: &[NeighbourContext]) {
+        w.u8(3);
+        w.varint(reach);
+        w.svarint(start);
+        for at in [prev_at, lower_at] {
+            w.u8(at.len() as u8);
+            at.iter().for_each(|&x| w.svarint(x));
+        }
+        for c in contexts {
+            w.u8(c.mix);
+            w.svarint(c.centre);
+            w.u8(c.ratio);
+        }
+    }
+
+    /// Whether the channel's values are coded (a stream of its own), i.e. not a constant.
+    pub fn is_coded(&self) -> bool {
+        !matches!(self, ChannelTable::Constant(_))
+    }
+
     /// Serialises a constant channel: `u8 0, svarint value`.
     pub fn write_constant(w: &mut ByteWriter, value: i32) {
         w.u8(0);
@@ -87,6 +114,7 @@ impl ChannelTable {
                 let t = [read_weights(r, n)?, read_weights(r, n)?, read_weights(r, n)?, read_weights(r, n)?];
                 Ok(ChannelTable::Context { lo, centre, tables: Box::new(t) })
             }
+            3 => read_neighbour(r).map(|t| ChannelTable::Neighbour(Box::new(t))),
             _ => Err(at.corrupt("unknown channel table mode")),
         }
     }
@@ -105,6 +133,43 @@ fn read_range(r: &mut ByteReader<'_>) -> Result<(i32, usize), DecodeError> {
         return Err(at.corrupt("table range overflows"));
     }
     Ok((lo, n))
+}
+
+/// The fields of a mode-3 table after its mode byte (SPEC §4.3), checked.
+fn read_neighbour(r: &mut ByteReader<'_>) -> Result<Neighbour, DecodeError> {
+    let at = r.place();
+    let reach = r.varint("window reach")?;
+    if reach == 0 || reach > MAX_REACH {
+        return Err(at.corrupt("window reach outside 1..=2047"));
+    }
+    let start = r.svarint("neighbour start")?;
+    let mut thresholds = |what| -> Result<Vec<i32>, DecodeError> {
+        let at = r.place();
+        let k = usize::from(r.u8("threshold count")?);
+        if k > MAX_THRESHOLDS {
+            return Err(at.corrupt("more than 15 thresholds"));
+        }
+        (0..k).map(|_| r.svarint(what)).collect()
+    };
+    let prev_at = thresholds("previous-value threshold")?;
+    let lower_at = thresholds("lower-value threshold")?;
+    let count = (prev_at.len() + 1) * (lower_at.len() + 1);
+    // Each context takes at least three bytes: check before allocating.
+    if r.remaining() < 3 * count {
+        return Err(r.place().truncated("neighbour contexts"));
+    }
+    let mut contexts = Vec::with_capacity(count);
+    for _ in 0..count {
+        let at = r.place();
+        let mix = r.u8("context mix")?;
+        let centre = r.svarint("context centre")?;
+        let ratio = r.u8("context ratio")?;
+        if mix > MAX_MIX || usize::from(ratio) >= RATIOS.len() {
+            return Err(at.corrupt("context mix above 4 or ratio above 63"));
+        }
+        contexts.push(NeighbourContext { mix, centre, ratio });
+    }
+    Ok(Neighbour::new(reach, start, prev_at, lower_at, contexts))
 }
 
 /// `(n+1) × varint weight`, rebuilt into a table.

@@ -12,6 +12,7 @@ use constriction::stream::stack::{AnsCoder, DefaultAnsCoder};
 use constriction::stream::{Decode, Encode};
 use constriction::{CoderError, Stack};
 
+use super::neighbour::Neighbour;
 use super::{symbol_of, ChannelTable, FreqTable, Lookup, PRECISION};
 use crate::bitstream::bytes::{unzigzag, zigzag};
 
@@ -145,6 +146,24 @@ impl<'a> SymbolDecoder<'a> {
             ChannelTable::Constant(v) => *v,
             ChannelTable::Coded { lo, table } => self.coded_value(*lo, table.lookup_table()),
             ChannelTable::Context { lo, tables, .. } => self.coded_value(*lo, tables[ctx].lookup_table()),
+            // Callers read neighbour-context channels with `neighbour_value`; the tables this is
+            // used for (position lengths) are checked to be mode 0 or 1 when read.
+            ChannelTable::Neighbour(_) => unreachable!("a neighbour-context channel read without its neighbours"),
+        }
+    }
+
+    /// One value of a neighbour-context channel (SPEC §4.3) whose previous value is `prev` and
+    /// value below `lower`; `None` when the prediction plus the difference leaves `i32`.
+    #[inline(always)]
+    pub fn neighbour_value(&mut self, t: &Neighbour, lookups: &[Lookup<'_>], prev: i32, lower: i32) -> Option<i32> {
+        let c = t.context(prev, lower);
+        let mu = t.predict(c, prev);
+        let table = lookups[c];
+        let s = self.symbol(table);
+        if s + 1 == table.len() {
+            Some(unzigzag(self.raw_bits(32)))
+        } else {
+            t.value(mu, s)
         }
     }
 
@@ -201,6 +220,24 @@ impl SymbolEncoder {
                 }
             }
         }
+    }
+
+    /// One value of a neighbour-context channel (SPEC §4.3) after `prev`, with `lower` below it;
+    /// values the window does not reach are escaped.
+    pub fn neighbour_value(&mut self, t: &Neighbour, prev: i32, lower: i32, v: i32) {
+        let c = t.context(prev, lower);
+        let (table, s) = (t.table(c), t.symbol(t.predict(c, prev), v));
+        self.symbol(table, s);
+        if s + 1 == table.len() {
+            self.raw_bits(zigzag(v), 32);
+        }
+    }
+
+    /// Bits a neighbour-context value costs (the exact ideal code length).
+    pub fn neighbour_bits(t: &Neighbour, prev: i32, lower: i32, v: i32) -> f64 {
+        let c = t.context(prev, lower);
+        let (table, s) = (t.table(c), t.symbol(t.predict(c, prev), v));
+        table.bits(s) + if s + 1 == table.len() { 32.0 } else { 0.0 }
     }
 
     /// Bits a value costs under `channel` in context `ctx` (the exact ideal code length).

@@ -6,6 +6,7 @@
 //! followed by 32 raw bits. How a channel's tables are stored is [`crate::bitstream::tables`].
 
 mod coder;
+pub mod neighbour;
 
 pub use coder::{SymbolDecoder, SymbolEncoder};
 
