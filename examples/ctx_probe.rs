@@ -4,10 +4,13 @@
 //! counted, so these are lower bounds.
 //!
 //! Then, on the file `encode --lambda LAMBDA` writes (pruned, importance classes, SH codebooks;
-//! bands with a codebook skipped), the cost of each channel under *adaptive* context models —
-//! per context, counts seeded by the channel's stored histogram (64 pseudo-counts) and updated
-//! after every value, so no table per context is stored — against what the file stores. This is
-//! the measurement behind "adaptive contexts" in docs/codec.md (not built: too small a gain).
+//! bands with a codebook skipped; with neighbour tables off), the cost of its channels under
+//! models that store no table per context: *adaptive* ones (per context, counts seeded by the
+//! channel's stored histogram and updated after every value; in floating point, and as a decoder
+//! would run them in integers with tables rebuilt now and then) and *parametric* ones (a window
+//! per context, a few bytes each), against what the file stores, and against the neighbour
+//! tables the encoder builds (mode 3, format 8.0). The measurement behind "Neighbour contexts"
+//! in docs/codec.md.
 //!
 //! `cargo run --release --example ctx_probe -- SCENE.ply LAMBDA`
 use gscodec::io::ply::read_ply;
@@ -95,10 +98,10 @@ fn adaptive_int(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, base: &FreqTa
     bits
 }
 
-/// Per context a two-sided geometric window `r^|s − μ|` (μ the context's median symbol, r the
-/// best of 64 ratios), alone or times the channel's stored frequencies: the cost of the values
-/// plus `head` bits per used context for (μ, r).
-fn parametric(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, base: &FreqTable, with_base: bool, head: f64) -> f64 {
+/// Per context a two-sided geometric window `r^|s − μ|` over the channel's symbols (μ the
+/// context's median symbol, r the best of 64 ratios): the values' cost plus `head` bits per used
+/// context for (μ, r).
+fn parametric(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, base: &FreqTable, head: f64) -> f64 {
     let m = base.len();
     let n = m - 1;
     let mut by: Vec<Vec<usize>> = vec![vec![]; nctx];
@@ -110,31 +113,22 @@ fn parametric(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, base: &FreqTabl
         let mut sorted: Vec<usize> = syms.iter().copied().filter(|&s| s < n).collect();
         sorted.sort_unstable();
         let mu = if sorted.is_empty() { 0 } else { sorted[sorted.len() / 2] } as i64;
-        let mut best = f64::INFINITY;
-        for k in 0..64 {
-            let r = 1.0 - (k as f64 + 0.5) / 64.0 * 0.999;
-            let r = r.powf(1.5);
-            let w: Vec<f64> = (0..m)
-                .map(|s| {
-                    let g = if s == n { 1e-4 } else { r.powi((s as i64 - mu).unsigned_abs() as i32).max(1e-9) };
-                    if with_base {
-                        g * base.freq(s) as f64
-                    } else {
-                        g
-                    }
-                })
-                .collect();
-            let t: f64 = w.iter().sum();
-            let c: f64 = syms.iter().map(|&s| -(w[s] / t).log2() + if s == n { 32.0 } else { 0.0 }).sum();
-            best = best.min(c);
-        }
+        let best = (0..64)
+            .map(|k| {
+                let r = (1.0 - (k as f64 + 0.5) / 64.0 * 0.999).powf(1.5);
+                let w: Vec<f64> = (0..m).map(|s| if s == n { 1e-4 } else { r.powi((s as i64 - mu).unsigned_abs() as i32).max(1e-9) }).collect();
+                let t: f64 = w.iter().sum();
+                syms.iter().map(|&s| -(w[s] / t).log2() + if s == n { 32.0 } else { 0.0 }).sum::<f64>()
+            })
+            .fold(f64::INFINITY, f64::min);
         bits += best + head;
     }
     bits
 }
 
-/// μ = the previous value's symbol (DPCM), per context only the ratio r (`head` bits).
-fn parametric_prev(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, n: usize, head: f64, mix: bool) -> f64 {
+/// As [`parametric`] with μ = (a·prev + (4 − a)·median + 2) / 4 for the best a in 0..=4 per
+/// context (`prev` the previous value's symbol): mode 3's model, in floating point.
+fn parametric_prev(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, n: usize, head: f64) -> f64 {
     let mut by: Vec<Vec<(usize, i64)>> = vec![vec![]; nctx];
     for (i, &v) in vals.iter().enumerate() {
         let p = if i > 0 { vals[i - 1] } else { lo + n as i32 / 2 };
@@ -146,10 +140,9 @@ fn parametric_prev(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, n: usize, 
         sorted.sort_unstable();
         let med = if sorted.is_empty() { 0 } else { sorted[sorted.len() / 2] } as i64;
         let mut best = f64::INFINITY;
-        for a in if mix { vec![0i64, 1, 2, 3, 4] } else { vec![4] } {
+        for a in 0..=4i64 {
             for k in 0..64 {
-                let r = 1.0 - (k as f64 + 0.5) / 64.0 * 0.999;
-                let r = r.powf(1.5);
+                let r = (1.0 - (k as f64 + 0.5) / 64.0 * 0.999).powf(1.5);
                 let mut c = 0.0;
                 for &(s, p) in syms {
                     let mu = (a * p + (4 - a) * med + 2) / 4;
@@ -199,7 +192,8 @@ fn main() {
     }
     println!("total: H {:.0} B | prev {:.3} | lower {:.3} | both {:.3}", t0 / 8.0, t1 / t0, t2 / t0, t3 / t0);
 
-    // Adaptive context models on the file as written.
+    // Models that need no table per context, on the file as written (codebook bands skipped).
+    let config = rate::EncodeConfig { neighbour_tables: false, ..config };
     let (bytes, _, q) = rate::encode(&scene, &config).unwrap();
     println!(
         "{} Gaussians, file {} B, codebooks {:?}, levels {:?}",
@@ -208,172 +202,67 @@ fn main() {
         q.codebooks.iter().map(|c| c.0).collect::<Vec<_>>(),
         q.levels
     );
-    let mut tot = [0.0f64; 10];
-    let mut etot = [0.0f64; 14];
+    const NAMES: [&str; 7] = [
+        "stored (file's tables)",
+        "adaptive, |prev| class x lower class (16 ctx)",
+        "adaptive, prev octile x lower octile (64 ctx, 16 pseudo-counts)",
+        "the same in integers, table rebuilt at 1, 2, 4 .. 256 values, then every 256",
+        "window per context, centre = median (64 ctx, 3 bytes each)",
+        "window per context, centre mixed with prev (64 ctx)",
+        "mode 3 as the encoder builds it (tables::with_neighbours)",
+    ];
+    let mut tot = [0.0f64; NAMES.len()];
     for (g, _, chans) in &q.groups {
         if q.codebooks.iter().any(|c| c.0 == *g) {
             println!("{:?}: codebook, skipped", g);
             continue;
         }
-        let mut t = [0.0f64; 10];
-        let mut extra = [0.0f64; 14];
+        let mut t = [0.0f64; NAMES.len()];
         for (j, ch) in chans.iter().enumerate() {
             let n = ch.len();
-            let cmp = tables::histogram_only(ch, Some(&[0..n]));
+            let stored = tables::histogram_only(ch, Some(&[0..n]), None).best.total_bits();
             let hist = tables::choose(ch);
-            t[0] += cmp.best.total_bits();
             let ChannelTable::Coded { lo, table } = &hist.table else {
-                t[1..].iter_mut().for_each(|x| *x += cmp.best.total_bits());
+                t.iter_mut().for_each(|x| *x += stored);
                 continue;
             };
             let tb = 8.0 * hist.bytes.len() as f64;
-            let m = table.len();
-            let freqs: Vec<f64> = (0..m).map(|s| table.freq(s) as f64 / 65536.0).collect();
-            let centre = {
-                let mut v = ch.clone();
-                let h = n / 2;
-                *v.select_nth_unstable(h).1
-            };
-            let prev: Vec<usize> = (0..n).map(|i| class(if i > 0 { ch[i - 1] - centre } else { 0 }) as usize).collect();
-            let lower: Vec<usize> = (0..n).map(|i| if j > 0 { class(chans[j - 1][i]) as usize } else { 0 }).collect();
-            let rich: Vec<usize> = (0..n)
-                .map(|i| {
-                    let a = if i > 0 { (ch[i - 1] - centre).unsigned_abs() } else { 0 };
-                    let b = if i > 1 { (ch[i - 2] - centre).unsigned_abs() } else { 0 };
-                    let s = a + b;
-                    (match s {
-                        0 => 0,
-                        1 => 1,
-                        2 => 2,
-                        3..=4 => 3,
-                        5..=8 => 4,
-                        _ => 5,
-                    }) * 4
-                        + lower[i]
-                })
-                .collect();
-            t[1] += tb + adaptive(ch, &vec![0; n], 1, *lo, &freqs, 64.0, 1.0);
-            t[2] += tb + adaptive(ch, &prev, 4, *lo, &freqs, 64.0, 1.0);
-            let both: Vec<usize> = (0..n).map(|i| prev[i] * 4 + lower[i]).collect();
-            t[3] += tb + adaptive(ch, &both, 16, *lo, &freqs, 64.0, 1.0);
-            t[4] += tb + adaptive(ch, &rich, 24, *lo, &freqs, 64.0, 1.0);
-            t[5] += tb + adaptive(ch, &rich, 24, *lo, &freqs, 16.0, 1.0);
-            let sclass = |d: i32| -> usize {
-                match d {
-                    i32::MIN..=-4 => 0,
-                    -3..=-2 => 1,
-                    -1 => 2,
-                    0 => 3,
-                    1 => 4,
-                    2..=3 => 5,
-                    _ => 6,
-                }
-            };
-            let sprev: Vec<usize> = (0..n).map(|i| sclass(if i > 0 { ch[i - 1] - centre } else { 0 })).collect();
-            t[6] += tb + adaptive(ch, &sprev, 7, *lo, &freqs, 64.0, 1.0);
-            let lcentre = if j > 0 {
-                let mut v = chans[j - 1].clone();
-                *v.select_nth_unstable(n / 2).1
-            } else {
-                0
-            };
-            let slower: Vec<usize> = (0..n).map(|i| if j > 0 { sclass(chans[j - 1][i] - lcentre) } else { 3 }).collect();
-            let sboth: Vec<usize> = (0..n).map(|i| sprev[i] * 7 + slower[i]).collect();
-            t[7] += tb + adaptive(ch, &sboth, 49, *lo, &freqs, 64.0, 1.0);
-            let s2: Vec<usize> = (0..n)
-                .map(|i| {
-                    let a = if i > 0 { ch[i - 1] - centre } else { 0 };
-                    let b = if i > 1 { ch[i - 2] - centre } else { 0 };
-                    sclass((a + b).div_euclid(2)) * 7 + slower[i]
-                })
-                .collect();
-            t[8] += tb + adaptive(ch, &s2, 49, *lo, &freqs, 64.0, 1.0);
-            t[9] += tb + adaptive(ch, &s2, 49, *lo, &freqs, 16.0, 1.0);
-            // quantile buckets of the previous Gaussian's value (thresholds would be stored)
-            let qb = |c: &Vec<i32>, k: usize| -> Vec<i32> {
-                let mut v = c.clone();
-                v.sort_unstable();
-                (1..k).map(|t| v[t * v.len() / k]).collect()
-            };
-            let th = qb(ch, 8);
-            let bucket = |th: &Vec<i32>, x: i32| th.iter().filter(|&&t| x >= t).count();
-            let q8: Vec<usize> = (0..n).map(|i| if i > 0 { bucket(&th, ch[i - 1]) } else { 4 }).collect();
-            t[6] = t[6] - 0.0; // keep
-            let q8s: Vec<usize> = (0..n).map(|i| q8[i] * 7 + slower[i]).collect();
-            let lth = if j > 0 { qb(&chans[j - 1], 8) } else { vec![] };
-            let q8q8: Vec<usize> = (0..n).map(|i| q8[i] * 8 + if j > 0 { bucket(&lth, chans[j - 1][i]) } else { 0 }).collect();
-            extra[0] += tb + adaptive(ch, &q8, 8, *lo, &freqs, 64.0, 1.0);
-            extra[1] += tb + adaptive(ch, &q8s, 56, *lo, &freqs, 64.0, 1.0);
-            extra[2] += tb + adaptive(ch, &q8q8, 64, *lo, &freqs, 64.0, 1.0);
-            extra[3] += tb + adaptive(ch, &q8q8, 64, *lo, &freqs, 16.0, 1.0);
-            extra[4] += tb + adaptive_int(ch, &q8q8, 64, *lo, table, 4096, 256);
-            extra[5] += tb + adaptive_int(ch, &q8s, 56, *lo, table, 4096, 256);
-            extra[6] += tb + adaptive_int(ch, &q8q8, 64, *lo, table, 4096, 64);
-            extra[7] += tb + adaptive_int(ch, &q8q8, 64, *lo, table, 4096, 1);
-            extra[8] += tb + parametric_prev(ch, &q8, 8, *lo, table.len() - 1, 8.0, false);
-            extra[12] += tb + parametric_prev(ch, &q8, 8, *lo, table.len() - 1, 24.0, true);
-            extra[13] += tb + parametric_prev(ch, &q8q8, 64, *lo, table.len() - 1, 24.0, true);
-            let th16 = qb(ch, 16);
-            let q16: Vec<usize> = (0..n).map(|i| if i > 0 { bucket(&th16, ch[i - 1]) } else { 8 }).collect();
-            extra[9] += tb + parametric(ch, &q16, 16, *lo, table, false, 24.0);
-            extra[10] += tb + parametric(ch, &q8s, 56, *lo, table, false, 24.0);
-            extra[11] += tb + parametric(ch, &q8q8, 64, *lo, table, false, 24.0);
+            let freqs: Vec<f64> = (0..table.len()).map(|s| table.freq(s) as f64 / 65536.0).collect();
+            let lower: &[i32] = if j > 0 { &chans[j - 1] } else { &[] };
+            let centre = median(ch);
+            let prev_class: Vec<usize> = (0..n).map(|i| class(if i > 0 { ch[i - 1] - centre } else { 0 }) as usize).collect();
+            let lower_class: Vec<usize> = (0..n).map(|i| if j > 0 { class(lower[i]) as usize } else { 0 }).collect();
+            let old: Vec<usize> = (0..n).map(|i| prev_class[i] * 4 + lower_class[i]).collect();
+            let (pt, lt) = (octiles(ch), if j > 0 { octiles(lower) } else { vec![] });
+            let bucket = |th: &[i32], x: i32| th.iter().filter(|&&t| x >= t).count();
+            let octs: Vec<usize> =
+                (0..n).map(|i| bucket(&pt, if i > 0 { ch[i - 1] } else { centre }) * 8 + if j > 0 { bucket(&lt, lower[i]) } else { 0 }).collect();
+            t[0] += stored;
+            t[1] += tb + adaptive(ch, &old, 16, *lo, &freqs, 64.0, 1.0);
+            t[2] += tb + adaptive(ch, &octs, 64, *lo, &freqs, 16.0, 1.0);
+            t[3] += tb + adaptive_int(ch, &octs, 64, *lo, table, 4096, 256);
+            t[4] += tb + parametric(ch, &octs, 64, *lo, table, 24.0);
+            t[5] += tb + parametric_prev(ch, &octs, 64, *lo, table.len() - 1, 24.0);
+            t[6] += tables::with_neighbours(ch, lower, &[0..n]).map_or(stored, |c| c.total_bits());
         }
-        println!(
-            "{:?}: stored {:.0} | ad-none {:.0} | ad-prev {:.0} | ad-prev×lower {:.0} | ad-rich {:.0} | rich p16 {:.0} | sprev {:.0} | sprev×slower {:.0} | s2×slower {:.0} | p16 {:.0}",
-            g,
-            t[0] / 8.0,
-            t[1] / 8.0,
-            t[2] / 8.0,
-            t[3] / 8.0,
-            t[4] / 8.0,
-            t[5] / 8.0,
-            t[6] / 8.0,
-            t[7] / 8.0,
-            t[8] / 8.0,
-            t[9] / 8.0
-        );
-        println!("   q8 {:.0} | q8×slower {:.0} | q8×q8 {:.0} | p16 {:.0}", extra[0] / 8.0, extra[1] / 8.0, extra[2] / 8.0, extra[3] / 8.0);
-        for k in 0..14 {
-            etot[k] += extra[k];
-        }
-        for k in 0..10 {
-            tot[k] += t[k];
-        }
+        println!("{:?}: {}", g, t.iter().map(|b| format!("{:.0}", b / 8.0)).collect::<Vec<_>>().join(" | "));
+        tot.iter_mut().zip(t).for_each(|(a, b)| *a += b);
     }
-    println!(
-        "total B: stored {:.0} | none {:.3} | prev {:.3} | prev×lower {:.3} | rich {:.3} | rich p16 {:.3} | sprev {:.3} | sprev×slower {:.3} | s2×slower {:.3} | p16 {:.3}",
-        tot[0] / 8.0,
-        tot[1] / tot[0],
-        tot[2] / tot[0],
-        tot[3] / tot[0],
-        tot[4] / tot[0],
-        tot[5] / tot[0],
-        tot[6] / tot[0],
-        tot[7] / tot[0],
-        tot[8] / tot[0],
-        tot[9] / tot[0]
-    );
-    println!(
-        "q8 {:.3} | q8×slower {:.3} | q8×q8 {:.3} | p16 {:.3}",
-        etot[0] / tot[0],
-        etot[1] / tot[0],
-        etot[2] / tot[0],
-        etot[3] / tot[0]
-    );
-    println!(
-        "int q8×q8 p16 cap256 {:.3} | int q8×slower p16 {:.3} | int cap64 {:.3} | int p64 {:.3}",
-        etot[4] / tot[0],
-        etot[5] / tot[0],
-        etot[6] / tot[0],
-        etot[7] / tot[0]
-    );
-    println!(
-        "param μ=prev q8 {:.3} | q16 {:.3} | q8×slower {:.3} | q8×q8 {:.3}",
-        etot[8] / tot[0],
-        etot[9] / tot[0],
-        etot[10] / tot[0],
-        etot[11] / tot[0]
-    );
-    println!("mixed μ q8 {:.3} | mixed μ q8×q8 {:.3}", etot[12] / tot[0], etot[13] / tot[0]);
+    println!("bytes of the non-codebook channels, and against the stored tables:");
+    for (name, b) in NAMES.iter().zip(tot) {
+        println!("  {name}: {:.0} B ({:.3})", b / 8.0, b / tot[0]);
+    }
+}
+
+fn median(v: &[i32]) -> i32 {
+    let mut v = v.to_vec();
+    let h = v.len() / 2;
+    *v.select_nth_unstable(h).1
+}
+
+/// Thresholds splitting `v` into eight parts of about equal count.
+fn octiles(v: &[i32]) -> Vec<i32> {
+    let mut v = v.to_vec();
+    v.sort_unstable();
+    (1..8).map(|t| v[t * v.len() / 8]).collect()
 }
