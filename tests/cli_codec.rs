@@ -75,11 +75,15 @@ fn progressive_encode_writes_levels_that_info_shows() {
         |gsc: &Path| serde_json::from_slice::<serde_json::Value>(&gscodec(&["info", gsc.to_str().unwrap(), "--json"]).stdout).unwrap();
     let (a, b) = (info(&one), info(&levels));
     // 3.0 for one level, 4.0 with levels; 5.0 (levels too) when the search coded a band by a
-    // codebook; 6.0 when it chose importance classes (parameters per level).
+    // codebook; 6.0 when it chose importance classes (parameters per level); 8.0 when a channel
+    // has a neighbour-context table.
     let codebooks = |v: &serde_json::Value| v["sh_bands"].as_array().unwrap().iter().any(|b| b["mode"] == "codebook");
     let classes = |v: &serde_json::Value| !v["level_step_factors"].as_array().unwrap().is_empty();
+    let neighbours = |v: &serde_json::Value| !v["neighbour_channels"].as_array().unwrap().is_empty();
     let version = |v: &serde_json::Value, plain: &str| {
-        if classes(v) {
+        if neighbours(v) {
+            "8.0".to_string()
+        } else if classes(v) {
             "6.0".to_string()
         } else if codebooks(v) {
             "5.0".to_string()

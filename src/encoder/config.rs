@@ -37,7 +37,7 @@ pub struct EncoderConfig {
     pub anchor_iters: Option<usize>,
 }
 
-/// How a scene is coded: the explicit profile (per-Gaussian attributes, formats 3.0–6.0), the
+/// How a scene is coded: the explicit profile (per-Gaussian attributes, formats 3.0–6.0, 8.0), the
 /// anchor profile (anchors with features and a fixed-point MLP, format 7.0, SPEC §12), or
 /// whichever of the two has the lower `J = D + λ·R`.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize)]

@@ -96,7 +96,7 @@ pub struct EncodeReport {
     /// the RD search's own file had the lower `J = D + λ·R`, D on the orbit views at 256², and
     /// is the output; `train` still reports the run). `None` without fine-tuning.
     pub fine_tuning_kept: Option<bool>,
-    /// The profile of the file: `explicit` (formats 3.0–6.0) or `anchor` (7.0, SPEC §12).
+    /// The profile of the file: `explicit` (formats 3.0–6.0 and 8.0) or `anchor` (7.0, SPEC §12).
     pub profile: &'static str,
     /// The anchor profile's encode (with `--profile anchor` or `auto`), whether or not its file
     /// is the output; `groups`, `steps` and the pruning fields then describe the explicit
