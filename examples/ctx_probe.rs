@@ -116,7 +116,8 @@ fn parametric(vals: &[i32], ctx: &[usize], nctx: usize, lo: i32, base: &FreqTabl
         let best = (0..64)
             .map(|k| {
                 let r = (1.0 - (k as f64 + 0.5) / 64.0 * 0.999).powf(1.5);
-                let w: Vec<f64> = (0..m).map(|s| if s == n { 1e-4 } else { r.powi((s as i64 - mu).unsigned_abs() as i32).max(1e-9) }).collect();
+                let w: Vec<f64> =
+                    (0..m).map(|s| if s == n { 1e-4 } else { r.powi((s as i64 - mu).unsigned_abs() as i32).max(1e-9) }).collect();
                 let t: f64 = w.iter().sum();
                 syms.iter().map(|&s| -(w[s] / t).log2() + if s == n { 32.0 } else { 0.0 }).sum::<f64>()
             })
@@ -235,8 +236,9 @@ fn main() {
             let old: Vec<usize> = (0..n).map(|i| prev_class[i] * 4 + lower_class[i]).collect();
             let (pt, lt) = (octiles(ch), if j > 0 { octiles(lower) } else { vec![] });
             let bucket = |th: &[i32], x: i32| th.iter().filter(|&&t| x >= t).count();
-            let octs: Vec<usize> =
-                (0..n).map(|i| bucket(&pt, if i > 0 { ch[i - 1] } else { centre }) * 8 + if j > 0 { bucket(&lt, lower[i]) } else { 0 }).collect();
+            let octs: Vec<usize> = (0..n)
+                .map(|i| bucket(&pt, if i > 0 { ch[i - 1] } else { centre }) * 8 + if j > 0 { bucket(&lt, lower[i]) } else { 0 })
+                .collect();
             t[0] += stored;
             t[1] += tb + adaptive(ch, &old, 16, *lo, &freqs, 64.0, 1.0);
             t[2] += tb + adaptive(ch, &octs, 64, *lo, &freqs, 16.0, 1.0);

@@ -58,7 +58,8 @@ pub fn write_channel_streams(tables: &[&ChannelTable], channels: &[&[i32]]) -> V
 
 /// One coded channel being decoded: its stream, tables and the previous value (the context).
 struct Lane<'a> {
-    /// The channel, and its column in the output (`None`: decoded only for the channel above).
+    /// The channel, and its column in the output (`None`: decoded only because the context of a
+    /// wanted channel above reads it).
     j: usize,
     col: Option<usize>,
     lo: i32,
