@@ -47,7 +47,7 @@ impl FreqTable {
         };
         let total: u64 = w.iter().map(|&x| u64::from(x)).sum();
         let r = u64::from(TOTAL) - n as u64;
-        let mut freq: Vec<u32> = w.iter().map(|&x| 1 + (u64::from(x) * r / total) as u32).collect();
+        let mut freq: Vec<u32> = w.iter().map(|&x| 1 + floor_div(u64::from(x) * r, total) as u32).collect();
         let sum: u32 = freq.iter().sum();
         let mut best = 0;
         for s in 1..n {
@@ -99,6 +99,23 @@ impl FreqTable {
     /// The decoder's view of the table (slices, no indirection through the table).
     pub fn lookup_table(&self) -> Lookup<'_> {
         Lookup { cdf: &self.cdf, bucket: &self.bucket, shift: self.shift }
+    }
+}
+
+/// `⌊num / den⌋` for `num < 2^48`, `1 ≤ den < 2^53`, exactly, without a 64-bit division: both
+/// are exact in `f64`, whose correctly rounded quotient is within one of the floor; one integer
+/// check corrects it. (Tables are rebuilt for every channel of a file, and neighbour-context
+/// files have many: the division was most of the time it took to read their parameters.)
+#[inline(always)]
+fn floor_div(num: u64, den: u64) -> u64 {
+    debug_assert!(num < 1 << 48 && den >= 1 && den < 1 << 53);
+    let q = (num as f64 / den as f64) as u64;
+    if q * den > num {
+        q - 1
+    } else if (q + 1) * den <= num {
+        q + 1
+    } else {
+        q
     }
 }
 
@@ -171,6 +188,29 @@ pub fn symbol_of(lo: i32, n: usize, v: i32) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn floor_div_is_integer_division() {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for i in 0..200_000 {
+            let den = 1 + next() % (1 << (1 + i % 45));
+            let num = next() % (1 << 48);
+            assert_eq!(floor_div(num, den), num / den, "{num} / {den}");
+            // Exact multiples and their neighbours, where rounding could land on the wrong side.
+            let q = num / den;
+            for m in [q * den, (q * den).saturating_sub(1), q * den + den - 1] {
+                if m < 1 << 48 {
+                    assert_eq!(floor_div(m, den), m / den, "{m} / {den}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn weights_normalise_to_total_with_nonzero_frequencies() {
