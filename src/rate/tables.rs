@@ -194,30 +194,27 @@ pub fn with_neighbours(values: &[i32], lower: &[i32], chunks: &[Range<usize>]) -
     if min == max {
         return None;
     }
-    let reach = (i64::from(max) - i64::from(min)).min(i64::from(MAX_REACH)) as u32;
-    let bits = window_bits(reach);
     let mut sorted = values.to_vec();
     sorted.sort_unstable();
     let start = sorted[sorted.len() / 2];
     let mut lower_sorted = lower.to_vec();
     lower_sorted.sort_unstable();
     let lower_of = |i: usize| if lower.is_empty() { 0 } else { lower[i] };
-    // The cheapest candidate: (table bytes, its fields, bits).
-    let mut best: Option<(Vec<u8>, (Vec<i32>, Vec<i32>, Vec<NeighbourContext>), f64)> = None;
-    for (pb, lb) in [(8, 8), (8, 1), (4, 4), (4, 1), (2, 1)] {
-        if lb > 1 && lower.is_empty() {
-            continue;
-        }
-        let prev_at = quantile_thresholds(&sorted, pb);
-        let lower_at = if lb > 1 { quantile_thresholds(&lower_sorted, lb) } else { vec![] };
+    // Each context's `(prev, value)` pairs under thresholds `prev_at`, `lower_at`.
+    let pairs_of = |prev_at: &[i32], lower_at: &[i32]| {
         let mut pairs: Vec<Vec<(i32, i32)>> = vec![Vec::new(); (prev_at.len() + 1) * (lower_at.len() + 1)];
         for chunk in chunks {
             let mut prev = start;
             for i in chunk.clone() {
-                pairs[neighbour::context(&prev_at, &lower_at, prev, lower_of(i))].push((prev, values[i]));
+                pairs[neighbour::context(prev_at, lower_at, prev, lower_of(i))].push((prev, values[i]));
                 prev = values[i];
             }
         }
+        pairs
+    };
+    // The table of reach `reach` for these contexts: (bytes, contexts, bits).
+    let fit = |prev_at: &[i32], lower_at: &[i32], pairs: &[Vec<(i32, i32)>], reach: u32| {
+        let bits = window_bits(reach);
         let mut total = 0.0;
         let contexts: Vec<NeighbourContext> = pairs
             .iter()
@@ -231,13 +228,44 @@ pub fn with_neighbours(values: &[i32], lower: &[i32], chunks: &[Range<usize>]) -
             })
             .collect();
         let mut w = ByteWriter::new();
-        ChannelTable::write_neighbour(&mut w, reach, start, &prev_at, &lower_at, &contexts);
-        if best.as_ref().is_none_or(|b| total + 8.0 * (w.buf.len() as f64) < b.2 + 8.0 * (b.0.len() as f64)) {
-            best = Some((w.buf, (prev_at, lower_at, contexts), total));
+        ChannelTable::write_neighbour(&mut w, reach, start, prev_at, lower_at, &contexts);
+        (w.buf, contexts, total)
+    };
+    let cost = |c: &(Vec<u8>, Vec<NeighbourContext>, f64)| c.2 + 8.0 * c.0.len() as f64;
+    // First with a reach that no difference exceeds, over every threshold shape; the cheapest
+    // shape is then fitted again with the reach its differences need (a smaller table to build
+    // in the decoder, fewer symbols to share the probability) and kept if cheaper still.
+    let reach = (i64::from(max) - i64::from(min)).min(i64::from(MAX_REACH)) as u32;
+    let mut best: Option<(Vec<i32>, Vec<i32>, Vec<Vec<(i32, i32)>>, (Vec<u8>, Vec<NeighbourContext>, f64))> = None;
+    for (pb, lb) in [(8, 8), (8, 1), (4, 4), (4, 1), (2, 1)] {
+        if lb > 1 && lower.is_empty() {
+            continue;
+        }
+        let prev_at = quantile_thresholds(&sorted, pb);
+        let lower_at = if lb > 1 { quantile_thresholds(&lower_sorted, lb) } else { vec![] };
+        let pairs = pairs_of(&prev_at, &lower_at);
+        let cand = fit(&prev_at, &lower_at, &pairs, reach);
+        if best.as_ref().is_none_or(|b| cost(&cand) < cost(&b.3)) {
+            best = Some((prev_at, lower_at, pairs, cand));
         }
     }
-    let (bytes, (prev_at, lower_at, contexts), bits) = best?;
-    let table = ChannelTable::Neighbour(Box::new(Neighbour::new(reach, start, prev_at, lower_at, contexts)));
+    let (prev_at, lower_at, pairs, mut chosen) = best?;
+    let mut chosen_reach = reach;
+    let needed = pairs
+        .iter()
+        .zip(&chosen.1)
+        .flat_map(|(p, k)| p.iter().map(move |&(prev, v)| (i64::from(v) - k.predict(prev)).unsigned_abs()))
+        .max()
+        .unwrap_or(1)
+        .clamp(1, u64::from(reach)) as u32;
+    if needed < reach {
+        let again = fit(&prev_at, &lower_at, &pairs, needed);
+        if cost(&again) < cost(&chosen) {
+            (chosen, chosen_reach) = (again, needed);
+        }
+    }
+    let (bytes, contexts, bits) = chosen;
+    let table = ChannelTable::Neighbour(Box::new(Neighbour::new(chosen_reach, start, prev_at, lower_at, contexts)));
     Some(ChosenTable { table, bytes, bits })
 }
 
