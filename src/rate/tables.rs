@@ -121,9 +121,12 @@ pub fn with_contexts(values: &[i32], base: &ChosenTable, chunks: &[Range<usize>]
 
 /// Bits of a difference of magnitude `d` under each window of reach `e` (SPEC §4.3):
 /// `bits[ρ][d]` for `d = 0..=e`, and at `d = e + 1` an escape (its symbol and 32 raw bits).
-/// The tables depend on `e` alone, so they are kept for every `e` met (a few MB at most).
+/// The tables depend on `e` alone, so they are kept for the `e` met (up to 32 MB of them; then
+/// the memo starts afresh).
 fn window_bits(e: u32) -> Arc<Vec<Vec<f64>>> {
     static MEMO: Mutex<Option<HashMap<u32, Arc<Vec<Vec<f64>>>>>> = Mutex::new(None);
+    const MEMO_BYTES: usize = 32 << 20;
+    let size = |e: u32| RATIOS.len() * (e as usize + 2) * std::mem::size_of::<f64>();
     if let Some(b) = MEMO.lock().expect("memo").get_or_insert_with(HashMap::new).get(&e) {
         return b.clone();
     }
@@ -138,7 +141,7 @@ fn window_bits(e: u32) -> Arc<Vec<Vec<f64>>> {
     let bits = Arc::new(bits);
     let mut memo = MEMO.lock().expect("memo");
     let memo = memo.get_or_insert_with(HashMap::new);
-    if memo.len() >= 256 {
+    if memo.keys().map(|&k| size(k)).sum::<usize>() + size(e) > MEMO_BYTES {
         memo.clear();
     }
     memo.insert(e, bits.clone());
