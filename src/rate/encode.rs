@@ -311,7 +311,10 @@ fn level_part(q: &Quantised, l: usize, r: Range<usize>) -> Quantised {
 /// chunk the base groups (position, scale, rotation, opacity, DC colour), then each SH band chunk
 /// by chunk, then info. Without levels it is a 3.0 file (same order, one level). A scene with SH
 /// codebooks ([`Quantised::codebooks`]) is a 5.0 file (always with a levels section), its
-/// codebooks right after the parameter sections.
+/// codebooks right after the parameter sections; importance classes make it 6.0. With
+/// `neighbour_tables`, channels (codebook rows included) may take neighbour-context tables
+/// where they are cheaper, and a file that has one is 8.0 (SPEC §4.3); never for a progressive
+/// file whose levels share one parameter set.
 pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool, neighbour_tables: bool) -> (Vec<u8>, EncodeReport) {
     write_cached(q, input, learned_tables, neighbour_tables, None)
 }
