@@ -110,7 +110,7 @@ fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], models: Models, 
     let mut plans = Vec::new();
     if todo.contains(&0) {
         let lens: Vec<i32> = deltas.iter().map(|&d| delta_length(d) as i32).collect();
-        let cmp = if models.learned { tables::compare(&lens, None, None) } else { tables::histogram_only(&lens, None, None) }; // position lengths are never context-coded (SPEC §4)
+        let cmp = compare(&lens, None, &[]); // no chunks, no contexts: position lengths are never context-coded (SPEC §4)
         let raw: f64 = lens.iter().map(|&l| (l - 1).max(0) as f64).sum();
         let (hb, lb) = (cmp.histogram_bits + raw, cmp.learned_bits + raw);
         let t = cmp.best;

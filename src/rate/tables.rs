@@ -6,7 +6,7 @@ use std::ops::Range;
 use std::sync::{Arc, Mutex};
 
 use gscodec_decoder::bitstream::ByteWriter;
-use gscodec_decoder::entropy::neighbour::{self, window_weights, Neighbour, NeighbourContext, MAX_MIX, MAX_REACH, RATIOS};
+use gscodec_decoder::entropy::neighbour::{self, Neighbour, NeighbourContext, MAX_MIX, MAX_REACH, RATIOS};
 use gscodec_decoder::entropy::{in_context, symbol_of, ChannelTable, FreqTable, SymbolEncoder, CONTEXTS, MAX_SYMBOLS};
 
 /// A channel's table as it will be written, with its cost on the values it codes.
@@ -131,10 +131,9 @@ fn window_bits(e: u32) -> Arc<Vec<Vec<f64>>> {
         return b.clone();
     }
     let eu = e as usize;
-    let bits: Vec<Vec<f64>> = RATIOS
-        .iter()
-        .map(|&r| {
-            let t = FreqTable::from_weights(&window_weights(r, e));
+    let bits: Vec<Vec<f64>> = (0..RATIOS.len() as u8)
+        .map(|r| {
+            let t = neighbour::window(r, e);
             (0..=eu).map(|d| t.bits(eu + d)).chain([t.bits(2 * eu + 1) + 32.0]).collect()
         })
         .collect();

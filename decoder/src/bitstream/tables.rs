@@ -88,11 +88,6 @@ impl ChannelTable {
         }
     }
 
-    /// Whether the channel's values are coded (a stream of its own), i.e. not a constant.
-    pub fn is_coded(&self) -> bool {
-        !matches!(self, ChannelTable::Constant(_))
-    }
-
     /// Serialises a constant channel: `u8 0, svarint value`.
     pub fn write_constant(w: &mut ByteWriter, value: i32) {
         w.u8(0);

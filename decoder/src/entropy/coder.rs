@@ -225,8 +225,7 @@ impl SymbolEncoder {
     /// One value of a neighbour-context channel (SPEC §4.3) after `prev`, with `lower` below it;
     /// values the window does not reach are escaped.
     pub fn neighbour_value(&mut self, t: &Neighbour, prev: i32, lower: i32, v: i32) {
-        let c = t.context(prev, lower);
-        let (table, s) = (t.table(c), t.symbol(t.predict(c, prev), v));
+        let (table, s) = t.code(prev, lower, v);
         self.symbol(table, s);
         if s + 1 == table.len() {
             self.raw_bits(zigzag(v), 32);
@@ -235,8 +234,7 @@ impl SymbolEncoder {
 
     /// Bits a neighbour-context value costs (the exact ideal code length).
     pub fn neighbour_bits(t: &Neighbour, prev: i32, lower: i32, v: i32) -> f64 {
-        let c = t.context(prev, lower);
-        let (table, s) = (t.table(c), t.symbol(t.predict(c, prev), v));
+        let (table, s) = t.code(prev, lower, v);
         table.bits(s) + if s + 1 == table.len() { 32.0 } else { 0.0 }
     }
 

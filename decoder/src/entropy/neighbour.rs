@@ -72,10 +72,15 @@ pub struct Neighbour {
     window: Vec<u8>,
 }
 
+/// The window table of ratio index `ratio` and reach `e` (SPEC §4.3).
+pub fn window(ratio: u8, e: u32) -> FreqTable {
+    FreqTable::from_weights(&window_weights(RATIOS[usize::from(ratio)], e))
+}
+
 /// The weights of the window of ratio `r` (×2^16) and reach `e` (SPEC §4.3): `2e + 2` symbols,
 /// symbol `e + d` and `e − d` weighing `W(|d|)` with `W(0) = 2^30`, `W(k+1) = ⌊W(k)·r / 2^16⌋`,
 /// and the escape (last) 0.
-pub fn window_weights(r: u32, e: u32) -> Vec<u32> {
+fn window_weights(r: u32, e: u32) -> Vec<u32> {
     let e = e as usize;
     let mut w = vec![0u32; 2 * e + 2];
     let mut x: u64 = 1 << 30;
@@ -92,7 +97,7 @@ impl Neighbour {
     pub fn new(reach: u32, start: i32, prev_at: Vec<i32>, lower_at: Vec<i32>, contexts: Vec<NeighbourContext>) -> Neighbour {
         debug_assert_eq!(contexts.len(), (prev_at.len() + 1) * (lower_at.len() + 1));
         let mut ratios: Vec<u8> = Vec::new();
-        let window = contexts
+        let which = contexts
             .iter()
             .map(|c| match ratios.iter().position(|&r| r == c.ratio) {
                 Some(i) => i as u8,
@@ -102,8 +107,8 @@ impl Neighbour {
                 }
             })
             .collect();
-        let tables = ratios.iter().map(|&r| FreqTable::from_weights(&window_weights(RATIOS[usize::from(r)], reach))).collect();
-        Neighbour { reach, start, prev_at, lower_at, contexts, tables, window }
+        let tables = ratios.iter().map(|&r| window(r, reach)).collect();
+        Neighbour { reach, start, prev_at, lower_at, contexts, tables, window: which }
     }
 
     /// Whether a value's context depends on the channel below.
@@ -140,6 +145,12 @@ impl Neighbour {
         } else {
             2 * self.reach as usize + 1
         }
+    }
+
+    /// The table and symbol that code `v` after `prev`, with `lower` below it (the encoder's side).
+    pub fn code(&self, prev: i32, lower: i32, v: i32) -> (&FreqTable, usize) {
+        let c = self.context(prev, lower);
+        (self.table(c), self.symbol(self.predict(c, prev), v))
     }
 
     /// The value of in-window symbol `s` predicted by `mu`; `None` outside `i32`.
