@@ -1,5 +1,6 @@
 //! The WD-based training losses: `wd` (γ·d_WD) and `wdr` (γ·(d_WD + β·L_orig)), both warmed up
-//! with the original 3DGS loss `L_orig = 0.8·L1 + 0.2·(1 − SSIM)` for the first tenth of the run.
+//! with the original 3DGS loss `L_orig = 0.8·L1 + 0.2·(1 − SSIM)` for a share of the run
+//! (`--wd-warmup`, by default one half: until densification ends).
 //!
 //! Reference statistics are cached per training view (`view` of [`ImageLoss`]), keyed also by a
 //! fingerprint of the target so a changed target is never compared against stale statistics.
