@@ -155,6 +155,7 @@ pub fn run(args: Args) -> crate::Result<()> {
         if let Some(t) = &r.target {
             eprintln!("λ = {} (orbit PSNR {:.2} dB), chosen among {} encodes", r.lambda, r.orbit_psnr, t.probes.len());
         }
+        super::warn_truncated(r.train.as_ref().map_or(0, |t| t.truncated_frames));
     }
     if let Some(path) = &args.report {
         let text = serde_json::to_string_pretty(r).map_err(|e| Error::failure(path, e))?;

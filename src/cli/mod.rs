@@ -50,3 +50,11 @@ pub fn run(cli: Cli) -> crate::Result<()> {
         Command::Sweep(a) => sweep::run(a),
     }
 }
+
+/// Says on stderr when the GPU trainer rendered frames with only the tile/Gaussian pairs that fit
+/// its sort buffers ([`crate::train::TrainReport::truncated_frames`]).
+fn warn_truncated(frames: usize) {
+    if frames > 0 {
+        eprintln!("warning: {frames} training iteration(s) rendered only the tile/Gaussian pairs that fit the GPU sort buffers");
+    }
+}

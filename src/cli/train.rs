@@ -128,6 +128,7 @@ pub fn run(args: Args) -> Result<()> {
             _ => println!("no held-out views"),
         }
         println!("{} Gaussians, {:.1} s training", report.gaussians, report.train_seconds);
+        super::warn_truncated(report.truncated_frames);
     }
     Ok(())
 }

@@ -202,6 +202,9 @@ pub struct TrainReport {
     pub stages: StageTimes,
     /// What the rate term learned (steps) and estimated (bits); None without one.
     pub rate: Option<RateOutcome>,
+    /// GPU trainer: iterations whose tile/Gaussian pairs outgrew the sort buffers between two
+    /// read-backs, rendered (forward and backward alike) with the pairs that fit; 0 on the CPU.
+    pub truncated_frames: usize,
 }
 
 /// The learning rate of group `g` at iteration `it` (1-based): the reference recipe, the position
@@ -466,6 +469,7 @@ pub fn train_with(
         test_ssim: None,
         stages,
         rate: None,
+        truncated_frames: 0,
     };
     let log_every = (cfg.iters / 500).max(1);
     let lr = |g: Group, it: usize| learning_rate(g, it, cfg, extent);
@@ -619,6 +623,7 @@ pub fn train_with(
         test_ssim: final_eval.map(|e| e.1),
         stages,
         rate: rd.as_ref().and_then(|r| r.outcome()),
+        truncated_frames: 0,
     };
     Ok((params, report))
 }

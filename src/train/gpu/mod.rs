@@ -367,6 +367,7 @@ pub fn train_with(
         test_ssim: None,
         stages,
         rate: None,
+        truncated_frames: 0,
     };
 
     for it in first..=cfg.iters {
@@ -533,6 +534,7 @@ pub fn train_with(
         test_psnr: final_eval.map(|e| e.0),
         test_ssim: final_eval.map(|e| e.1),
         rate,
+        truncated_frames: session.truncated,
         ..report(points, params.len(), train_seconds, tally.stages)
     };
     Ok((params, report))
