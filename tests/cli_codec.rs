@@ -291,3 +291,22 @@ fn anchor_profile_encodes_decodes_and_auto_picks_one_of_the_two() {
     assert_eq!(o.status.code(), Some(2));
     assert!(!out.exists());
 }
+
+/// `encode --seed` reaches the trainer: another seed than the default 0 trains another scene
+/// (that one seed gives one file is `tests/threads.rs`'s business).
+#[test]
+fn encode_seed_changes_the_training() {
+    let dir = tempfile::tempdir().unwrap();
+    let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
+    let encode = |name: &str, seed: Option<&str>| {
+        let gsc = dir.path().join(name);
+        let mut args =
+            vec!["encode", tiny.to_str().unwrap(), "-o", gsc.to_str().unwrap(), "--iters", "20", "--loss", "l1ssim", "--backend", "cpu"];
+        args.extend(seed.map(|s| ["--seed", s]).into_iter().flatten());
+        args.push("--quiet");
+        let o = gscodec(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(gsc).unwrap()
+    };
+    assert!(encode("three.gsc", Some("3")) != encode("default.gsc", None), "another seed trains another scene");
+}

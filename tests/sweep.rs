@@ -18,6 +18,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
         lambda,
         loss: loss.into(),
         iters: None,
+        seed: 0,
         wd_sigma: None,
         wd_warmup: None,
         bytes: (bytes0 * scale).round() as u64,
@@ -210,6 +211,7 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         lambdas: vec![2.0],
         losses: vec!["l1ssim".into(), "wdr".into()],
         iters: None,
+        seed: 0,
         wd_sigma: None,
         // the share results from before --wd-warmup existed were trained with
         wd_warmup: Some(0.1),
@@ -234,4 +236,9 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(s2.is_done(&wdr) && !default_warmup.is_done(&wdr) && !w5.is_done(&wdr) && w5.is_done(&l1));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), ..fake("wdr", 2.0, 1.0) });
     assert!(w5.is_done(&wdr) && default_warmup.is_done(&wdr) && !s2.is_done(&wdr));
+    // a result from before --seed existed was trained with seed 0; another seed redoes it
+    let seed1 = Plan { seed: 1, ..w5.clone() };
+    assert!(!seed1.is_done(&l1) && !seed1.is_done(&wdr));
+    write_point(tmp.path(), &PointResult { seed: 1, ..fake("l1ssim", 2.0, 1.0) });
+    assert!(seed1.is_done(&l1) && !w5.is_done(&l1));
 }

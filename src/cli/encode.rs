@@ -37,6 +37,10 @@ pub struct Args {
     /// Default: 0 for a .ply, 3000 for a dataset.
     #[arg(long)]
     pub iters: Option<usize>,
+    /// Random seed of training and fine-tuning (initialisation, view order, densification). The
+    /// CPU trainer gives the same file for the same seed; other seeds measure training noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
     /// Keep the quantisation steps fixed during training instead of learning them (per group:
     /// scale, opacity, SH DC, each SH band) under D + λ·R.
     #[arg(long)]
@@ -89,6 +93,7 @@ impl Args {
         EncoderConfig::default()
             .with_lambda(self.lambda)
             .with_iters(self.iters)
+            .with_seed(self.seed)
             .with_learned_steps(!self.fixed_steps)
             .with_loss(LossSpec::from_args(&self.loss, LossKind::Wdr))
             .with_backend(self.backend)

@@ -75,6 +75,8 @@ pub struct Plan {
     pub losses: Vec<String>,
     /// `encode --iters`, or the encoder's default.
     pub iters: Option<usize>,
+    /// `encode --seed`.
+    pub seed: u64,
     /// `encode --wd-sigma` (None: the default σ).
     pub wd_sigma: Option<f64>,
     /// `encode --wd-warmup` (None: the default share).
@@ -97,7 +99,7 @@ impl Plan {
         self.out.join("points").join(p.dir_name())
     }
 
-    /// Whether a point has a result file from the same settings (`--iters`, and `--wd-sigma` and
+    /// Whether a point has a result file from the same settings (`--iters`, `--seed`, and `--wd-sigma` and
     /// `--wd-warmup` for `wd` / `wdr`); a result from other settings, or an unreadable one, is
     /// redone.
     pub fn is_done(&self, p: &Point) -> bool {
@@ -107,7 +109,9 @@ impl Plan {
         let wd = r.loss != "l1ssim";
         let done_sigma = r.wd_sigma.or_else(|| wd.then_some(crate::loss::wd::DEFAULT_SIGMA));
         let done_warmup = r.wd_warmup.or_else(|| wd.then_some(crate::loss::wdr::PAPER_WARMUP_FRACTION));
-        r.iters == self.iters && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
+        r.iters == self.iters
+            && r.seed == self.seed
+            && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
     }
 
     /// Checks λs, losses, σ and the warm-up share.
@@ -142,6 +146,7 @@ impl Plan {
             "lambdas": self.lambdas,
             "losses": self.losses,
             "iters": self.iters,
+            "seed": self.seed,
             "wd_sigma": self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA),
             "wd_warmup": self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION),
         })
@@ -162,6 +167,9 @@ impl Plan {
         ];
         if let Some(n) = self.iters {
             c.extend(["--iters".into(), n.to_string()]);
+        }
+        if self.seed != 0 {
+            c.extend(["--seed".into(), self.seed.to_string()]);
         }
         if let Some(s) = self.wd_sigma {
             c.extend(["--wd-sigma".into(), s.to_string()]);
@@ -185,7 +193,12 @@ impl Plan {
     pub fn encoder_config(&self, p: &Point) -> Result<EncoderConfig> {
         let loss = self.loss_spec(p)?;
         let lambda = Lambda::new(p.lambda).ok_or_else(|| Error::input(Path::new("--lambdas"), format!("{} is not >= 0", p.lambda)))?;
-        Ok(EncoderConfig::default().with_lambda(lambda).with_iters(self.iters).with_loss(loss).with_backend(self.backend))
+        Ok(EncoderConfig::default()
+            .with_lambda(lambda)
+            .with_iters(self.iters)
+            .with_seed(self.seed)
+            .with_loss(loss)
+            .with_backend(self.backend))
     }
 
     /// The training loss of point `p`.
@@ -277,6 +290,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
         lambda: p.lambda,
         loss: p.loss.clone(),
         iters: plan.iters,
+        seed: plan.seed,
         wd_sigma: spec.reported_sigma(),
         wd_warmup: spec.reported_warmup(),
         bytes: out.bytes.len() as u64,
@@ -316,6 +330,7 @@ mod tests {
             lambdas: vec![0.1, 0.01],
             losses: vec!["l1ssim".into(), "wdr".into()],
             iters: Some(300),
+            seed: 0,
             wd_sigma: None,
             wd_warmup: None,
             backend: Backend::Auto,
@@ -332,6 +347,9 @@ mod tests {
         plan.validate().unwrap();
         let scaled = Plan { dataset_args: vec!["--downscale".into(), "2".into()], ..plan.clone() };
         assert!(scaled.point_command(&pts[1]).join(" ").ends_with("--iters 300 --downscale 2 --points-only --quiet"));
+        let seeded = Plan { seed: 7, ..plan.clone() };
+        assert!(seeded.point_command(&pts[1]).join(" ").ends_with("--iters 300 --seed 7 --points-only --quiet"));
+        assert_eq!((seeded.encoder_config(&pts[1]).unwrap().seed, seeded.settings()["seed"].as_u64()), (7, Some(7)));
         let cpu = Plan { backend: Backend::Cpu, ..plan.clone() };
         assert!(cpu.point_command(&pts[0]).join(" ").ends_with("--iters 300 --backend cpu --points-only --quiet"));
         let c = plan.encoder_config(&pts[3]).unwrap();

@@ -40,6 +40,9 @@ pub struct PointResult {
     /// `encode --iters` (None: the encoder's default).
     #[serde(default)]
     pub iters: Option<usize>,
+    /// `encode --seed` (0 in results written before it was an option).
+    #[serde(default)]
+    pub seed: u64,
     /// WD's σ (`--wd-sigma`) of a `wd` / `wdr` point; None for `l1ssim`, and in results written
     /// before σ was an option (σ = 4 then).
     #[serde(default, skip_serializing_if = "Option::is_none")]
