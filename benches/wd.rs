@@ -67,7 +67,7 @@ fn bench_iteration(c: &mut Criterion) {
         group.bench_function(name, |b| {
             b.iter(|| {
                 let (img, st) = raster::forward(&params, &frame.camera, &opts);
-                let (_, dl) = loss.loss_and_grad(&img, &*frame.image.get().unwrap(), 0, 1);
+                let (_, dl) = loss.loss_and_grad(&img, &frame.image.get().unwrap(), 0, 1);
                 let g = raster::backward(&params, &st, &dl);
                 adam.step(&mut params, &g.params, |grp| if grp == Group::Position { 1e-5 } else { 1e-4 });
             })

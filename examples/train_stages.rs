@@ -46,7 +46,7 @@ fn main() {
             let (img, st, ft) = raster::forward_timed(&params, &f.camera, &opts);
             let c1 = cpu_seconds();
             let t0 = Instant::now();
-            let (_, dl) = loss.eval(&img, &*f.image.get().unwrap());
+            let (_, dl) = loss.eval(&img, &f.image.get().unwrap());
             let t1 = Instant::now();
             let c2 = cpu_seconds();
             let g = raster::backward(&params, &st, &dl);

@@ -55,8 +55,8 @@ fn main() {
         let f = frames[v];
         let opts = RenderOptions { background: ds.background, max_sh_degree: scene.sh_degree };
         let (img, state) = gscodec::raster::forward(&scene, &f.camera, &opts);
-        let (_, g_l1) = L1Ssim::default().eval(&img, &*f.image.get().unwrap());
-        let (_, g_wd) = wd.value_and_grad(&img, &*f.image.get().unwrap(), Some(v));
+        let (_, g_l1) = L1Ssim::default().eval(&img, &f.image.get().unwrap());
+        let (_, g_wd) = wd.value_and_grad(&img, &f.image.get().unwrap(), Some(v));
         let comb: Vec<f32> = g_wd.iter().zip(&g_l1).map(|(w, o)| w + beta as f32 * o).collect();
         so += norm(&g_l1);
         sc += norm(&comb);

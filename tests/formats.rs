@@ -194,7 +194,7 @@ fn gltf_node_transforms() {
             assert!((d.log_scales[i][a] - s.log_scales[i][a] - 2f32.ln()).abs() < 1e-5);
         }
     }
-    doc["nodes"][0]["rotation"] = serde_json::json!([0.0, 0.7071068, 0.0, 0.7071068]);
+    doc["nodes"][0]["rotation"] = serde_json::json!([0.0, std::f64::consts::FRAC_1_SQRT_2, 0.0, std::f64::consts::FRAC_1_SQRT_2]);
     let e = decode_gltf(&serde_json::to_vec(&doc).unwrap(), None).unwrap_err();
     assert!(e.contains("rotation"), "{e}");
 }
@@ -205,9 +205,9 @@ fn match_all(src: &Splats, dec: &Splats, pos_tol: &dyn Fn(usize, usize) -> f32, 
     assert_eq!(src.len(), dec.len());
     let mut used = vec![false; src.len()];
     for t in 0..dec.len() {
-        let cand =
+        let mut cand =
             (0..src.len()).filter(|&g| !used[g] && (0..3).all(|a| (src.positions[g][a] - dec.positions[t][a]).abs() <= pos_tol(t, a)));
-        let best = cand.filter(|&g| same(g, t)).next();
+        let best = cand.find(|&g| same(g, t));
         let g = best.unwrap_or_else(|| panic!("decoded Gaussian {t} at {:?} matches no source Gaussian", dec.positions[t]));
         used[g] = true;
     }

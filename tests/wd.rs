@@ -126,15 +126,15 @@ fn matches_naive_formula_with_all_levels_computed() {
     for &(c, h, w) in &[(2, 16, 16), (3, 13, 10), (1, 9, 24)] {
         let a = random_tensor::<f64>(&mut rng, c, h, w);
         let b = random_tensor::<f64>(&mut rng, c, h, w);
-        for sigma in [4.0, 2.0, 2.5, 1.0, 5.7, 32.0] {
-            let ls = vec![(sigma as f64).log2(); h * w];
-            let got = wd::wd(&[a.clone()], &[b.clone()], &Sigma::Constant(sigma), h, w);
+        for sigma in [4.0f64, 2.0, 2.5, 1.0, 5.7, 32.0] {
+            let ls = vec![sigma.log2(); h * w];
+            let got = wd::wd(std::slice::from_ref(&a), std::slice::from_ref(&b), &Sigma::Constant(sigma), h, w);
             let want = naive_wd(&a, &b, &ls);
             assert!((got - want).abs() <= 1e-12 * want.abs().max(1.0), "σ={sigma} {c}x{h}x{w}: {got} vs {want}");
         }
         // a per-pixel σ map at the array's own resolution (no resize involved)
         let sig: Vec<f64> = (0..h * w).map(|_| 2f64.powf(4.0 * rng.uniform_f64())).collect();
-        let got = wd::wd(&[a.clone()], &[b.clone()], &Sigma::map(h, w, &sig), h, w);
+        let got = wd::wd(std::slice::from_ref(&a), std::slice::from_ref(&b), &Sigma::map(h, w, &sig), h, w);
         let want = naive_wd(&a, &b, &sig.iter().map(|s| s.log2()).collect::<Vec<_>>());
         assert!((got - want).abs() <= 1e-12 * want.abs().max(1.0), "σ map: {got} vs {want}");
     }
@@ -215,7 +215,7 @@ fn identity_nonnegativity_and_pointwise_limit() {
         let mut r = Rng::new(100 + seed);
         let x = random_tensor::<f64>(&mut r, 2, 7 + seed as usize % 5, 9);
         let y = random_tensor::<f64>(&mut r, 2, x.h, 9);
-        assert!(wd::wd(&[x.clone()], &[y], &Sigma::Constant(1.0 + r.uniform_f64() * 20.0), x.h, 9) >= 0.0);
+        assert!(wd::wd(std::slice::from_ref(&x), &[y], &Sigma::Constant(1.0 + r.uniform_f64() * 20.0), x.h, 9) >= 0.0);
     }
     // σ → 0: the pointwise mean squared feature difference, summed over arrays.
     let (fa, fb) = (Pyramid.features(&a), Pyramid.features(&b));

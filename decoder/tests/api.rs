@@ -70,7 +70,14 @@ fn every_prefix_of_a_progressive_file_is_whole_levels() {
     assert_eq!((info.info.header.version_major, full.len(), full.sh_degree), (4, 1000, 3));
     assert_eq!(info.levels, vec![63, 62, 125, 250, 500]);
     // The Gaussian counts a prefix may show: every level complete, or none.
-    let ends: Vec<usize> = info.levels.iter().scan(0, |e, &k| Some(*e += k).map(|_| *e)).collect();
+    let ends: Vec<usize> = info
+        .levels
+        .iter()
+        .scan(0, |e, &k| {
+            *e += k;
+            Some(*e)
+        })
+        .collect();
     let mut shown = Vec::new();
     for n in 0..=bytes.len() {
         let Some(s) = decode_prefix(&bytes[..n], &limits).unwrap() else {

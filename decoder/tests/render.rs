@@ -188,7 +188,7 @@ fn contributions_sum_to_the_covered_area() {
     assert!(covered > 500.0, "the scene covers too little of the frame to test: {covered}");
     assert!((total - covered).abs() < 1e-4 * covered, "Σ contributions {total} vs Σ (1 − T) {covered}");
     // Some Gaussians are hidden or under 1/255 everywhere, and score exactly 0.
-    assert!(c.iter().any(|&v| v == 0.0));
+    assert!(c.contains(&0.0));
 }
 
 #[test]

@@ -270,7 +270,7 @@ mod tests {
         // WD-R (built-in features) is a job the GPU trainer runs; WD in VGG-16 features is refused.
         let wdr = LossSpec { kind: LossKind::Wdr, ..LossSpec::default() };
         let vgg = LossSpec { features: FeatureSpec::Vgg16("vgg16.safetensors".into()), ..wdr.clone() };
-        let e = gpu_backend(false).unwrap().train(TrainJob { loss: &vgg, rate: None, ..job() }, &mut |_| {}).err().expect("refused");
+        let e = gpu_backend(false).unwrap().train(TrainJob { loss: &vgg, rate: None, ..job() }, &mut |_| {}).expect_err("refused");
         assert!(e.exit_code() == 2 && e.to_string().contains("pyramid"), "{e}");
         if crate::train::gpu::Gpu::new().ok().flatten().is_some() {
             let (_, r) = gpu_backend(false).unwrap().train(TrainJob { loss: &wdr, rate: None, ..job() }, &mut |_| {}).unwrap();

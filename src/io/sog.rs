@@ -438,7 +438,7 @@ fn nearest(codebook: &[f32], v: f32) -> usize {
 /// then refines with Lloyd iterations while they are cheap. Returns the centroids (row-major) and
 /// each row's label. With `n ≤ k` every row is its own centroid.
 pub fn palette(data: &[f32], d: usize, k: usize) -> (Vec<f32>, Vec<u32>) {
-    let n = if d == 0 { 0 } else { data.len() / d };
+    let n = data.len().checked_div(d).unwrap_or(0);
     if n <= k {
         return (data.to_vec(), (0..n as u32).collect());
     }

@@ -288,7 +288,7 @@ fn blur_subsample_adjoint_into<T: Real>(g: &[T], h2: usize, w2: usize, h: usize,
             hf * src(y / 2)
         } else {
             let a = src((y - 1) / 2);
-            let b = if (y + 1) / 2 < n2 { src((y + 1) / 2) } else { T::zero() };
+            let b = if y.div_ceil(2) < n2 { src(y.div_ceil(2)) } else { T::zero() };
             q * (a + b)
         }
     };

@@ -148,7 +148,7 @@ pub fn densify_and_prune_keeping(
     let kept = keep.iter().filter(|&&k| k).count();
     if kept < floor {
         // Split originals stay removed (their two halves are kept); rescue the most opaque.
-        let mut rescue: Vec<usize> = (0..params.len()).filter(|&i| !keep[i] && !(i < n && remove[i])).collect();
+        let mut rescue: Vec<usize> = (0..params.len()).filter(|&i| !keep[i] && (i >= n || !remove[i])).collect();
         rescue.sort_by(|&a, &b| params.opacity_logits[b].total_cmp(&params.opacity_logits[a]).then(a.cmp(&b)));
         for &i in rescue.iter().take(floor - kept) {
             keep[i] = true;

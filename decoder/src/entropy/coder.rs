@@ -269,7 +269,7 @@ mod tests {
     #[test]
     fn round_trip_with_escapes_and_raw_bits() {
         let ch = ChannelTable::Coded { lo: -3, table: FreqTable::from_weights(&[1, 5, 20, 5, 1, 1]) };
-        let values: Vec<i32> = (0..5000).map(|i| ((i * 7919) % 13) as i32 - 6).chain([i32::MIN, i32::MAX, 0]).collect();
+        let values: Vec<i32> = (0..5000).map(|i: i32| (i * 7919) % 13 - 6).chain([i32::MIN, i32::MAX, 0]).collect();
         let mut e = SymbolEncoder::new();
         for (i, &v) in values.iter().enumerate() {
             e.value(&ch, 0, v);

@@ -108,7 +108,7 @@ impl FreqTable {
 /// files have many: the division was most of the time it took to read their parameters.)
 #[inline(always)]
 fn floor_div(num: u64, den: u64) -> u64 {
-    debug_assert!(num < 1 << 48 && den >= 1 && den < 1 << 53);
+    debug_assert!(num < 1 << 48 && (1..1 << 53).contains(&den));
     let q = (num as f64 / den as f64) as u64;
     if q * den > num {
         q - 1
