@@ -5,6 +5,7 @@ use std::path::Path;
 use std::process::Command;
 
 use gscodec::sweep::results::{read_results, PointResult, TimelinePoint, CSV_HEADER};
+use gscodec::sweep::Point;
 
 fn gscodec() -> Command {
     Command::new(env!("CARGO_BIN_EXE_gscodec"))
@@ -35,7 +36,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
 }
 
 fn write_point(dir: &Path, r: &PointResult) {
-    let d = dir.join("points").join(format!("{}_lambda{}", r.loss, r.lambda));
+    let d = dir.join("points").join(Point { lambda: r.lambda, loss: r.loss.clone(), seed: r.seed }.dir_name());
     std::fs::create_dir_all(&d).unwrap();
     std::fs::write(d.join("result.json"), serde_json::to_string(r).unwrap()).unwrap();
 }
@@ -86,6 +87,59 @@ fn collect_writes_tables_plots_and_bd_rates() {
     assert!(bd["ms_ssim"].is_null() && summary["bd_rate_notes"]["wdr"]["ms_ssim"].is_string(), "{summary}");
     assert!(summary["bd_rate"].get("l1ssim").is_none(), "the anchor has no BD-rate against itself");
     assert_eq!(read_results(tmp.path()).unwrap().len(), 10);
+}
+
+/// Two seeds: the table and the BD-rates are of the seeds' mean points, and each seed's own
+/// BD-rates come beside them.
+#[test]
+fn collect_of_two_seeds_gives_mean_curves_and_each_seeds_bd_rates() {
+    let tmp = tempfile::tempdir().unwrap();
+    let lambdas = [0.1, 0.03, 0.01, 0.003, 0.001];
+    for &l in &lambdas {
+        // the same quality at every λ for both seeds; wdr is half the bytes with seed 0 and 0.8
+        // of them with seed 1: BD-rates −50 % and −20 %, and −35 % for the mean sizes
+        for seed in [0, 1] {
+            write_point(tmp.path(), &PointResult { seed, ..fake("l1ssim", l, 1.0) });
+            write_point(tmp.path(), &PointResult { seed, ..fake("wdr", l, [0.5, 0.8][seed as usize]) });
+        }
+    }
+    assert_eq!(read_results(tmp.path()).unwrap().len(), 20);
+    let out = tmp.path().join("out");
+    let res = gscodec().arg("sweep").arg("unused").arg("-o").arg(&out).arg("--collect").arg(tmp.path()).output().unwrap();
+    assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
+    let stdout = String::from_utf8(res.stdout).unwrap();
+    let line = stdout.lines().find(|l| l.contains("on flip:")).unwrap();
+    // (sizes are whole bytes: the rates are within 0.01 % of these)
+    assert_eq!(line, "BD-rate wdr vs l1ssim on flip: -35.00% (mean of 2 seeds; seed 0 -50.00%, seed 1 -20.00%)", "{stdout}");
+
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["points"].as_array().unwrap().len(), 20, "every seed's points");
+    let near = |v: &serde_json::Value, want: f64| (v.as_f64().unwrap() - want).abs() < 0.005;
+    for m in ["psnr", "ssim", "flip", "wd"] {
+        assert!(near(&summary["bd_rate"]["wdr"][m], -35.0), "{m}: {summary}");
+        assert!(near(&summary["bd_rate_by_seed"]["0"]["wdr"][m], -50.0) && near(&summary["bd_rate_by_seed"]["1"]["wdr"][m], -20.0));
+    }
+    assert!(summary["bd_rate_notes_by_seed"]["1"]["wdr"]["ms_ssim"].is_string());
+    // rd.csv: one row per (λ, loss), of the mean sizes
+    let csv = std::fs::read_to_string(out.join("rd.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 11);
+    let wdr = lines.iter().find(|l| l.starts_with("0.1,wdr,")).unwrap();
+    let bytes0 = 2e4 / 0.1f64.sqrt();
+    let mean = ((bytes0 * 0.5).round() + (bytes0 * 0.8).round()) / 2.0;
+    assert_eq!(wdr.split(',').nth(2).unwrap(), format!("{}", mean.round()));
+    let time = std::fs::read_to_string(out.join("time.svg")).unwrap();
+    assert!(time.contains("seed 1") && time.matches("<polyline").count() == 20, "one time series per run");
+    // one seed: no per-seed maps
+    let one = tmp.path().join("one");
+    std::fs::create_dir_all(one.join("points")).unwrap();
+    for r in read_results(tmp.path()).unwrap().into_iter().filter(|r| r.seed == 1) {
+        write_point(&one, &r);
+    }
+    let res = gscodec().arg("sweep").arg("unused").arg("-o").arg(&one).arg("--collect").arg(&one).output().unwrap();
+    assert!(res.status.success() && !String::from_utf8_lossy(&res.stdout).contains("seeds"));
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(one.join("summary.json")).unwrap()).unwrap();
+    assert!(near(&summary["bd_rate"]["wdr"]["flip"], -20.0) && summary.get("bd_rate_by_seed").is_none());
 }
 
 #[test]
@@ -211,14 +265,14 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         lambdas: vec![2.0],
         losses: vec!["l1ssim".into(), "wdr".into()],
         iters: None,
-        seed: 0,
+        seeds: vec![0],
         wd_sigma: None,
         // the share results from before --wd-warmup existed were trained with
         wd_warmup: Some(0.1),
         backend: gscodec::encoder::Backend::Cpu,
         dataset_args: Vec::new(),
     };
-    let (l1, wdr) = (Point { lambda: 2.0, loss: "l1ssim".into() }, Point { lambda: 2.0, loss: "wdr".into() });
+    let (l1, wdr) = (Point { lambda: 2.0, loss: "l1ssim".into(), seed: 0 }, Point { lambda: 2.0, loss: "wdr".into(), seed: 0 });
     // a wdr result from before --wd-sigma existed (no wd_sigma) was trained at σ = 4
     write_point(tmp.path(), &fake("l1ssim", 2.0, 1.0));
     write_point(tmp.path(), &fake("wdr", 2.0, 1.0));
@@ -236,9 +290,12 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(s2.is_done(&wdr) && !default_warmup.is_done(&wdr) && !w5.is_done(&wdr) && w5.is_done(&l1));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), ..fake("wdr", 2.0, 1.0) });
     assert!(w5.is_done(&wdr) && default_warmup.is_done(&wdr) && !s2.is_done(&wdr));
-    // a result from before --seed existed was trained with seed 0; another seed redoes it
-    let seed1 = Plan { seed: 1, ..w5.clone() };
-    assert!(!seed1.is_done(&l1) && !seed1.is_done(&wdr));
+    // a result from before --seeds existed was trained with seed 0; another seed's point is
+    // another directory, and a result of another seed in a point's directory is redone
+    let l1_seed1 = Point { seed: 1, ..l1.clone() };
+    assert!(w5.is_done(&l1) && !w5.is_done(&l1_seed1));
     write_point(tmp.path(), &PointResult { seed: 1, ..fake("l1ssim", 2.0, 1.0) });
-    assert!(seed1.is_done(&l1) && !w5.is_done(&l1));
+    assert!(w5.is_done(&l1_seed1) && w5.is_done(&l1));
+    std::fs::copy(w5.point_dir(&l1_seed1).join("result.json"), w5.point_dir(&l1).join("result.json")).unwrap();
+    assert!(!w5.is_done(&l1));
 }

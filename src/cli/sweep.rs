@@ -26,10 +26,11 @@ pub struct Args {
     /// Training iterations per encode (encoder default when absent).
     #[arg(long)]
     pub iters: Option<usize>,
-    /// Training seed of every encode (`encode --seed`). Sweeps with two seeds into two
-    /// directories give two BD-rates: their difference is the training noise.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    /// Training seeds, comma-separated: every (λ, loss) is encoded once per seed (`encode
+    /// --seed`). With several, the curves and BD-rates are of the seeds' mean points, and
+    /// summary.json also has each seed's BD-rates (the training noise) [default: 0].
+    #[arg(long, value_delimiter = ',')]
+    pub seeds: Vec<u64>,
     /// Pooling scale σ of `wd` / `wdr` (1 ≤ S ≤ 32) [default: 4].
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
@@ -74,7 +75,7 @@ pub fn run(args: Args) -> Result<()> {
         lambdas,
         losses,
         iters: args.iters,
-        seed: args.seed,
+        seeds: if args.seeds.is_empty() { vec![0] } else { args.seeds.clone() },
         wd_sigma: args.wd_sigma,
         wd_warmup: args.wd_warmup,
         backend: args.backend,

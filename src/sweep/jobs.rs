@@ -79,7 +79,7 @@ mod tests {
             lambdas: vec![0.1, 0.01],
             losses: vec!["wdr".into()],
             iters: None,
-            seed: 0,
+            seeds: vec![0],
             wd_sigma: None,
             wd_warmup: None,
             backend: crate::encoder::Backend::Auto,

@@ -46,19 +46,25 @@ pub const KNOWN_LOSSES: [&str; 3] = ["l1ssim", "wd", "wdr"];
 /// Orbit views used to evaluate a sweep of a trained `.ply` (no held-out photos exist).
 pub const PLY_EVAL_ORBIT: usize = 8;
 
-/// One (λ, loss) point.
+/// One (λ, loss, seed) point.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Point {
     /// Rate weight.
     pub lambda: f64,
     /// Distortion loss name.
     pub loss: String,
+    /// Training seed (`encode --seed`).
+    pub seed: u64,
 }
 
 impl Point {
-    /// Directory name of the point: `<loss>_lambda<λ>`.
+    /// Directory name of the point: `<loss>_lambda<λ>`, and `_seed<S>` after it for a seed other
+    /// than 0 (so sweeps from before `--seeds` keep their names).
     pub fn dir_name(&self) -> String {
-        format!("{}_lambda{}", self.loss, self.lambda)
+        match self.seed {
+            0 => format!("{}_lambda{}", self.loss, self.lambda),
+            s => format!("{}_lambda{}_seed{s}", self.loss, self.lambda),
+        }
     }
 }
 
@@ -75,8 +81,8 @@ pub struct Plan {
     pub losses: Vec<String>,
     /// `encode --iters`, or the encoder's default.
     pub iters: Option<usize>,
-    /// `encode --seed`.
-    pub seed: u64,
+    /// Training seeds (`encode --seed`): every (λ, loss) is encoded once per seed.
+    pub seeds: Vec<u64>,
     /// `encode --wd-sigma` (None: the default σ).
     pub wd_sigma: Option<f64>,
     /// `encode --wd-warmup` (None: the default share).
@@ -89,9 +95,15 @@ pub struct Plan {
 }
 
 impl Plan {
-    /// Every point, loss-major, λ in the given order.
+    /// Every point, loss-major, then λ in the given order, then seed.
     pub fn points(&self) -> Vec<Point> {
-        self.losses.iter().flat_map(|loss| self.lambdas.iter().map(|&lambda| Point { lambda, loss: loss.clone() })).collect()
+        let mut out = Vec::new();
+        for loss in &self.losses {
+            for &lambda in &self.lambdas {
+                out.extend(self.seeds.iter().map(|&seed| Point { lambda, loss: loss.clone(), seed }));
+            }
+        }
+        out
     }
 
     /// Directory holding a point's files.
@@ -110,19 +122,22 @@ impl Plan {
         let done_sigma = r.wd_sigma.or_else(|| wd.then_some(crate::loss::wd::DEFAULT_SIGMA));
         let done_warmup = r.wd_warmup.or_else(|| wd.then_some(crate::loss::wdr::PAPER_WARMUP_FRACTION));
         r.iters == self.iters
-            && r.seed == self.seed
+            && r.seed == p.seed
             && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
     }
 
-    /// Checks λs, losses, σ and the warm-up share.
+    /// Checks λs, losses, seeds, σ and the warm-up share.
     ///
     /// # Errors
     /// A negative or non-finite λ, an unknown loss, an empty grid, or a σ or warm-up share out
     /// of range (exit 2).
     pub fn validate(&self) -> Result<()> {
         let arg = Path::new("sweep");
-        if self.lambdas.is_empty() || self.losses.is_empty() {
-            return Err(Error::input(arg, "--lambdas and --loss need at least one value each"));
+        if self.lambdas.is_empty() || self.losses.is_empty() || self.seeds.is_empty() {
+            return Err(Error::input(arg, "--lambdas, --loss and --seeds need at least one value each"));
+        }
+        if let Some(s) = self.seeds.iter().enumerate().find_map(|(i, s)| self.seeds[..i].contains(s).then_some(s)) {
+            return Err(Error::input(arg, format!("--seeds: {s} is given twice")));
         }
         if let Some(l) = self.lambdas.iter().find(|l| !(l.is_finite() && **l >= 0.0)) {
             return Err(Error::input(arg, format!("--lambdas: {l} is not a finite value >= 0")));
@@ -146,7 +161,7 @@ impl Plan {
             "lambdas": self.lambdas,
             "losses": self.losses,
             "iters": self.iters,
-            "seed": self.seed,
+            "seeds": self.seeds,
             "wd_sigma": self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA),
             "wd_warmup": self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION),
         })
@@ -168,8 +183,8 @@ impl Plan {
         if let Some(n) = self.iters {
             c.extend(["--iters".into(), n.to_string()]);
         }
-        if self.seed != 0 {
-            c.extend(["--seed".into(), self.seed.to_string()]);
+        if p.seed != 0 {
+            c.extend(["--seeds".into(), p.seed.to_string()]);
         }
         if let Some(s) = self.wd_sigma {
             c.extend(["--wd-sigma".into(), s.to_string()]);
@@ -193,12 +208,7 @@ impl Plan {
     pub fn encoder_config(&self, p: &Point) -> Result<EncoderConfig> {
         let loss = self.loss_spec(p)?;
         let lambda = Lambda::new(p.lambda).ok_or_else(|| Error::input(Path::new("--lambdas"), format!("{} is not >= 0", p.lambda)))?;
-        Ok(EncoderConfig::default()
-            .with_lambda(lambda)
-            .with_iters(self.iters)
-            .with_seed(self.seed)
-            .with_loss(loss)
-            .with_backend(self.backend))
+        Ok(EncoderConfig::default().with_lambda(lambda).with_iters(self.iters).with_seed(p.seed).with_loss(loss).with_backend(self.backend))
     }
 
     /// The training loss of point `p`.
@@ -290,7 +300,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
         lambda: p.lambda,
         loss: p.loss.clone(),
         iters: plan.iters,
-        seed: plan.seed,
+        seed: p.seed,
         wd_sigma: spec.reported_sigma(),
         wd_warmup: spec.reported_warmup(),
         bytes: out.bytes.len() as u64,
@@ -330,7 +340,7 @@ mod tests {
             lambdas: vec![0.1, 0.01],
             losses: vec!["l1ssim".into(), "wdr".into()],
             iters: Some(300),
-            seed: 0,
+            seeds: vec![0],
             wd_sigma: None,
             wd_warmup: None,
             backend: Backend::Auto,
@@ -347,9 +357,17 @@ mod tests {
         plan.validate().unwrap();
         let scaled = Plan { dataset_args: vec!["--downscale".into(), "2".into()], ..plan.clone() };
         assert!(scaled.point_command(&pts[1]).join(" ").ends_with("--iters 300 --downscale 2 --points-only --quiet"));
-        let seeded = Plan { seed: 7, ..plan.clone() };
-        assert!(seeded.point_command(&pts[1]).join(" ").ends_with("--iters 300 --seed 7 --points-only --quiet"));
-        assert_eq!((seeded.encoder_config(&pts[1]).unwrap().seed, seeded.settings()["seed"].as_u64()), (7, Some(7)));
+        // --seeds: each (loss, λ) once per seed, seed 0 under the old directory name
+        let seeded = Plan { seeds: vec![0, 7], ..plan.clone() };
+        let sp = seeded.points();
+        assert_eq!(sp.len(), 8);
+        assert_eq!((sp[0].dir_name(), sp[1].dir_name()), ("l1ssim_lambda0.1".into(), "l1ssim_lambda0.1_seed7".into()));
+        assert!(seeded.point_command(&sp[1]).join(" ").ends_with("--iters 300 --seeds 7 --points-only --quiet"));
+        assert!(seeded.point_command(&sp[0]).join(" ").ends_with("--iters 300 --points-only --quiet"));
+        assert_eq!((seeded.encoder_config(&sp[1]).unwrap().seed, seeded.encoder_config(&sp[0]).unwrap().seed), (7, 0));
+        assert_eq!(seeded.settings()["seeds"], serde_json::json!([0, 7]));
+        let bad = Plan { seeds: vec![1, 1], ..plan.clone() };
+        assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --seeds: 1 is given twice");
         let cpu = Plan { backend: Backend::Cpu, ..plan.clone() };
         assert!(cpu.point_command(&pts[0]).join(" ").ends_with("--iters 300 --backend cpu --points-only --quiet"));
         let c = plan.encoder_config(&pts[3]).unwrap();

@@ -123,9 +123,49 @@ impl Metric {
     }
 }
 
-/// Sorts results by loss, then λ (descending, so sizes grow down a loss's rows).
+/// Sorts results by loss, then λ (descending, so sizes grow down a loss's rows), then seed.
 pub fn sort_results(rows: &mut [PointResult]) {
-    rows.sort_by(|a, b| a.loss.cmp(&b.loss).then(b.lambda.total_cmp(&a.lambda)));
+    rows.sort_by(|a, b| a.loss.cmp(&b.loss).then(b.lambda.total_cmp(&a.lambda)).then(a.seed.cmp(&b.seed)));
+}
+
+/// The training seeds of the rows, ascending.
+pub fn seeds(rows: &[PointResult]) -> Vec<u64> {
+    let mut s: Vec<u64> = rows.iter().map(|r| r.seed).collect();
+    s.sort_unstable();
+    s.dedup();
+    s
+}
+
+/// One row per (loss, λ): the mean over its seeds of the size, the Gaussian count, each metric
+/// (over the seeds that have it) and the times, with the lowest seed's other fields and no time
+/// series; sorted. With one seed per (loss, λ) these are the rows. The RD table, plot and
+/// BD-rates of a sweep with several seeds are of these mean points.
+pub fn mean_rows(rows: &[PointResult]) -> Vec<PointResult> {
+    let mut sorted = rows.to_vec();
+    sort_results(&mut sorted);
+    let mut out: Vec<PointResult> = Vec::new();
+    for group in sorted.chunk_by(|a, b| a.loss == b.loss && a.lambda == b.lambda) {
+        let n = group.len() as f64;
+        let mean = |f: &dyn Fn(&PointResult) -> f64| group.iter().map(f).sum::<f64>() / n;
+        let mean_of = |m: Metric| {
+            let v: Vec<f64> = group.iter().filter_map(|r| m.of(r)).collect();
+            (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+        };
+        out.push(PointResult {
+            bytes: mean(&|r| r.bytes as f64).round() as u64,
+            gaussians: mean(&|r| r.gaussians as f64).round() as u64,
+            psnr: mean_of(Metric::Psnr),
+            ssim: mean_of(Metric::Ssim),
+            ms_ssim: mean_of(Metric::MsSsim),
+            flip: mean_of(Metric::Flip),
+            wd: mean_of(Metric::Wd),
+            encode_s: mean(&|r| r.encode_s),
+            decode_s: mean(&|r| r.decode_s),
+            timeline: Vec::new(),
+            ..group[0].clone()
+        });
+    }
+    out
 }
 
 /// Reads every finished point (`DIR/points/*/result.json`), sorted by [`sort_results`].
@@ -231,16 +271,43 @@ pub fn bd_rates(rows: &[PointResult]) -> Vec<BdEntry> {
     out
 }
 
-/// Human-readable BD-rate lines, as the sweep prints them.
-pub fn bd_report(entries: &[BdEntry]) -> String {
+/// The BD-rates of a sweep: of its (mean) curves, and with several seeds of each seed's own.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepBd {
+    /// BD-rates of the curves of [`mean_rows`].
+    pub mean: Vec<BdEntry>,
+    /// Each seed's BD-rates from its own points; empty for a sweep with one seed.
+    pub by_seed: Vec<(u64, Vec<BdEntry>)>,
+}
+
+impl SweepBd {
+    /// The BD-rates of `rows`: see [`SweepBd`].
+    pub fn of(rows: &[PointResult]) -> SweepBd {
+        let seeds = seeds(rows);
+        let by_seed = if seeds.len() > 1 {
+            seeds.iter().map(|&s| (s, bd_rates(&rows.iter().filter(|r| r.seed == s).cloned().collect::<Vec<_>>()))).collect()
+        } else {
+            Vec::new()
+        };
+        SweepBd { mean: bd_rates(&mean_rows(rows)), by_seed }
+    }
+}
+
+/// Human-readable BD-rate lines, as the sweep prints them; with several seeds each line ends with
+/// the seeds' own values.
+pub fn bd_report(bd: &SweepBd) -> String {
+    let value = |e: &BdEntry| match (e.bd_rate, &e.note) {
+        (Some(v), _) => format!("{v:+.2}%"),
+        (None, note) => format!("n/a ({})", note.as_deref().unwrap_or("")),
+    };
     let mut s = String::new();
-    for e in entries {
-        match (e.bd_rate, &e.note) {
-            (Some(v), _) => s.push_str(&format!("BD-rate {} vs {ANCHOR_LOSS} on {}: {v:+.2}%\n", e.loss, e.metric)),
-            (None, note) => {
-                s.push_str(&format!("BD-rate {} vs {ANCHOR_LOSS} on {}: n/a ({})\n", e.loss, e.metric, note.as_deref().unwrap_or("")))
-            }
+    for (i, e) in bd.mean.iter().enumerate() {
+        s.push_str(&format!("BD-rate {} vs {ANCHOR_LOSS} on {}: {}", e.loss, e.metric, value(e)));
+        if !bd.by_seed.is_empty() {
+            let each: Vec<String> = bd.by_seed.iter().map(|(seed, v)| format!("seed {seed} {}", value(&v[i]))).collect();
+            s.push_str(&format!(" (mean of {} seeds; {})", bd.by_seed.len(), each.join(", ")));
         }
+        s.push('\n');
     }
     s
 }
@@ -273,7 +340,11 @@ pub fn time_figure(rows: &[PointResult]) -> Figure {
             let mut p = Panel::new(format!("{loss}: {name} during encode"), "encode wall time (s)", label);
             for r in rows.iter().filter(|r| r.loss == loss) {
                 let pts: Vec<(f64, f64)> = r.timeline.iter().filter_map(|t| get(t).map(|v| (t.time_s, v))).collect();
-                p = p.series(Series::new(format!("λ={}", r.lambda), pts));
+                let name = match r.seed {
+                    0 => format!("λ={}", r.lambda),
+                    s => format!("λ={} seed {s}", r.lambda),
+                };
+                p = p.series(Series::new(name, pts));
             }
             if p.series.iter().any(|s| !s.points.is_empty()) {
                 panels.push(p);
@@ -284,10 +355,8 @@ pub fn time_figure(rows: &[PointResult]) -> Figure {
     Figure { columns, ..Figure::new(panels) }
 }
 
-/// `summary.json`: the rows, the BD-rates and how the sweep was run. `bd_rate.<loss>.<metric>`
-/// is the BD-rate of `loss` against [`ANCHOR_LOSS`] in percent (negative: a saving), or null
-/// with the reason in `bd_rate_notes.<loss>.<metric>`.
-pub fn summary_json(rows: &[PointResult], bd: &[BdEntry], settings: serde_json::Value) -> serde_json::Value {
+/// `{<loss>: {<metric>: BD-rate or null}}` and the same map of the notes.
+fn bd_maps(bd: &[BdEntry]) -> (serde_json::Value, serde_json::Value) {
     let mut rates = serde_json::Map::new();
     let mut notes = serde_json::Map::new();
     for e in bd {
@@ -296,7 +365,28 @@ pub fn summary_json(rows: &[PointResult], bd: &[BdEntry], settings: serde_json::
             notes.entry(e.loss.clone()).or_insert_with(|| serde_json::json!({}))[e.metric] = serde_json::json!(n);
         }
     }
-    serde_json::json!({
+    (rates.into(), notes.into())
+}
+
+/// `summary.json`: the points (every seed's), the BD-rates and how the sweep was run.
+/// `bd_rate.<loss>.<metric>` is the BD-rate of `loss` against [`ANCHOR_LOSS`] in percent
+/// (negative: a saving) of the mean curves, or null with the reason in
+/// `bd_rate_notes.<loss>.<metric>`; with several seeds, `bd_rate_by_seed.<seed>.<loss>.<metric>`
+/// (and `bd_rate_notes_by_seed`) are each seed's own.
+pub fn summary_json(rows: &[PointResult], bd: &SweepBd, settings: serde_json::Value) -> serde_json::Value {
+    let (rates, notes) = bd_maps(&bd.mean);
+    let mut extra = serde_json::Map::new();
+    if !bd.by_seed.is_empty() {
+        let (mut by_seed, mut notes_by_seed) = (serde_json::Map::new(), serde_json::Map::new());
+        for (seed, entries) in &bd.by_seed {
+            let (r, n) = bd_maps(entries);
+            by_seed.insert(seed.to_string(), r);
+            notes_by_seed.insert(seed.to_string(), n);
+        }
+        extra.insert("bd_rate_by_seed".into(), by_seed.into());
+        extra.insert("bd_rate_notes_by_seed".into(), notes_by_seed.into());
+    }
+    let mut v = serde_json::json!({
         "anchor": ANCHOR_LOSS,
         "bd_method": "pchip",
         "settings": settings,
@@ -307,19 +397,22 @@ pub fn summary_json(rows: &[PointResult], bd: &[BdEntry], settings: serde_json::
         }).collect::<Vec<_>>(),
         "bd_rate": rates,
         "bd_rate_notes": notes,
-    })
+    });
+    v.as_object_mut().expect("an object").extend(extra);
+    v
 }
 
-/// Writes `rd.csv`, `rd.svg`, `time.svg` and `summary.json` into `dir` (each atomically) and
-/// returns the BD-rates.
+/// Writes `rd.csv`, `rd.svg` (both of [`mean_rows`]), `time.svg` and `summary.json` into `dir`
+/// (each atomically) and returns the BD-rates.
 ///
 /// # Errors
 /// Failure to write an output (exit 1).
-pub fn write_outputs(dir: &Path, rows: &[PointResult], settings: serde_json::Value) -> Result<Vec<BdEntry>> {
+pub fn write_outputs(dir: &Path, rows: &[PointResult], settings: serde_json::Value) -> Result<SweepBd> {
     std::fs::create_dir_all(dir).map_err(|e| Error::failure(dir, e))?;
-    let bd = bd_rates(rows);
-    write_bytes_atomic(&dir.join("rd.csv"), to_csv(rows).as_bytes())?;
-    write_bytes_atomic(&dir.join("rd.svg"), rd_figure(rows).to_svg().as_bytes())?;
+    let bd = SweepBd::of(rows);
+    let table = mean_rows(rows);
+    write_bytes_atomic(&dir.join("rd.csv"), to_csv(&table).as_bytes())?;
+    write_bytes_atomic(&dir.join("rd.svg"), rd_figure(&table).to_svg().as_bytes())?;
     write_bytes_atomic(&dir.join("time.svg"), time_figure(rows).to_svg().as_bytes())?;
     let summary = serde_json::to_string_pretty(&summary_json(rows, &bd, settings)).unwrap_or_default();
     write_bytes_atomic(&dir.join("summary.json"), summary.as_bytes())?;
