@@ -37,6 +37,12 @@ pub struct Args {
     /// Default: 0 for a .ply, 3000 for a dataset.
     #[arg(long)]
     pub iters: Option<usize>,
+    /// Dataset input: after the RD search has pruned the trained scene (and dropped SH bands),
+    /// train the Gaussians it keeps N more iterations on the images under D + λ·R (no
+    /// densification; WD / WD-R without warm-up), then code them. Default 0: code the search's
+    /// choice as it is.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub retrain_iters: usize,
     /// Random seed of training and fine-tuning (initialisation, view order, densification). The
     /// CPU trainer gives the same file for the same seed; other seeds measure training noise.
     #[arg(long, default_value_t = 0)]
@@ -94,6 +100,7 @@ impl Args {
             .with_lambda(self.lambda)
             .with_iters(self.iters)
             .with_seed(self.seed)
+            .with_retrain_iters(self.retrain_iters)
             .with_learned_steps(!self.fixed_steps)
             .with_loss(LossSpec::from_args(&self.loss, LossKind::Wdr))
             .with_backend(self.backend)
@@ -114,7 +121,7 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
         other => other,
     };
     let dataset = args.input.is_dir();
-    let iters = encoder.config().iters_for(dataset);
+    let iters = encoder.config().iters_for(dataset) + if dataset { encoder.config().retrain_iters } else { 0 };
     let pb = super::progress::bar(iters as u64, "train", args.quiet || iters == 0);
     let mut progress = |p: &crate::train::Progress| pb.set_position(p.iteration as u64);
     let out = if let Some(target) = args.target() {

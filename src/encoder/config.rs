@@ -35,6 +35,11 @@ pub struct EncoderConfig {
     pub anchor_hidden: Option<usize>,
     /// The anchor profile's fine-tuning steps (`None`: `iters` for a scene, else 300).
     pub anchor_iters: Option<usize>,
+    /// Dataset input: iterations that train the Gaussians the RD search keeps (after it prunes
+    /// the trained scene and drops SH bands) on the images again, under `D + λ·R` with the
+    /// training loss (no warm-up) and no densification, before they are coded. 0: code the
+    /// search's choice of the trained scene as it is.
+    pub retrain_iters: usize,
 }
 
 /// How a scene is coded: the explicit profile (per-Gaussian attributes, formats 3.0–6.0, 8.0), the
@@ -74,6 +79,7 @@ impl Default for EncoderConfig {
             anchor_features: None,
             anchor_hidden: None,
             anchor_iters: None,
+            retrain_iters: 0,
         }
     }
 }
@@ -134,6 +140,12 @@ impl EncoderConfig {
         self
     }
 
+    /// Sets the iterations that retrain what the RD search keeps of a trained dataset scene.
+    pub fn with_retrain_iters(mut self, iters: usize) -> Self {
+        self.retrain_iters = iters;
+        self
+    }
+
     /// Writes importance levels (true) or one level (false).
     pub fn with_progressive(mut self, progressive: bool) -> Self {
         self.progressive = progressive;
@@ -152,6 +164,9 @@ impl EncoderConfig {
     pub fn validate(&self) -> Result<(), InvalidConfig> {
         if let Some(v) = self.iters.filter(|&n| n > MAX_ITERS) {
             return Err(InvalidConfig::Iters { value: v, max: MAX_ITERS });
+        }
+        if self.retrain_iters > MAX_ITERS {
+            return Err(InvalidConfig::RetrainIters { value: self.retrain_iters, max: MAX_ITERS });
         }
         if let Some(g) = self.loss.wd_gamma.filter(|g| !(g.is_finite() && *g > 0.0)) {
             return Err(InvalidConfig::WdGamma { value: g });
@@ -185,6 +200,14 @@ pub enum InvalidConfig {
     /// More training iterations than [`MAX_ITERS`].
     #[error("--iters {value}: at most {max}")]
     Iters {
+        /// The value given.
+        value: usize,
+        /// The largest accepted.
+        max: usize,
+    },
+    /// More retraining iterations than [`MAX_ITERS`].
+    #[error("--retrain-iters {value}: at most {max}")]
+    RetrainIters {
         /// The value given.
         value: usize,
         /// The largest accepted.

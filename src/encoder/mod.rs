@@ -263,11 +263,37 @@ impl Encoder {
         // RD choices on the trained scene (their PSNR is against the trained scene, not the
         // images, so they stay out of the held-out series).
         let t = Instant::now();
-        let (config, _) = rate::rd::search_from(&trained, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
+        let (mut config, _) = rate::rd::search_from(&trained, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
             .map_err(|e| Error::Input(e.to_string()))?;
         stages.rd_search_s = t.elapsed().as_secs_f64();
         let orbit = Orbit::new(&trained);
-        let e = self.finish(&orbit, &trained, &config, iters, start, stages, series, Some(r), Some(dataset))?;
+        // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against
+        // the images (the .ply path's fine-tuning, with the images as targets).
+        let retrain = self.config.retrain_iters;
+        let init = if retrain > 0 { rate::prepared(&trained, &config, None) } else { Splats::default() };
+        let retrained = !init.is_empty();
+        let coded = if !retrained {
+            trained.clone()
+        } else {
+            let cfg = TrainConfig {
+                iters: retrain,
+                seed: self.config.seed,
+                densify: false,
+                sh_degree_max: init.sh_degree,
+                eval_interval: (retrain / 10).max(1),
+                ..Default::default()
+            };
+            // The loss of the main run, with WD / WD-R from the first iteration.
+            let retrainer =
+                Encoder { config: self.config.clone().with_loss(LossSpec { wd_warmup: Some(0.0), ..self.config.loss.clone() }) };
+            let mut progress = |p: &Progress| progress(&Progress { iteration: iters + p.iteration, iters: iters + retrain, ..*p });
+            let (s, r2) = retrainer.train(dataset, Some(init), &cfg, &config, 0, start, &mut series, &mut progress)?;
+            config.steps = learned_steps(config.steps, &r2);
+            stages.train_s += r2.train_seconds;
+            s
+        };
+        let mut e = self.finish(&orbit, &coded, &config, iters, start, stages, series, Some(r), Some(dataset))?;
+        e.report.retrain_iters = if retrained { retrain } else { 0 };
         match self.config.profile {
             Profile::Explicit => Ok(e),
             // The anchors are distilled from the trained scene, then fine-tuned to the images.
@@ -370,6 +396,7 @@ impl Encoder {
             wd_sigma: train.as_ref().and_then(|_| self.config.loss.reported_sigma()),
             wd_warmup: train.as_ref().and_then(|_| self.config.loss.reported_warmup()),
             iters,
+            retrain_iters: 0,
             backend: train.as_ref().map(|t| t.backend),
             file_bytes: bytes.len(),
             estimated_bytes: r.estimated_bits() / 8.0,

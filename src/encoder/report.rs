@@ -57,6 +57,9 @@ pub struct EncodeReport {
     pub wd_warmup: Option<f64>,
     /// Training iterations (0: coded as is).
     pub iters: usize,
+    /// Iterations that retrained what the RD search kept of a trained dataset scene
+    /// ([`super::EncoderConfig::retrain_iters`]; 0: none).
+    pub retrain_iters: usize,
     /// The training backend that ran (`cpu`, `gpu`), when the encode trained.
     pub backend: Option<&'static str>,
     /// Size of the file.
