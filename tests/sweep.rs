@@ -130,6 +130,13 @@ fn collect_of_two_seeds_gives_mean_curves_and_each_seeds_bd_rates() {
     assert_eq!(wdr.split(',').nth(2).unwrap(), format!("{}", mean.round()));
     let time = std::fs::read_to_string(out.join("time.svg")).unwrap();
     assert!(time.contains("seed 1") && time.matches("<polyline").count() == 20, "one time series per run");
+    // a seed with points of one loss only: its BD-rates are n/a
+    write_point(tmp.path(), &PointResult { seed: 2, ..fake("l1ssim", 0.1, 1.0) });
+    let res = gscodec().arg("sweep").arg("unused").arg("-o").arg(&out).arg("--collect").arg(tmp.path()).output().unwrap();
+    assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
+    let stdout = String::from_utf8(res.stdout).unwrap();
+    assert!(stdout.contains("(mean of 3 seeds; seed 0 -50.00%, seed 1 -20.00%, seed 2 n/a (no wdr points))"), "{stdout}");
+    std::fs::remove_dir_all(tmp.path().join("points/l1ssim_lambda0.1_seed2")).unwrap();
     // one seed: no per-seed maps
     let one = tmp.path().join("one");
     std::fs::create_dir_all(one.join("points")).unwrap();

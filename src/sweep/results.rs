@@ -301,10 +301,17 @@ pub fn bd_report(bd: &SweepBd) -> String {
         (None, note) => format!("n/a ({})", note.as_deref().unwrap_or("")),
     };
     let mut s = String::new();
-    for (i, e) in bd.mean.iter().enumerate() {
+    for e in &bd.mean {
         s.push_str(&format!("BD-rate {} vs {ANCHOR_LOSS} on {}: {}", e.loss, e.metric, value(e)));
         if !bd.by_seed.is_empty() {
-            let each: Vec<String> = bd.by_seed.iter().map(|(seed, v)| format!("seed {seed} {}", value(&v[i]))).collect();
+            let each: Vec<String> = bd
+                .by_seed
+                .iter()
+                .map(|(seed, v)| match v.iter().find(|o| o.loss == e.loss && o.metric == e.metric) {
+                    Some(o) => format!("seed {seed} {}", value(o)),
+                    None => format!("seed {seed} n/a (no {} points)", e.loss),
+                })
+                .collect();
             s.push_str(&format!(" (mean of {} seeds; {})", bd.by_seed.len(), each.join(", ")));
         }
         s.push('\n');
