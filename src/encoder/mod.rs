@@ -271,9 +271,8 @@ impl Encoder {
         // the images (the .ply path's fine-tuning, with the images as targets).
         let retrain = self.config.retrain_iters;
         let init = if retrain > 0 { rate::prepared(&trained, &config, None) } else { Splats::default() };
-        let retrained = !init.is_empty();
-        let coded = if !retrained {
-            trained.clone()
+        let retrained = if init.is_empty() {
+            None
         } else {
             let cfg = TrainConfig {
                 iters: retrain,
@@ -290,10 +289,11 @@ impl Encoder {
             let (s, r2) = retrainer.train(dataset, Some(init), &cfg, &config, 0, start, &mut series, &mut progress)?;
             config.steps = learned_steps(config.steps, &r2);
             stages.train_s += r2.train_seconds;
-            s
+            Some(s)
         };
-        let mut e = self.finish(&orbit, &coded, &config, iters, start, stages, series, Some(r), Some(dataset))?;
-        e.report.retrain_iters = if retrained { retrain } else { 0 };
+        let coded = retrained.as_ref().unwrap_or(&trained);
+        let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, Some(r), Some(dataset))?;
+        e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
         match self.config.profile {
             Profile::Explicit => Ok(e),
             // The anchors are distilled from the trained scene, then fine-tuned to the images.
