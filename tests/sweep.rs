@@ -20,6 +20,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
         loss: loss.into(),
         iters: None,
         seed: 0,
+        retrain_iters: 0,
         wd_sigma: None,
         wd_warmup: None,
         bytes: (bytes0 * scale).round() as u64,
@@ -273,6 +274,8 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         losses: vec!["l1ssim".into(), "wdr".into()],
         iters: None,
         seeds: vec![0],
+        // as the fake results (and every result from before retraining existed)
+        retrain_iters: Some(0),
         wd_sigma: None,
         // the share results from before --wd-warmup existed were trained with
         wd_warmup: Some(0.1),
@@ -305,4 +308,9 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(w5.is_done(&l1_seed1) && w5.is_done(&l1));
     std::fs::copy(w5.point_dir(&l1_seed1).join("result.json"), w5.point_dir(&l1).join("result.json")).unwrap();
     assert!(!w5.is_done(&l1));
+    // the default retraining (a tenth of the iterations) redoes a point trained without it
+    let retrain = Plan { retrain_iters: None, ..w5.clone() };
+    assert!(w5.is_done(&wdr) && !retrain.is_done(&wdr));
+    write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), retrain_iters: 300, ..fake("wdr", 2.0, 1.0) });
+    assert!(retrain.is_done(&wdr) && !w5.is_done(&wdr));
 }

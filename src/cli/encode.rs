@@ -39,10 +39,10 @@ pub struct Args {
     pub iters: Option<usize>,
     /// Dataset input: after the RD search has pruned the trained scene (and dropped SH bands),
     /// train the Gaussians it keeps N more iterations on the images under D + λ·R (no
-    /// densification; WD / WD-R without warm-up), then code them. Default 0: code the search's
-    /// choice as it is.
-    #[arg(long, value_name = "N", default_value_t = 0)]
-    pub retrain_iters: usize,
+    /// densification; WD / WD-R without warm-up), then code them. Default: a tenth of --iters;
+    /// 0 codes the search's choice as it is.
+    #[arg(long, value_name = "N")]
+    pub retrain_iters: Option<usize>,
     /// Random seed of training and fine-tuning (initialisation, view order, densification). The
     /// CPU trainer gives the same file for the same seed; other seeds measure training noise.
     #[arg(long, default_value_t = 0)]
@@ -121,7 +121,7 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
         other => other,
     };
     let dataset = args.input.is_dir();
-    let iters = encoder.config().iters_for(dataset) + if dataset { encoder.config().retrain_iters } else { 0 };
+    let iters = encoder.config().iters_for(dataset) + encoder.config().retrain_iters_for(dataset);
     let pb = super::progress::bar(iters as u64, "train", args.quiet || iters == 0);
     let mut progress = |p: &crate::train::Progress| pb.set_position(p.iteration as u64);
     let out = if let Some(target) = args.target() {

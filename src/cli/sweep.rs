@@ -31,6 +31,9 @@ pub struct Args {
     /// summary.json also has each seed's BD-rates (the training noise) [default: 0].
     #[arg(long, value_delimiter = ',')]
     pub seeds: Vec<u64>,
+    /// `encode --retrain-iters` of every point (dataset input; default: a tenth of --iters).
+    #[arg(long, value_name = "N")]
+    pub retrain_iters: Option<usize>,
     /// Pooling scale σ of `wd` / `wdr` (1 ≤ S ≤ 32) [default: 4].
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
@@ -75,6 +78,7 @@ pub fn run(args: Args) -> Result<()> {
         lambdas,
         losses,
         iters: args.iters,
+        retrain_iters: args.retrain_iters,
         seeds: if args.seeds.is_empty() { vec![0] } else { args.seeds.clone() },
         wd_sigma: args.wd_sigma,
         wd_warmup: args.wd_warmup,

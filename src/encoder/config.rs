@@ -37,9 +37,10 @@ pub struct EncoderConfig {
     pub anchor_iters: Option<usize>,
     /// Dataset input: iterations that train the Gaussians the RD search keeps (after it prunes
     /// the trained scene and drops SH bands) on the images again, under `D + λ·R` with the
-    /// training loss (no warm-up) and no densification, before they are coded. 0: code the
-    /// search's choice of the trained scene as it is.
-    pub retrain_iters: usize,
+    /// training loss (no warm-up) and no densification, before they are coded (`None`: a tenth
+    /// of the training iterations, [`EncoderConfig::retrain_iters_for`]; 0: code the search's
+    /// choice of the trained scene as it is).
+    pub retrain_iters: Option<usize>,
 }
 
 /// How a scene is coded: the explicit profile (per-Gaussian attributes, formats 3.0–6.0, 8.0), the
@@ -79,7 +80,7 @@ impl Default for EncoderConfig {
             anchor_features: None,
             anchor_hidden: None,
             anchor_iters: None,
-            retrain_iters: 0,
+            retrain_iters: None,
         }
     }
 }
@@ -140,8 +141,9 @@ impl EncoderConfig {
         self
     }
 
-    /// Sets the iterations that retrain what the RD search keeps of a trained dataset scene.
-    pub fn with_retrain_iters(mut self, iters: usize) -> Self {
+    /// Sets the iterations that retrain what the RD search keeps of a trained dataset scene
+    /// (`None`: the default, a tenth of the training iterations).
+    pub fn with_retrain_iters(mut self, iters: Option<usize>) -> Self {
         self.retrain_iters = iters;
         self
     }
@@ -157,6 +159,14 @@ impl EncoderConfig {
         self.iters.unwrap_or(if dataset { DEFAULT_DATASET_ITERS } else { 0 })
     }
 
+    /// Retraining iterations for a scene (`dataset` false: none) or a dataset.
+    pub fn retrain_iters_for(&self, dataset: bool) -> usize {
+        match dataset {
+            false => 0,
+            true => self.retrain_iters.unwrap_or(self.iters_for(true) / 10),
+        }
+    }
+
     /// Checks the settings.
     ///
     /// # Errors
@@ -165,8 +175,8 @@ impl EncoderConfig {
         if let Some(v) = self.iters.filter(|&n| n > MAX_ITERS) {
             return Err(InvalidConfig::Iters { value: v, max: MAX_ITERS });
         }
-        if self.retrain_iters > MAX_ITERS {
-            return Err(InvalidConfig::RetrainIters { value: self.retrain_iters, max: MAX_ITERS });
+        if let Some(v) = self.retrain_iters.filter(|&n| n > MAX_ITERS) {
+            return Err(InvalidConfig::RetrainIters { value: v, max: MAX_ITERS });
         }
         if let Some(g) = self.loss.wd_gamma.filter(|g| !(g.is_finite() && *g > 0.0)) {
             return Err(InvalidConfig::WdGamma { value: g });
@@ -282,6 +292,13 @@ mod tests {
             let loss = LossSpec { wd_sigma: Some(s), ..LossSpec::default() };
             assert_eq!(EncoderConfig::default().with_loss(loss).validate(), Ok(()));
         }
+        // retraining: a tenth of the dataset's training iterations unless set; never for a scene
+        let c = EncoderConfig::default().with_iters(Some(5000));
+        assert_eq!((c.retrain_iters_for(true), c.retrain_iters_for(false)), (500, 0));
+        assert_eq!(EncoderConfig::default().retrain_iters_for(true), DEFAULT_DATASET_ITERS / 10);
+        assert_eq!(c.clone().with_retrain_iters(Some(7)).retrain_iters_for(true), 7);
+        let e = c.with_retrain_iters(Some(MAX_ITERS + 1)).validate().unwrap_err();
+        assert_eq!(e.to_string(), format!("--retrain-iters {}: at most {MAX_ITERS}", MAX_ITERS + 1));
         let c = EncoderConfig::default().with_iters(Some(0));
         assert_eq!(c.validate(), Ok(()), "a scene may be coded as is");
         assert_eq!(c.validate_for_dataset(), Err(InvalidConfig::DatasetWithoutTraining));

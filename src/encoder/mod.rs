@@ -269,7 +269,7 @@ impl Encoder {
         let orbit = Orbit::new(&trained);
         // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against
         // the images (the .ply path's fine-tuning, with the images as targets).
-        let retrain = self.config.retrain_iters;
+        let retrain = self.config.retrain_iters_for(true);
         let init = if retrain > 0 { rate::prepared(&trained, &config, None) } else { Splats::default() };
         let retrained = if init.is_empty() {
             None
@@ -286,7 +286,10 @@ impl Encoder {
             let retrainer =
                 Encoder { config: self.config.clone().with_loss(LossSpec { wd_warmup: Some(0.0), ..self.config.loss.clone() }) };
             let mut progress = |p: &Progress| progress(&Progress { iteration: iters + p.iteration, iters: iters + retrain, ..*p });
+            let first = series.len();
             let (s, r2) = retrainer.train(dataset, Some(init), &cfg, &config, 0, start, &mut series, &mut progress)?;
+            // Its time series continues the main run's iterations.
+            series[first..].iter_mut().for_each(|p| p.iteration += iters);
             config.steps = learned_steps(config.steps, &r2);
             stages.train_s += r2.train_seconds;
             Some(s)

@@ -80,6 +80,7 @@ mod tests {
             losses: vec!["wdr".into()],
             iters: None,
             seeds: vec![0],
+            retrain_iters: None,
             wd_sigma: None,
             wd_warmup: None,
             backend: crate::encoder::Backend::Auto,

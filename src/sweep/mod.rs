@@ -83,6 +83,8 @@ pub struct Plan {
     pub iters: Option<usize>,
     /// Training seeds (`encode --seed`): every (λ, loss) is encoded once per seed.
     pub seeds: Vec<u64>,
+    /// `encode --retrain-iters` (dataset input; None: the encoder's default).
+    pub retrain_iters: Option<usize>,
     /// `encode --wd-sigma` (None: the default σ).
     pub wd_sigma: Option<f64>,
     /// `encode --wd-warmup` (None: the default share).
@@ -123,7 +125,14 @@ impl Plan {
         let done_warmup = r.wd_warmup.or_else(|| wd.then_some(crate::loss::wdr::PAPER_WARMUP_FRACTION));
         r.iters == self.iters
             && r.seed == p.seed
+            && r.retrain_iters == self.retrain_iters_applied()
             && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
+    }
+
+    /// The retraining iterations every point runs with: `--retrain-iters` or the encoder's
+    /// default for this many `--iters`, for a dataset; 0 for a `.ply`.
+    pub fn retrain_iters_applied(&self) -> usize {
+        EncoderConfig::default().with_iters(self.iters).with_retrain_iters(self.retrain_iters).retrain_iters_for(!is_ply(&self.input))
     }
 
     /// Checks λs, losses, seeds, σ and the warm-up share.
@@ -162,6 +171,7 @@ impl Plan {
             "losses": self.losses,
             "iters": self.iters,
             "seeds": self.seeds,
+            "retrain_iters": self.retrain_iters_applied(),
             "wd_sigma": self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA),
             "wd_warmup": self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION),
         })
@@ -182,6 +192,9 @@ impl Plan {
         ];
         if let Some(n) = self.iters {
             c.extend(["--iters".into(), n.to_string()]);
+        }
+        if let Some(n) = self.retrain_iters {
+            c.extend(["--retrain-iters".into(), n.to_string()]);
         }
         if p.seed != 0 {
             c.extend(["--seeds".into(), p.seed.to_string()]);
@@ -208,7 +221,13 @@ impl Plan {
     pub fn encoder_config(&self, p: &Point) -> Result<EncoderConfig> {
         let loss = self.loss_spec(p)?;
         let lambda = Lambda::new(p.lambda).ok_or_else(|| Error::input(Path::new("--lambdas"), format!("{} is not >= 0", p.lambda)))?;
-        Ok(EncoderConfig::default().with_lambda(lambda).with_iters(self.iters).with_seed(p.seed).with_loss(loss).with_backend(self.backend))
+        Ok(EncoderConfig::default()
+            .with_lambda(lambda)
+            .with_iters(self.iters)
+            .with_seed(p.seed)
+            .with_retrain_iters(self.retrain_iters)
+            .with_loss(loss)
+            .with_backend(self.backend))
     }
 
     /// The training loss of point `p`.
@@ -301,6 +320,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
         loss: p.loss.clone(),
         iters: plan.iters,
         seed: p.seed,
+        retrain_iters: plan.retrain_iters_applied(),
         wd_sigma: spec.reported_sigma(),
         wd_warmup: spec.reported_warmup(),
         bytes: out.bytes.len() as u64,
@@ -341,6 +361,7 @@ mod tests {
             losses: vec!["l1ssim".into(), "wdr".into()],
             iters: Some(300),
             seeds: vec![0],
+            retrain_iters: None,
             wd_sigma: None,
             wd_warmup: None,
             backend: Backend::Auto,
@@ -366,6 +387,15 @@ mod tests {
         assert!(seeded.point_command(&sp[0]).join(" ").ends_with("--iters 300 --points-only --quiet"));
         assert_eq!((seeded.encoder_config(&sp[1]).unwrap().seed, seeded.encoder_config(&sp[0]).unwrap().seed), (7, 0));
         assert_eq!(seeded.settings()["seeds"], serde_json::json!([0, 7]));
+        let rt = Plan { retrain_iters: Some(0), ..plan.clone() };
+        assert!(rt.point_command(&pts[1]).join(" ").ends_with("--iters 300 --retrain-iters 0 --points-only --quiet"));
+        assert_eq!((rt.encoder_config(&pts[1]).unwrap().retrain_iters, rt.settings()["retrain_iters"].as_u64()), (Some(0), Some(0)));
+        assert_eq!(
+            (plan.encoder_config(&pts[1]).unwrap().retrain_iters_for(true), plan.settings()["retrain_iters"].as_u64()),
+            (30, Some(30))
+        );
+        let ply = Plan { input: "scene.ply".into(), ..plan.clone() };
+        assert_eq!((ply.retrain_iters_applied(), rt.retrain_iters_applied()), (0, 0), "a .ply has nothing to retrain");
         let bad = Plan { seeds: vec![1, 1], ..plan.clone() };
         assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --seeds: 1 is given twice");
         let cpu = Plan { backend: Backend::Cpu, ..plan.clone() };

@@ -43,6 +43,10 @@ pub struct PointResult {
     /// `encode --seed` (0 in results written before it was an option).
     #[serde(default)]
     pub seed: u64,
+    /// Retraining iterations the point ran with ([`super::Plan::retrain_iters_applied`]; 0 in
+    /// results written before retraining existed).
+    #[serde(default)]
+    pub retrain_iters: usize,
     /// WD's σ (`--wd-sigma`) of a `wd` / `wdr` point; None for `l1ssim`, and in results written
     /// before σ was an option (σ = 4 then).
     #[serde(default, skip_serializing_if = "Option::is_none")]
