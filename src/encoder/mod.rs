@@ -200,14 +200,7 @@ impl Encoder {
             // Training views avoid the orbit views `orbit_psnr` evaluates on (held out).
             let cams = training_cameras(scene, 8, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
             let dataset = crate::train::targets::render_targets(scene, &cams, [0.0; 3]);
-            let cfg = TrainConfig {
-                iters,
-                seed: self.config.seed,
-                densify: false,
-                sh_degree_max: init.sh_degree,
-                eval_interval: (iters / 10).max(1),
-                ..Default::default()
-            };
+            let cfg = self.fine_tune_config(iters, &init);
             // A .ply already has its structure: the term runs from the start.
             let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
@@ -270,18 +263,9 @@ impl Encoder {
         // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against
         // the images (the .ply path's fine-tuning, with the images as targets).
         let retrain = self.config.retrain_iters_for(true);
-        let init = if retrain > 0 { rate::prepared(&trained, &config, None) } else { Splats::default() };
-        let retrained = if init.is_empty() {
-            None
-        } else {
-            let cfg = TrainConfig {
-                iters: retrain,
-                seed: self.config.seed,
-                densify: false,
-                sh_degree_max: init.sh_degree,
-                eval_interval: (retrain / 10).max(1),
-                ..Default::default()
-            };
+        let init = (retrain > 0).then(|| rate::prepared(&trained, &config, None)).filter(|s| !s.is_empty());
+        let retrained = if let Some(init) = init {
+            let cfg = self.fine_tune_config(retrain, &init);
             // The loss of the main run, with WD / WD-R from the first iteration.
             let retrainer =
                 Encoder { config: self.config.clone().with_loss(LossSpec { wd_warmup: Some(0.0), ..self.config.loss.clone() }) };
@@ -293,6 +277,8 @@ impl Encoder {
             config.steps = learned_steps(config.steps, &r2);
             stages.train_s += r2.train_seconds;
             Some(s)
+        } else {
+            None
         };
         let coded = retrained.as_ref().unwrap_or(&trained);
         let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, Some(r), Some(dataset))?;
@@ -304,6 +290,19 @@ impl Encoder {
                 let views = crate::anchor::FitViews::training_views(dataset)?;
                 Encoder { config: self.config.clone().with_iters(None) }.with_anchors(e, &trained, &orbit, Some(&views))
             }
+        }
+    }
+
+    /// Training settings that fine-tune `init` (a scene the RD search has pruned) for `iters`
+    /// iterations: no densification, SH up to `init`'s degree.
+    fn fine_tune_config(&self, iters: usize, init: &Splats) -> TrainConfig {
+        TrainConfig {
+            iters,
+            seed: self.config.seed,
+            densify: false,
+            sh_degree_max: init.sh_degree,
+            eval_interval: (iters / 10).max(1),
+            ..Default::default()
         }
     }
 
