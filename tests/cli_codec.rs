@@ -295,7 +295,8 @@ fn anchor_profile_encodes_decodes_and_auto_picks_one_of_the_two() {
 /// `encode --seed` reaches the trainer: another seed than the default 0 trains another scene
 /// (that one seed gives one file is `tests/threads.rs`'s business). `--retrain-iters`: the
 /// Gaussians the RD search keeps, trained again on the images, cover for those it pruned: on the
-/// sample the file is smaller and its held-out PSNR higher than without.
+/// sample the file is smaller and its held-out PSNR higher than without. `--coding-breakdown`:
+/// its last cumulative row is the file itself (bytes and held-out PSNR).
 #[test]
 fn encode_seed_and_retraining_change_the_training() {
     let dir = tempfile::tempdir().unwrap();
@@ -313,8 +314,18 @@ fn encode_seed_and_retraining_change_the_training() {
     let (default, psnr, report) = encode("plain.gsc", &["--retrain-iters", "0"]);
     assert_eq!(report["retrain_iters"], 0);
     assert!(encode("three.gsc", &["--retrain-iters", "0", "--seed", "3"]).0 != default, "another seed trains another scene");
-    let (retrained, retrained_psnr, report) = encode("retrained.gsc", &["--retrain-iters", "10"]);
+    assert!(report.get("coding_breakdown").is_none(), "only when asked");
+    let (retrained, retrained_psnr, report) = encode("retrained.gsc", &["--retrain-iters", "10", "--coding-breakdown"]);
     assert_eq!((report["retrain_iters"].as_u64(), report["iters"].as_u64()), (Some(10), Some(20)));
+    let rows = report["coding_breakdown"].as_array().unwrap();
+    let stages: Vec<&str> = rows.iter().map(|r| r["stage"].as_str().unwrap()).collect();
+    assert_eq!(stages[..2], ["uncoded", "quantised"]);
+    assert_eq!(rows[0]["bytes"], serde_json::Value::Null);
+    let file = &rows[5];
+    assert_eq!(file["stage"], "+ importance classes");
+    assert_eq!((file["bytes"].as_u64(), file["heldout_psnr"].as_f64()), (Some(retrained.len() as u64), Some(retrained_psnr)));
+    assert!(rows.iter().all(|r| r["heldout_psnr"].as_f64().is_some_and(f64::is_finite)));
+    assert_eq!(rows.len(), 8);
     assert!(
         retrained.len() < default.len() && retrained_psnr > psnr + 0.5,
         "{} B {retrained_psnr} dB against {} B {psnr} dB",

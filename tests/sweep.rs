@@ -276,6 +276,7 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         seeds: vec![0],
         // as the fake results (and every result from before retraining existed)
         retrain_iters: Some(0),
+        coding_breakdown: false,
         wd_sigma: None,
         // the share results from before --wd-warmup existed were trained with
         wd_warmup: Some(0.1),

@@ -43,6 +43,12 @@ pub struct Args {
     /// 0 codes the search's choice as it is.
     #[arg(long, value_name = "N")]
     pub retrain_iters: Option<usize>,
+    /// Dataset input: report (in --report's `coding_breakdown`) the held-out PSNR of the
+    /// trained scene before coding and as each of the RD search's choices is added (quantised,
+    /// pruning, SH band dropping, SH codebooks, importance classes: the file), and with only the
+    /// groups training quantises, or only the others, quantised. Seven more encodes.
+    #[arg(long)]
+    pub coding_breakdown: bool,
     /// Random seed of training and fine-tuning (initialisation, view order, densification). The
     /// CPU trainer gives the same file for the same seed; other seeds measure training noise.
     #[arg(long, default_value_t = 0)]
@@ -101,6 +107,7 @@ impl Args {
             .with_iters(self.iters)
             .with_seed(self.seed)
             .with_retrain_iters(self.retrain_iters)
+            .with_coding_breakdown(self.coding_breakdown)
             .with_learned_steps(!self.fixed_steps)
             .with_loss(LossSpec::from_args(&self.loss, LossKind::Wdr))
             .with_backend(self.backend)

@@ -34,6 +34,10 @@ pub struct Args {
     /// `encode --retrain-iters` of every point (dataset input; default: a tenth of --iters).
     #[arg(long, value_name = "N")]
     pub retrain_iters: Option<usize>,
+    /// `encode --coding-breakdown` for every point (dataset input): each point's report.json
+    /// gives where coding loses the held-out PSNR.
+    #[arg(long)]
+    pub coding_breakdown: bool,
     /// Pooling scale σ of `wd` / `wdr` (1 ≤ S ≤ 32) [default: 4].
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
@@ -79,6 +83,7 @@ pub fn run(args: Args) -> Result<()> {
         losses,
         iters: args.iters,
         retrain_iters: args.retrain_iters,
+        coding_breakdown: args.coding_breakdown,
         seeds: if args.seeds.is_empty() { vec![0] } else { args.seeds.clone() },
         wd_sigma: args.wd_sigma,
         wd_warmup: args.wd_warmup,

@@ -41,6 +41,10 @@ pub struct EncoderConfig {
     /// of the training iterations, [`EncoderConfig::retrain_iters_for`]; 0: code the search's
     /// choice of the trained scene as it is).
     pub retrain_iters: Option<usize>,
+    /// Dataset input: also code the trained scene with the RD search's choices added one at a
+    /// time and report each file's held-out PSNR ([`super::CodingStage`]; costs seven more
+    /// encodes and eight held-out evaluations).
+    pub coding_breakdown: bool,
 }
 
 /// How a scene is coded: the explicit profile (per-Gaussian attributes, formats 3.0–6.0, 8.0), the
@@ -81,6 +85,7 @@ impl Default for EncoderConfig {
             anchor_hidden: None,
             anchor_iters: None,
             retrain_iters: None,
+            coding_breakdown: false,
         }
     }
 }
@@ -138,6 +143,13 @@ impl EncoderConfig {
     /// Sets the anchor profile's fine-tuning steps (`None`: `iters` for a scene, else 300).
     pub fn with_anchor_iters(mut self, iters: Option<usize>) -> Self {
         self.anchor_iters = iters;
+        self
+    }
+
+    /// Reports where coding a trained dataset scene loses its held-out PSNR
+    /// ([`EncoderConfig::coding_breakdown`]).
+    pub fn with_coding_breakdown(mut self, on: bool) -> Self {
+        self.coding_breakdown = on;
         self
     }
 

@@ -20,6 +20,7 @@
 //! ```
 
 mod backend;
+mod breakdown;
 mod config;
 mod report;
 mod target;
@@ -33,6 +34,7 @@ use gscodec_decoder::{RenderOptions, Splats};
 
 pub use crate::rate::Lambda;
 pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, TrainJob};
+pub use breakdown::CodingStage;
 pub use config::{EncoderConfig, InvalidConfig, Profile, DEFAULT_DATASET_ITERS, MAX_ITERS};
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
 pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
@@ -283,6 +285,10 @@ impl Encoder {
         let coded = retrained.as_ref().unwrap_or(&trained);
         let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, Some(r), Some(dataset))?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
+        if self.config.coding_breakdown {
+            let file = EncodeConfig { progressive: self.config.progressive, ..config };
+            e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, &file, dataset)?);
+        }
         match self.config.profile {
             Profile::Explicit => Ok(e),
             // The anchors are distilled from the trained scene, then fine-tuned to the images.
@@ -417,6 +423,7 @@ impl Encoder {
             series,
             target: None,
             fine_tuning_kept: None,
+            coding_breakdown: None,
             profile: "explicit",
             anchor: None,
             explicit_alternative: None,

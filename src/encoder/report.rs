@@ -99,6 +99,10 @@ pub struct EncodeReport {
     /// the RD search's own file had the lower `J = D + λ·R`, D on the orbit views at 256², and
     /// is the output; `train` still reports the run). `None` without fine-tuning.
     pub fine_tuning_kept: Option<bool>,
+    /// With `--coding-breakdown` (dataset input): the held-out PSNR of the scene before coding
+    /// and as each of the RD search's choices is added ([`super::CodingStage`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coding_breakdown: Option<Vec<super::CodingStage>>,
     /// The profile of the file: `explicit` (formats 3.0–6.0 and 8.0) or `anchor` (7.0, SPEC §12).
     pub profile: &'static str,
     /// The anchor profile's encode (with `--profile anchor` or `auto`), whether or not its file

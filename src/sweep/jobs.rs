@@ -81,6 +81,7 @@ mod tests {
             iters: None,
             seeds: vec![0],
             retrain_iters: None,
+            coding_breakdown: false,
             wd_sigma: None,
             wd_warmup: None,
             backend: crate::encoder::Backend::Auto,

@@ -85,6 +85,8 @@ pub struct Plan {
     pub seeds: Vec<u64>,
     /// `encode --retrain-iters` (dataset input; None: the encoder's default).
     pub retrain_iters: Option<usize>,
+    /// `encode --coding-breakdown` (dataset input).
+    pub coding_breakdown: bool,
     /// `encode --wd-sigma` (None: the default σ).
     pub wd_sigma: Option<f64>,
     /// `encode --wd-warmup` (None: the default share).
@@ -196,6 +198,9 @@ impl Plan {
         if let Some(n) = self.retrain_iters {
             c.extend(["--retrain-iters".into(), n.to_string()]);
         }
+        if self.coding_breakdown {
+            c.push("--coding-breakdown".into());
+        }
         if p.seed != 0 {
             c.extend(["--seeds".into(), p.seed.to_string()]);
         }
@@ -226,6 +231,7 @@ impl Plan {
             .with_iters(self.iters)
             .with_seed(p.seed)
             .with_retrain_iters(self.retrain_iters)
+            .with_coding_breakdown(self.coding_breakdown)
             .with_loss(loss)
             .with_backend(self.backend))
     }
@@ -362,6 +368,7 @@ mod tests {
             iters: Some(300),
             seeds: vec![0],
             retrain_iters: None,
+            coding_breakdown: false,
             wd_sigma: None,
             wd_warmup: None,
             backend: Backend::Auto,
@@ -394,6 +401,9 @@ mod tests {
             (plan.encoder_config(&pts[1]).unwrap().retrain_iters_for(true), plan.settings()["retrain_iters"].as_u64()),
             (30, Some(30))
         );
+        let cb = Plan { coding_breakdown: true, ..rt.clone() };
+        assert!(cb.point_command(&pts[1]).join(" ").ends_with("--retrain-iters 0 --coding-breakdown --points-only --quiet"));
+        assert!(cb.encoder_config(&pts[1]).unwrap().coding_breakdown && !rt.encoder_config(&pts[1]).unwrap().coding_breakdown);
         let ply = Plan { input: "scene.ply".into(), ..plan.clone() };
         assert_eq!((ply.retrain_iters_applied(), rt.retrain_iters_applied()), (0, 0), "a .ply has nothing to retrain");
         let bad = Plan { seeds: vec![1, 1], ..plan.clone() };
