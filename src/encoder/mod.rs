@@ -244,6 +244,9 @@ impl Encoder {
     pub fn encode_dataset(&self, dataset: &Dataset, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
         let start = Instant::now();
         self.config.validate_for_dataset()?;
+        if self.config.coding_breakdown && dataset.split(Split::Test).is_empty() {
+            return Err(Error::Input("--coding-breakdown: the dataset has no held-out views to measure on".into()));
+        }
         let iters = self.config.iters_for(true);
         let mut stages = EncodeStages::default();
         let mut series = Vec::new();
