@@ -281,6 +281,11 @@ impl Encoder {
             series[first..].iter_mut().for_each(|p| p.iteration += iters);
             config.steps = learned_steps(config.steps, &r2);
             stages.train_s += r2.train_seconds;
+            // The least significant Gaussians are no longer those the search coarsened: their
+            // classes are chosen again on the retrained scene (docs/codec.md, "Retraining").
+            let t = Instant::now();
+            config = rate::rd::retune_tail(&s, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
+            stages.rd_search_s += t.elapsed().as_secs_f64();
             Some(s)
         } else {
             None

@@ -418,6 +418,24 @@ fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: En
     Ok(log.stage(trials, (log.j(b, d), start), tail_variants(&start))?.1)
 }
 
+/// The importance classes of `config` chosen again for `scene`, as the search's last stage
+/// ([`tail_stage`]) chooses them, from `config` without classes and on `scene`'s own views;
+/// every other choice of `config` stays. For a scene that changed after the search (the
+/// encoder's retraining): which Gaussians matter, and so what coarser steps for the least
+/// significant cost, is no longer what the search measured.
+///
+/// # Errors
+/// A scene the coder refuses.
+pub fn retune_tail(scene: &Splats, lambda: Lambda, config: EncodeConfig) -> Result<EncodeConfig, SceneError> {
+    let mut trials = Trials::new(scene)?;
+    let mut on_step = |_: &Trial| {};
+    let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
+    // As in the search: trial encodes without the learned tables.
+    let start = EncodeConfig { tail: CoarseTail::OFF, learned_tables: false, ..config };
+    let chosen = tail_stage(&mut trials, &mut log, start)?;
+    Ok(EncodeConfig { tail: chosen.tail, ..config })
+}
+
 /// Rate–distortion allocation by rendering. Distortion is treated as additive over groups
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the significance pruning threshold, then the SH degree and
@@ -709,6 +727,30 @@ mod tests {
         let tail = |c: &EncodeConfig| !c.tail.is_off();
         let picked = stage_lowers_j(&scene, [0.0, 50.0, 500.0], TAIL_SHARES.len() * TAIL_FACTORS.len(), tail, tail_stage);
         assert!(picked, "no λ chose a tail");
+    }
+
+    /// Choosing the classes again keeps every other choice, and the result's J on the scene's
+    /// own views is no higher than with the given classes or with none.
+    #[test]
+    fn retuned_tail_keeps_the_rest_and_lowers_j() {
+        let scene = crate::sample::scene(600, 4);
+        let given = EncodeConfig {
+            tail: CoarseTail { share: TAIL_SHARES[0], factor: TAIL_FACTORS[TAIL_FACTORS.len() - 1] },
+            max_sh_degree: 2,
+            ..EncodeConfig::default()
+        };
+        for l in [0.0, 50.0, 500.0] {
+            let lambda = Lambda::new(l).unwrap();
+            let out = retune_tail(&scene, lambda, given).unwrap();
+            assert_eq!(EncodeConfig { tail: given.tail, ..out }, given, "λ {l}: only the classes change");
+            let mut trials = Trials::new(&scene).unwrap();
+            let mut j = |c: &EncodeConfig| {
+                let (b, d, _) = trials.one(&EncodeConfig { learned_tables: false, ..*c }).unwrap();
+                d + lambda.rate_cost(b)
+            };
+            let j_out = j(&out);
+            assert!(j_out <= j(&given) && j_out <= j(&EncodeConfig { tail: CoarseTail::OFF, ..given }), "λ {l}");
+        }
     }
 
     /// The parallel search chooses the same configuration, records the same trials and writes
