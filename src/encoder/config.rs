@@ -42,8 +42,8 @@ pub struct EncoderConfig {
     /// choice of the trained scene as it is).
     pub retrain_iters: Option<usize>,
     /// Dataset input: also code the scene that is coded (retrained, or as trained) with the RD
-    /// search's choices added one at a time and report each file's held-out PSNR ([`super::CodingStage`]; costs seven more
-    /// encodes and eight held-out evaluations).
+    /// search's choices added one at a time and report each file's held-out PSNR
+    /// ([`super::CodingStage`]; costs seven more encodes and eight held-out evaluations).
     pub coding_breakdown: bool,
 }
 
