@@ -294,8 +294,7 @@ impl Encoder {
         let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, Some(r), Some(dataset))?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
         if self.config.coding_breakdown {
-            let file = EncodeConfig { progressive: self.config.progressive, ..config };
-            e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, &file, dataset)?);
+            e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, &self.file_config(&config), dataset)?);
         }
         match self.config.profile {
             Profile::Explicit => Ok(e),
@@ -305,6 +304,12 @@ impl Encoder {
                 Encoder { config: self.config.clone().with_iters(None) }.with_anchors(e, &trained, &orbit, Some(&views))
             }
         }
+    }
+
+    /// The settings a file is written with: the RD choices `config` and the caller's
+    /// `--progressive`.
+    fn file_config(&self, config: &EncodeConfig) -> EncodeConfig {
+        EncodeConfig { progressive: self.config.progressive, ..*config }
     }
 
     /// Training settings that fine-tune `init` (a scene the RD search has pruned) for `iters`
@@ -384,7 +389,7 @@ impl Encoder {
         heldout: Option<&Dataset>,
     ) -> Result<Encoded> {
         let t = Instant::now();
-        let config = &EncodeConfig { progressive: self.config.progressive, ..*config };
+        let config = &self.file_config(config);
         let (bytes, r, q) = rate::encode(coded, config).map_err(|e| Error::Input(e.to_string()))?;
         stages.write_s = t.elapsed().as_secs_f64();
         let t = Instant::now();

@@ -223,7 +223,7 @@ impl Encoder {
         let scene = trials.scene();
         let began = Instant::now();
         let eval = |c: &EncodeConfig| -> Result<(usize, f64)> {
-            let c = EncodeConfig { learned_tables: false, progressive: self.config.progressive, ..*c };
+            let c = EncodeConfig { learned_tables: false, ..self.file_config(c) };
             let (bytes, _, q) =
                 rate::encode_with(scene, &c, Some(trials.significance())).map_err(|e| crate::Error::Input(e.to_string()))?;
             Ok((bytes.len(), orbit.psnr(&rate::quantise::dequantise(&q))))
