@@ -4,11 +4,11 @@
 // with the bin mass computed without cancellation (1 − e^{−x} by its series for small x).
 //
 // Per iteration, in this order:
-// - `quantise`: the render records, learned groups rounded to their step (straight-through: the
-//   image gradient computed at these values is applied to the raw ones);
+// - `quantise`: the render records, learned groups rounded to their step (`quantised`;
+//   straight-through: the image gradient computed at these values is applied to the raw ones);
 // - `rate_reduce` (after the image backward, before the rate gradient is added): one workgroup
 //   per channel sums over the Gaussians what the model and step updates need (Σ ∂bits/∂μ,
-//   Σ ∂bits/∂ln b, Σ keep·bits, Σ keep·∂bits/∂s·s, and the LSQ term Σ ∂D/∂q·(round(v/s) − v/s)·s);
+//   Σ ∂bits/∂ln b, Σ keep·bits, Σ keep·∂bits/∂s·s, and the LSQ term Σ ∂D/∂q·(Q(v/s) − v/s)·s);
 //   one more workgroup sums the fixed bits Σ keep·FIXED_BITS;
 // - `rate_grads`: per Gaussian, w·keep·∂bits/∂v into each learned value's gradient and
 //   w·bits·∂keep/∂logit into the opacity gradient;
@@ -33,7 +33,7 @@ struct RateParams {
     learned: u32,        // bit mask of the learned groups
     fixed_bits: f32,     // bits per Gaussian the channels do not model
     bits_word: u32,      // index of this iteration's R in `loss`
-    _p0: u32,
+    rest_deadzone: f32,  // dead zone of the SH rest bands, in steps (RateTerm::deadzone)
     _p1: u32,
     _p2: u32,
     start: array<vec4<f32>, 2>,   // starting step per group
@@ -55,12 +55,19 @@ const STATE_MODELS: u32 = 40u;
 const SUMS: u32 = 5u;
 const NONE: u32 = 0xffffffffu;
 const OPACITY: u32 = 10u;          // record offset of the opacity logit
+const SH1: u32 = 5u;               // gscodec_decoder::Group::Sh1: the SH rest bands are 5..=7
 const LIKELIHOOD_FLOOR: f32 = 1e-9;
 const LN2: f32 = 0.6931472;
 
-// Rust's f32::round: halves away from zero (WGSL's round() rounds halves to even).
-fn round_away(x: f32) -> f32 {
-    return sign(x) * floor(abs(x) + 0.5);
+// The quantiser's integer of x = v/s for group g: Rust's f32::round (halves away from zero;
+// WGSL's round() rounds halves to even), with the dead zone for the SH rest bands
+// (gscodec::rate::quantise::q_dz: sign(x)·⌊max(|x| + ½ − dz, 0)⌋).
+fn quantised(x: f32, g: u32) -> f32 {
+    var dz = 0.0;
+    if (g >= SH1) {
+        dz = rp.rest_deadzone;
+    }
+    return sign(x) * floor(max(abs(x) + 0.5 - dz, 0.0));
 }
 
 fn keep_of(logit: f32) -> f32 {
@@ -125,7 +132,7 @@ fn quantise(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     var v = params[i];
     if (g != NONE) {
         let s = state[g];
-        v = round_away(v / s) * s;
+        v = quantised(v / s, g) * s;
     }
     render[i] = v;
 }
@@ -152,7 +159,7 @@ fn rate_reduce(@builtin(local_invocation_index) li: u32, @builtin(workgroup_id) 
             acc[3] += keep * b.d_step * s;
             if (rp.learn != 0u) {
                 let x = v / s;
-                acc[4] += grads[base + ch.x] * ((round_away(x) - x) * s);
+                acc[4] += grads[base + ch.x] * ((quantised(x, ch.y) - x) * s);
             }
         }
     } else if (k == rp.channels) {

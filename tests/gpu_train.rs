@@ -215,13 +215,14 @@ fn rate_term_matches_cpu() {
     use gscodec::rate::term::RateTerm;
     use gscodec::rate::{Lambda, Steps};
     let Some(gpu) = device() else { return };
-    for (seed, degree, learn) in [(1u64, 1u8, true), (2, 3, true), (3, 2, false)] {
+    for (seed, degree, learn, deadzone) in [(1u64, 1u8, true, 0.0), (2, 3, true, 0.3), (3, 2, false, 0.2)] {
         let s = random_scene(400, seed, 1.0, (-5.0, -1.0), (-8.0, 4.0)).with_sh_degree(degree);
         let dist = random_gradient(&s, seed, 1e-3);
-        let mut term = RateTerm::new(Lambda::new(1e5).unwrap(), Steps::default(), 0.02);
+        let steps = Steps { rest_deadzone: deadzone, ..Steps::default() };
+        let mut term = RateTerm::new(Lambda::new(1e5).unwrap(), steps, 0.02);
         term.learn_steps = learn;
         for calls in [1usize, 3] {
-            let name = format!("degree {degree}, learn {learn}, call {calls}");
+            let name = format!("degree {degree}, learn {learn}, dead zone {deadzone}, call {calls}");
             let mut cpu = term.clone();
             let (mut value, mut grad, mut rendered) = (0.0, dist.clone(), s.clone());
             for it in 0..calls {
@@ -249,7 +250,7 @@ fn rate_term_matches_cpu() {
                 assert!((sa - sc).abs() <= 1e-4 * sc, "{name}: step of {g:?}: GPU {sa} vs CPU {sc}");
             }
             if learn {
-                assert_ne!(cpu.steps, Steps::default(), "{name}: the steps did not move; the comparison says nothing");
+                assert_ne!(cpu.steps, steps, "{name}: the steps did not move; the comparison says nothing");
             }
         }
     }

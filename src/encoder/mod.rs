@@ -427,6 +427,7 @@ impl Encoder {
             position_bits: r.position_bits,
             groups: r.groups,
             steps: config.steps.map(),
+            rest_deadzone: config.steps.rest_deadzone,
             min_opacity: config.min_opacity,
             min_significance: config.min_significance,
             tail: config.tail,

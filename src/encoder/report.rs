@@ -78,6 +78,9 @@ pub struct EncodeReport {
     pub groups: Vec<GroupReport>,
     /// Quantisation steps per group (Position: relative to the Gaussians' size).
     pub steps: GroupMap<f32>,
+    /// Dead zone of the SH rest quantiser, in steps (0: plain rounding; an encoder-only choice
+    /// the RD search makes, not in the file).
+    pub rest_deadzone: f32,
     /// Pruning thresholds of the file: opacity, and significance (0: none).
     pub min_opacity: f32,
     pub min_significance: f32,

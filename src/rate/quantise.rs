@@ -161,8 +161,9 @@ fn q(v: f32, step: f32) -> i32 {
     (v / step).round() as i32
 }
 
-/// Dead-zone quantiser (see [`Steps::rest_deadzone`]); `dz = 0` is [`q`].
-fn q_dz(v: f32, step: f32, dz: f32) -> i32 {
+/// Dead-zone quantiser (see [`Steps::rest_deadzone`]); `dz = 0` is [`q`]. Training renders
+/// the SH rest bands through it ([`super::term::RateTerm::render_params`]).
+pub(crate) fn q_dz(v: f32, step: f32, dz: f32) -> i32 {
     if dz <= 0.0 {
         return q(v, step);
     }

@@ -40,7 +40,8 @@ struct RateUniform {
     learned: u32,
     fixed_bits: f32,
     bits_word: u32,
-    _pad: [u32; 3],
+    rest_deadzone: f32,
+    _pad: [u32; 2],
     start: [f32; 8],
     adam: [f32; 4],
 }
@@ -154,7 +155,8 @@ impl GpuRate {
             learned: LEARNED_GROUPS.iter().fold(0, |m, &g| m | 1 << g as u32),
             fixed_bits: FIXED_BITS_PER_GAUSSIAN as f32,
             bits_word,
-            _pad: [0; 3],
+            rest_deadzone: self.term.deadzone(Group::Sh1),
+            _pad: [0; 2],
             start: std::array::from_fn(|g| if g < 8 { start.of(Group::ALL[g]) } else { 1.0 }),
             adam: [rule.beta1, rule.beta2, rule.eps, STEP_RANGE.ln()],
         };
