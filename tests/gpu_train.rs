@@ -256,6 +256,28 @@ fn rate_term_matches_cpu() {
     }
 }
 
+/// As the CPU trainer (tests/train.rs): with a rate term the held-out PSNR reported, at an
+/// evaluation and at the end, is of the scene as training renders it (quantised with the steps
+/// the GPU holds), not of the raw parameters.
+#[test]
+fn held_out_psnr_is_of_the_quantised_scene_under_a_rate_term() {
+    use gscodec::rate::term::RateTerm;
+    use gscodec::rate::{Lambda, Steps};
+    let Some(gpu) = device() else { return };
+    let ds = toy_dataset();
+    let steps = Steps { sh_dc: 0.15, opacity: 0.6, scale: 0.3, ..Steps::default() };
+    let term = || RateTerm::new(Lambda::new(1.0).unwrap(), steps, 1.0 / 255.0);
+    let cfg = TrainConfig { iters: 20, seed: 5, init_points: 300, densify: false, eval_interval: 10, ..Default::default() };
+    let (out, report) =
+        gpu::train_with(&gpu, &ds, None, &cfg, &GpuLoss::default(), Some(term()), &mut |_| {}, &RunOptions::default()).unwrap();
+    let test = ds.split(Split::Test);
+    let psnr = |s: &Splats| gscodec::metrics::view::mean_psnr_ssim(s, &test, ds.background).unwrap().unwrap().0;
+    let (reported, of_quantised, of_raw) = (report.test_psnr.unwrap(), psnr(&term().render_params(&out, cfg.iters).unwrap()), psnr(&out));
+    eprintln!("reported {reported:.4} dB, quantised {of_quantised:.4}, raw {of_raw:.4}");
+    assert_eq!(reported.to_bits(), of_quantised.to_bits());
+    assert!((of_raw - of_quantised).abs() > 1e-3, "raw {of_raw} and quantised {of_quantised} agree: the test says nothing");
+}
+
 fn tiny_dataset() -> gscodec::io::Dataset {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
     load_dataset(&root, &LoadOptions::default()).unwrap()

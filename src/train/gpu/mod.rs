@@ -31,10 +31,10 @@ pub use session::Session;
 
 use super::adam::Adam;
 use super::densify::DensifyStats;
+use super::held_out;
 use super::{checkpoint, learning_rate, non_finite_error, Progress, ReportPoint, RunOptions, StageTimes, TrainConfig, TrainReport};
 use crate::io::{Dataset, Frame};
 use crate::loss::{FeatureSpec, LossKind};
-use crate::metrics::view::mean_psnr_ssim;
 use crate::optim::AdamRule;
 use crate::rate::group::Group;
 use crate::rate::term::{RateTerm, RdTerm};
@@ -426,15 +426,17 @@ pub fn train_with(
         let read_seconds = t_read.elapsed().as_secs_f64();
         // Held-out evaluation before densification (as the CPU trainer); not training time.
         let t_eval = Instant::now();
-        let test_psnr = if eval_now && !test_frames.is_empty() {
-            mean_psnr_ssim(&session.download_params()?, &test_frames, dataset.background)?.map(|e| e.0)
-        } else {
-            None
-        };
-        // The rate term's estimate is read with the evaluations (the encoder's series).
+        // The rate term's steps and estimate are read with the evaluations (the encoder's series).
         let rate_bits = match session.rate.as_mut() {
             Some(r) if eval_now && r.on_at(it) => Some(r.read(gpu)?.bits),
             _ => None,
+        };
+        let test_psnr = if eval_now && !test_frames.is_empty() {
+            let params = session.download_params()?;
+            held_out(session.rate.as_mut().and_then(|r| r.term.render_params(&params, it)), &params, &test_frames, dataset.background)?
+                .map(|e| e.0)
+        } else {
+            None
         };
         let eval_seconds = t_eval.elapsed().as_secs_f64();
         if cfg.densify {
@@ -526,7 +528,8 @@ pub fn train_with(
     train_seconds += t_end.elapsed().as_secs_f64();
     gpu.check()?;
     let mut points = tally.points;
-    let final_eval = mean_psnr_ssim(&params, &test_frames, dataset.background)?;
+    let final_eval =
+        held_out(session.rate.as_mut().and_then(|r| r.term.render_params(&params, cfg.iters)), &params, &test_frames, dataset.background)?;
     if let (Some(last), Some((p, _))) = (points.last_mut(), final_eval) {
         last.test_psnr = Some(p);
     }
