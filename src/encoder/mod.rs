@@ -207,6 +207,10 @@ impl Encoder {
             let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
             stages.train_s = r.train_seconds;
+            // As after a dataset's retraining: the classes chosen again on the fine-tuned scene.
+            let t = Instant::now();
+            config = rate::rd::retune_tail(&s, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
+            stages.rd_search_s += t.elapsed().as_secs_f64();
             trained = Some(s);
             train_report = Some(r);
         }
