@@ -207,10 +207,7 @@ impl Encoder {
             let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
             stages.train_s = r.train_seconds;
-            // As after a dataset's retraining: the classes chosen again on the fine-tuned scene.
-            let t = Instant::now();
-            config = rate::rd::retune_tail(&s, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
-            stages.rd_search_s += t.elapsed().as_secs_f64();
+            config = self.retune_tail(&s, config, &mut stages)?;
             trained = Some(s);
             train_report = Some(r);
         }
@@ -285,11 +282,7 @@ impl Encoder {
             series[first..].iter_mut().for_each(|p| p.iteration += iters);
             config.steps = learned_steps(config.steps, &r2);
             stages.train_s += r2.train_seconds;
-            // The least significant Gaussians are no longer those the search coarsened: their
-            // classes are chosen again on the retrained scene (docs/codec.md, "Retraining").
-            let t = Instant::now();
-            config = rate::rd::retune_tail(&s, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
-            stages.rd_search_s += t.elapsed().as_secs_f64();
+            config = self.retune_tail(&s, config, &mut stages)?;
             Some(s)
         } else {
             None
@@ -308,6 +301,16 @@ impl Encoder {
                 Encoder { config: self.config.clone().with_iters(None) }.with_anchors(e, &trained, &orbit, Some(&views))
             }
         }
+    }
+
+    /// `config` with its importance classes chosen again on `trained`, the scene retraining or
+    /// fine-tuning made of what the search chose: the least significant Gaussians are no longer
+    /// those the search coarsened (docs/codec.md, "Retraining"). Its time counts as search time.
+    fn retune_tail(&self, trained: &Splats, config: EncodeConfig, stages: &mut EncodeStages) -> Result<EncodeConfig> {
+        let t = Instant::now();
+        let config = rate::rd::retune_tail(trained, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
+        stages.rd_search_s += t.elapsed().as_secs_f64();
+        Ok(config)
     }
 
     /// The settings a file is written with: the RD choices `config` and the caller's
