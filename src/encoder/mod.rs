@@ -41,6 +41,7 @@ pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PS
 
 use crate::io::{Dataset, Split};
 use crate::rate::group::Group;
+use crate::rate::rd::RdViews;
 use crate::rate::{self, EncodeConfig, Steps};
 use crate::train::{Progress, RunOptions, TrainConfig, TrainReport};
 use crate::views::{orbit_cameras, training_cameras, UpAxis};
@@ -207,7 +208,7 @@ impl Encoder {
             let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
             stages.train_s = r.train_seconds;
-            config = self.retune_tail(&s, config, &mut stages)?;
+            config = self.retune_tail(&s, RdViews::orbit(&s), config, &mut stages)?;
             trained = Some(s);
             train_report = Some(r);
         }
@@ -259,11 +260,14 @@ impl Encoder {
         // reaches 30.6 dB (docs/codec.md).
         let (trained, r) = self.train(dataset, None, &cfg, &ladder, iters / 2, start, &mut series, progress)?;
         stages.train_s = r.train_seconds;
-        // RD choices on the trained scene (their PSNR is against the trained scene, not the
-        // images, so they stay out of the held-out series).
+        // RD choices on the trained scene, with D on views from the dataset's training cameras
+        // (against the trained scene, not the images, so they stay out of the held-out series).
         let t = Instant::now();
-        let (mut config, _) = rate::rd::search_from(&trained, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
+        let views = RdViews::of_dataset(dataset).ok_or_else(|| Error::Input("the dataset has no training views".into()))?;
+        let mut trials = rate::rd::Trials::with_views(&trained, views.clone()).map_err(|e| Error::Input(e.to_string()))?;
+        let (mut config, _) = rate::rd::search_with(&mut trials, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
             .map_err(|e| Error::Input(e.to_string()))?;
+        drop(trials);
         stages.rd_search_s = t.elapsed().as_secs_f64();
         let orbit = Orbit::new(&trained);
         // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against
@@ -282,7 +286,7 @@ impl Encoder {
             series[first..].iter_mut().for_each(|p| p.iteration += iters);
             config.steps = learned_steps(config.steps, &r2);
             stages.train_s += r2.train_seconds;
-            config = self.retune_tail(&s, config, &mut stages)?;
+            config = self.retune_tail(&s, views, config, &mut stages)?;
             Some(s)
         } else {
             None
@@ -306,9 +310,9 @@ impl Encoder {
     /// `config` with its importance classes chosen again on `trained`, the scene retraining or
     /// fine-tuning made of what the search chose: the least significant Gaussians are no longer
     /// those the search coarsened (docs/codec.md, "Retraining"). Its time counts as search time.
-    fn retune_tail(&self, trained: &Splats, config: EncodeConfig, stages: &mut EncodeStages) -> Result<EncodeConfig> {
+    fn retune_tail(&self, trained: &Splats, views: RdViews, config: EncodeConfig, stages: &mut EncodeStages) -> Result<EncodeConfig> {
         let t = Instant::now();
-        let config = rate::rd::retune_tail(trained, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
+        let config = rate::rd::retune_tail(trained, views, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
         stages.rd_search_s += t.elapsed().as_secs_f64();
         Ok(config)
     }

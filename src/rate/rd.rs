@@ -3,8 +3,10 @@
 //! vector quantisation and the importance classes, greedily chosen while `J = D + λ·R` falls;
 //! the trials of each stage run in parallel.
 //!
-//! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's standard orbit views
-//!   ([`crate::views::orbit_cameras`], up −y as `eval --orbit`, 8 views at 96×96) against the views of the input scene.
+//! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's views against the same
+//!   views of the input scene: by default its standard orbit views ([`crate::views::orbit_cameras`],
+//!   up −y as `eval --orbit`, 8 views at 96×96); for a scene trained from a dataset, views from its
+//!   training cameras ([`RdViews::cameras`], what the encoder passes).
 //! * `R` = file size in megabits (bits / 10⁶): λ is a [`Lambda`], whose docs hold the unit.
 
 use gscodec_decoder::render::{record, render, replay, Recording};
@@ -24,6 +26,50 @@ use std::time::Instant;
 /// Views and resolution the search renders.
 pub const VIEWS: usize = 8;
 pub const SIZE: u32 = 96;
+
+/// The views `D` is measured on: cameras and the background they are drawn over.
+#[derive(Debug, Clone)]
+pub struct RdViews {
+    cams: Vec<gscodec_decoder::Camera>,
+    background: [f32; 3],
+}
+
+impl RdViews {
+    /// The scene's [`VIEWS`] standard orbit views at [`SIZE`]², over black (a scene without cameras).
+    pub fn orbit(scene: &Splats) -> Self {
+        RdViews { cams: orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector()), background: [0.0; 3] }
+    }
+
+    /// Given cameras over `background`.
+    ///
+    /// # Panics
+    /// If `cams` is empty.
+    pub fn cameras(cams: Vec<gscodec_decoder::Camera>, background: [f32; 3]) -> Self {
+        assert!(!cams.is_empty(), "D needs at least one view");
+        RdViews { cams, background }
+    }
+
+    /// [`VIEWS`] of `dataset`'s training cameras, evenly spread through its training frames
+    /// (never a held-out one), over its background, each at its own size or scaled down to at
+    /// most [`MAX_CAMERA_SIDE`] pixels on its longer side: the views a scene trained from the
+    /// dataset is made to be seen from. `None` when the dataset has no training frames.
+    pub fn of_dataset(dataset: &crate::io::Dataset) -> Option<Self> {
+        let train = dataset.split(crate::io::Split::Train);
+        let n = VIEWS.min(train.len());
+        let cams = (0..n)
+            .map(|i| {
+                let c = &train[(2 * i + 1) * train.len() / (2 * n)].camera;
+                let scale = (MAX_CAMERA_SIDE as f32 / c.width.max(c.height) as f32).min(1.0);
+                let side = |v: u32| ((v as f32 * scale).round() as u32).max(1);
+                c.resized(side(c.width), side(c.height))
+            })
+            .collect::<Vec<_>>();
+        (!cams.is_empty()).then(|| RdViews::cameras(cams, dataset.background))
+    }
+}
+
+/// The longest side of a dataset camera's view in `D` ([`RdViews::of_dataset`]).
+pub const MAX_CAMERA_SIDE: u32 = 256;
 
 /// One trial of the search (a configuration it encoded and measured).
 #[derive(Debug, Clone, Serialize)]
@@ -67,12 +113,20 @@ fn same_geometry(a: &Splats, b: &Splats) -> bool {
 }
 
 impl<'a> Evaluator<'a> {
+    /// `D` on the scene's orbit views ([`RdViews::orbit`]).
     pub fn new(scene: &'a Splats) -> Self {
+        Self::with_views(scene, RdViews::orbit(scene))
+    }
+
+    /// `D` on `views`. The significance (which Gaussians pruning and the importance classes
+    /// take first) is the scene's own ([`super::importance::significance`]) whatever the views,
+    /// so that every encode of the scene prunes the same Gaussians for the same threshold.
+    pub fn with_views(scene: &'a Splats, views: RdViews) -> Self {
         let t = Instant::now();
         let significance = super::importance::significance(scene);
         let sig_s = t.elapsed().as_secs_f64();
-        let cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector());
-        let opts = RenderOptions::default();
+        let RdViews { cams, background } = views;
+        let opts = RenderOptions { background, ..RenderOptions::default() };
         let refs = cams.par_iter().map(|c| render(scene, c, &opts)).collect();
         if timing() {
             eprintln!(
@@ -230,8 +284,16 @@ impl<'a> Trials<'a> {
     /// # Errors
     /// An invalid scene (NaN/Inf, inconsistent arrays).
     pub fn new(scene: &'a Splats) -> Result<Self, SceneError> {
+        Self::with_views(scene, RdViews::orbit(scene))
+    }
+
+    /// [`Trials::new`] with `D` measured on `views`.
+    ///
+    /// # Errors
+    /// An invalid scene (NaN/Inf, inconsistent arrays).
+    pub fn with_views(scene: &'a Splats, views: RdViews) -> Result<Self, SceneError> {
         scene.validate()?;
-        Ok(Trials { ev: Evaluator::new(scene), seen: Vec::new() })
+        Ok(Trials { ev: Evaluator::with_views(scene, views), seen: Vec::new() })
     }
 
     /// The scene the trials code.
@@ -419,15 +481,15 @@ fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: En
 }
 
 /// The importance classes of `config` chosen again for `scene`, as the search's last stage
-/// ([`tail_stage`]) chooses them, from `config` without classes and on `scene`'s own views;
+/// ([`tail_stage`]) chooses them, from `config` without classes, with `D` on `views` of `scene`;
 /// every other choice of `config` stays. For a scene that changed after the search (the
 /// encoder's retraining): which Gaussians matter, and so what coarser steps for the least
 /// significant cost, is no longer what the search measured.
 ///
 /// # Errors
 /// A scene the coder refuses.
-pub fn retune_tail(scene: &Splats, lambda: Lambda, config: EncodeConfig) -> Result<EncodeConfig, SceneError> {
-    let mut trials = Trials::new(scene)?;
+pub fn retune_tail(scene: &Splats, views: RdViews, lambda: Lambda, config: EncodeConfig) -> Result<EncodeConfig, SceneError> {
+    let mut trials = Trials::with_views(scene, views)?;
     let mut on_step = |_: &Trial| {};
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     // As in the search: trial encodes without the learned tables.
@@ -620,6 +682,60 @@ pub fn pruning_opacity(trials: &mut Trials, lambda: Lambda, config: &EncodeConfi
 mod tests {
     use super::*;
 
+    /// A dataset's D views: training cameras only, spread through the training frames, scaled
+    /// down to the size cap with their aspect ratio, over the dataset's background.
+    #[test]
+    fn dataset_views_are_spread_training_cameras_at_most_the_size_cap() {
+        let scene = crate::sample::scene(100, 3);
+        // 24 frames at 600×300; frames 0, 8 and 16 are held out (index % 8).
+        let cams = crate::views::training_cameras(&scene, 8, 600, 300, glam::Vec3::NEG_Y);
+        let mut dataset = crate::train::targets::render_targets(&scene, &cams, [1.0, 0.5, 0.0]);
+        dataset.frames.iter_mut().enumerate().for_each(|(i, f)| f.index = i);
+        let views = RdViews::of_dataset(&dataset).unwrap();
+        assert_eq!((views.cams.len(), views.background), (VIEWS, [1.0, 0.5, 0.0]));
+        let mut picked = Vec::new();
+        for v in &views.cams {
+            assert_eq!((v.width, v.height), (MAX_CAMERA_SIDE, MAX_CAMERA_SIDE / 2));
+            let i = cams.iter().position(|c| c.translation == v.translation && c.rotation == v.rotation).unwrap();
+            assert_ne!(i % 8, 0, "frame {i} is held out");
+            assert_eq!(*v, cams[i].resized(v.width, v.height));
+            picked.push(i);
+        }
+        // Evenly spread: the 21 training frames in 8 buckets, the middle of each (training
+        // frames 1, 3, 6, 9, 11, 14, 17, 19 of 0..21, i.e. these frame indices).
+        assert_eq!(picked, [2, 4, 7, 11, 13, 17, 20, 22]);
+        // A small camera keeps its size; no training frame, no views.
+        let small =
+            crate::train::targets::render_targets(&scene, &cams[1..2].iter().map(|c| c.resized(40, 30)).collect::<Vec<_>>(), [0.0; 3]);
+        let mut small = small;
+        small.frames[0].index = 1;
+        assert_eq!(RdViews::of_dataset(&small).unwrap().cams, vec![cams[1].resized(40, 30)]);
+        small.frames[0].index = 8;
+        assert!(RdViews::of_dataset(&small).is_none());
+    }
+
+    /// D is measured on the views the trials were given, over their background: 255² × the
+    /// mean squared error of the decoded scene's renders against the input's.
+    #[test]
+    fn distortion_is_measured_on_the_given_views() {
+        let scene = crate::sample::scene(300, 4);
+        let cams = crate::views::training_cameras(&scene, 2, 50, 40, glam::Vec3::NEG_Y);
+        let background = [0.2, 0.9, 0.4];
+        let mut trials = Trials::with_views(&scene, RdViews::cameras(cams.clone(), background)).unwrap();
+        let config = EncodeConfig { steps: Steps::default().scaled(4.0), ..EncodeConfig::default() };
+        let (_, d, _) = trials.one(&config).unwrap();
+        let (_, _, q) = super::super::encode(&scene, &config).unwrap();
+        let opts = RenderOptions { background, ..RenderOptions::default() };
+        let decoded = dequantise(&q);
+        let mse: f64 = cams.iter().map(|c| crate::metrics::mse(&render(&scene, c, &opts), &render(&decoded, c, &opts))).sum::<f64>()
+            / cams.len() as f64;
+        assert!(d > 0.0);
+        assert!((d - 255.0 * 255.0 * mse).abs() <= 1e-9 * d, "D {d} against {}", 255.0 * 255.0 * mse);
+        // The orbit views measure something else.
+        let (_, d_orbit, _) = Trials::new(&scene).unwrap().one(&config).unwrap();
+        assert_ne!(d, d_orbit);
+    }
+
     /// λ measured end to end: the search's chosen file shrinks and its distortion grows as λ
     /// grows (replaces a test that only checked the final multiply by λ).
     #[test]
@@ -741,7 +857,7 @@ mod tests {
         };
         for l in [0.0, 50.0, 500.0] {
             let lambda = Lambda::new(l).unwrap();
-            let out = retune_tail(&scene, lambda, given).unwrap();
+            let out = retune_tail(&scene, RdViews::orbit(&scene), lambda, given).unwrap();
             assert_eq!(EncodeConfig { tail: given.tail, ..out }, given, "λ {l}: only the classes change");
             let mut trials = Trials::new(&scene).unwrap();
             let mut j = |c: &EncodeConfig| {
