@@ -267,7 +267,7 @@ impl Encoder {
         let mut trials = rate::rd::Trials::with_views(&trained, views.clone()).map_err(|e| Error::Input(e.to_string()))?;
         let (mut config, _) = rate::rd::search_with(&mut trials, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
             .map_err(|e| Error::Input(e.to_string()))?;
-        drop(trials);
+        drop(trials); // its reference renders and coded groups, before retraining
         stages.rd_search_s = t.elapsed().as_secs_f64();
         let orbit = Orbit::new(&trained);
         // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against

@@ -705,9 +705,8 @@ mod tests {
         // frames 1, 3, 6, 9, 11, 14, 17, 19 of 0..21, i.e. these frame indices).
         assert_eq!(picked, [2, 4, 7, 11, 13, 17, 20, 22]);
         // A small camera keeps its size; no training frame, no views.
-        let small =
+        let mut small =
             crate::train::targets::render_targets(&scene, &cams[1..2].iter().map(|c| c.resized(40, 30)).collect::<Vec<_>>(), [0.0; 3]);
-        let mut small = small;
         small.frames[0].index = 1;
         assert_eq!(RdViews::of_dataset(&small).unwrap().cams, vec![cams[1].resized(40, 30)]);
         small.frames[0].index = 8;
