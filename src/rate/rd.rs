@@ -6,7 +6,7 @@
 //! * `D` = 255² × mean squared error (RGB, all pixels) of the scene's views against the same
 //!   views of the input scene: by default its standard orbit views ([`crate::views::orbit_cameras`],
 //!   up −y as `eval --orbit`, 8 views at 96×96); for a scene trained from a dataset, views from its
-//!   training cameras ([`RdViews::cameras`], what the encoder passes).
+//!   training cameras ([`RdViews::of_dataset`], what the encoder passes).
 //! * `R` = file size in megabits (bits / 10⁶): λ is a [`Lambda`], whose docs hold the unit.
 
 use gscodec_decoder::render::{record, render, replay, Recording};
@@ -509,7 +509,7 @@ pub fn retune_tail(scene: &Splats, views: RdViews, lambda: Lambda, config: Encod
 /// The trials of each stage are independent and run in parallel; the result (and the trial
 /// list) is the same for any number of threads.
 pub fn search(scene: &Splats, lambda: Lambda, on_step: impl FnMut(&Trial)) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
-    search_from(scene, lambda, fine_steps(), on_step)
+    search_with(&mut Trials::new(scene)?, lambda, fine_steps(), on_step)
 }
 
 /// The fine steps [`search`] starts from.
@@ -517,19 +517,10 @@ pub fn fine_steps() -> Steps {
     Steps::default().scaled(0.7)
 }
 
-/// [`search`] with the per-group step multipliers applied to `fine` (e.g. steps learned in
-/// training) instead of the default fine steps; multiplier 1 keeps a step as it is.
-pub fn search_from(
-    scene: &Splats,
-    lambda: Lambda,
-    fine: Steps,
-    on_step: impl FnMut(&Trial),
-) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
-    search_with(&mut Trials::new(scene)?, lambda, fine, on_step)
-}
-
-/// [`search_from`] on `trials`' scene, reusing (and adding to) its evaluated configurations:
-/// the same choice and trial list as a fresh search, with fewer encodes and renders.
+/// [`search`] on `trials`' scene and views, with the per-group step multipliers applied to
+/// `fine` (e.g. steps learned in training) instead of [`fine_steps`] (multiplier 1 keeps a step
+/// as it is), reusing (and adding to) the evaluated configurations of `trials`: the same choice
+/// and trial list as a fresh search, with fewer encodes and renders.
 ///
 /// # Errors
 /// A trial's encode (none for a scene [`Trials::new`] took).
