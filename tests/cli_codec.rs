@@ -296,7 +296,8 @@ fn anchor_profile_encodes_decodes_and_auto_picks_one_of_the_two() {
 /// (that one seed gives one file is `tests/threads.rs`'s business). `--retrain-iters`: the
 /// Gaussians the RD search keeps, trained again on the images, cover for those it pruned: on the
 /// sample the file is smaller and its held-out PSNR higher than without. `--coding-breakdown`:
-/// its last cumulative row is the file itself (bytes and held-out PSNR).
+/// its last cumulative row is the file itself (bytes and held-out PSNR). `--search-distortion`
+/// reaches the report, and its file decodes.
 #[test]
 fn encode_seed_and_retraining_change_the_training() {
     let dir = tempfile::tempdir().unwrap();
@@ -315,6 +316,11 @@ fn encode_seed_and_retraining_change_the_training() {
     assert_eq!(report["retrain_iters"], 0);
     assert!(encode("three.gsc", &["--retrain-iters", "0", "--seed", "3"]).0 != default, "another seed trains another scene");
     assert!(report.get("coding_breakdown").is_none(), "only when asked");
+    assert_eq!(report["search_distortion"], "mse");
+    let (by_loss, _, report) = encode("loss.gsc", &["--retrain-iters", "0", "--search-distortion", "loss"]);
+    assert_eq!(report["search_distortion"], "loss");
+    let decoded = gscodec_decoder::decode(&by_loss).unwrap();
+    assert_eq!(decoded.len(), report["gaussians"].as_u64().unwrap() as usize);
     let (retrained, retrained_psnr, report) = encode("retrained.gsc", &["--retrain-iters", "10", "--coding-breakdown"]);
     assert_eq!((report["retrain_iters"].as_u64(), report["iters"].as_u64()), (Some(10), Some(20)));
     let rows = report["coding_breakdown"].as_array().unwrap();

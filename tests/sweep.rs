@@ -4,6 +4,7 @@
 use std::path::Path;
 use std::process::Command;
 
+use gscodec::encoder::SearchDistortion;
 use gscodec::sweep::results::{read_results, PointResult, TimelinePoint, CSV_HEADER};
 use gscodec::sweep::Point;
 
@@ -23,6 +24,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
         retrain_iters: 0,
         wd_sigma: None,
         wd_warmup: None,
+        search_distortion: SearchDistortion::Mse,
         bytes: (bytes0 * scale).round() as u64,
         gaussians: (bytes0 / 10.0) as u64,
         psnr: Some(20.0 + 3.0 * q),
@@ -280,6 +282,7 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         wd_sigma: None,
         // the share results from before --wd-warmup existed were trained with
         wd_warmup: Some(0.1),
+        search_distortion: SearchDistortion::Mse,
         backend: gscodec::encoder::Backend::Cpu,
         dataset_args: Vec::new(),
     };
@@ -314,4 +317,12 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(w5.is_done(&wdr) && !retrain.is_done(&wdr));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), retrain_iters: 300, ..fake("wdr", 2.0, 1.0) });
     assert!(retrain.is_done(&wdr) && !w5.is_done(&wdr));
+    // the search's distortion: a result from before the option was measured with the MSE
+    let by_loss = Plan { search_distortion: SearchDistortion::Loss, ..retrain.clone() };
+    assert!(!by_loss.is_done(&wdr));
+    let r = PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), retrain_iters: 300, ..fake("wdr", 2.0, 1.0) };
+    write_point(tmp.path(), &PointResult { search_distortion: SearchDistortion::Loss, ..r });
+    assert!(by_loss.is_done(&wdr) && !retrain.is_done(&wdr));
+    assert!(by_loss.point_command(&wdr).join(" ").contains("--search-distortion loss"));
+    assert!(!retrain.point_command(&wdr).join(" ").contains("--search-distortion"));
 }

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::encoder::{Backend, Encoded, Encoder, EncoderConfig, Lambda, LossSpec, Profile, Target};
+use crate::encoder::{Backend, Encoded, Encoder, EncoderConfig, Lambda, LossSpec, Profile, SearchDistortion, Target};
 use crate::loss::LossKind;
 use crate::Error;
 use gscodec_decoder::Splats;
@@ -49,6 +49,13 @@ pub struct Args {
     /// groups training quantises, or only the others, quantised. Seven more encodes.
     #[arg(long)]
     pub coding_breakdown: bool,
+    /// Dataset input: what the RD search measures D with on views from 8 training cameras
+    /// against the trained scene: `mse` (255² × mean squared error) or `loss`, the training
+    /// loss's distortion (l1ssim: 0.8·L1 + 0.2·(1 − SSIM); wd: WD; wdr: WD + β·that; the
+    /// built-in `pyramid` features and --wd-sigma), scaled to the squared error's unit at the
+    /// search's first configuration so that λ means the same (docs/wd.md §15).
+    #[arg(long, value_enum, default_value_t = SearchDistortion::Mse, value_name = "mse|loss")]
+    pub search_distortion: SearchDistortion,
     /// Random seed of training and fine-tuning (initialisation, view order, densification). The
     /// CPU trainer gives the same file for the same seed; other seeds measure training noise.
     #[arg(long, default_value_t = 0)]
@@ -108,6 +115,7 @@ impl Args {
             .with_seed(self.seed)
             .with_retrain_iters(self.retrain_iters)
             .with_coding_breakdown(self.coding_breakdown)
+            .with_search_distortion(self.search_distortion)
             .with_learned_steps(!self.fixed_steps)
             .with_loss(LossSpec::from_args(&self.loss, LossKind::Wdr))
             .with_backend(self.backend)

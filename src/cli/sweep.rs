@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
-use crate::encoder::Backend;
+use crate::encoder::{Backend, SearchDistortion};
 use crate::sweep::results::{bd_report, read_results, write_outputs};
 use crate::sweep::{jobs, run_point, Input, Plan, DEFAULT_LAMBDAS, DEFAULT_LOSSES};
 use crate::{Error, Result};
@@ -45,6 +45,10 @@ pub struct Args {
     /// (0 ≤ F < 1) [default: 0.5].
     #[arg(long = "wd-warmup", value_name = "F")]
     pub wd_warmup: Option<f64>,
+    /// `encode --search-distortion` of every point (dataset input): what the RD search
+    /// measures D with, `mse` or the training `loss`'s distortion.
+    #[arg(long, value_enum, default_value_t = SearchDistortion::Mse, value_name = "mse|loss")]
+    pub search_distortion: SearchDistortion,
     /// Training backend of every encode: cpu, gpu, or auto (a hardware GPU if there is one).
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
@@ -87,6 +91,7 @@ pub fn run(args: Args) -> Result<()> {
         seeds: if args.seeds.is_empty() { vec![0] } else { args.seeds.clone() },
         wd_sigma: args.wd_sigma,
         wd_warmup: args.wd_warmup,
+        search_distortion: args.search_distortion,
         backend: args.backend,
         dataset_args: args.dataset.to_args(),
     };

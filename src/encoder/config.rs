@@ -45,6 +45,34 @@ pub struct EncoderConfig {
     /// search's choices added one at a time and report each file's held-out PSNR
     /// ([`super::CodingStage`]; costs seven more encodes and eight held-out evaluations).
     pub coding_breakdown: bool,
+    /// Dataset input: what the RD search measures `D` with on the training cameras' views.
+    pub search_distortion: SearchDistortion,
+}
+
+/// What the RD search of a scene trained from a dataset measures `D` with, on views from the
+/// training cameras against the trained scene (`rate::rd::RdDistortion`). A `.ply`'s search
+/// measures the squared error on orbit views against the input, the PSNR `--target-psnr`
+/// targets.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SearchDistortion {
+    /// 255² × mean squared error.
+    #[default]
+    Mse,
+    /// The training loss's distortion (`l1ssim`: 0.8·L1 + 0.2·(1 − SSIM); `wd`: d_WD; `wdr`:
+    /// d_WD + β·(that), with `pyramid` features and the loss's σ), in the squared error's unit
+    /// at the search's first configuration.
+    Loss,
+}
+
+impl SearchDistortion {
+    /// Its name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            SearchDistortion::Mse => "mse",
+            SearchDistortion::Loss => "loss",
+        }
+    }
 }
 
 /// How a scene is coded: the explicit profile (per-Gaussian attributes, formats 3.0–6.0, 8.0), the
@@ -86,6 +114,7 @@ impl Default for EncoderConfig {
             anchor_iters: None,
             retrain_iters: None,
             coding_breakdown: false,
+            search_distortion: SearchDistortion::Mse,
         }
     }
 }
@@ -157,6 +186,12 @@ impl EncoderConfig {
     /// (`None`: the default, a tenth of the training iterations).
     pub fn with_retrain_iters(mut self, iters: Option<usize>) -> Self {
         self.retrain_iters = iters;
+        self
+    }
+
+    /// Sets what the RD search of a dataset's trained scene measures `D` with.
+    pub fn with_search_distortion(mut self, d: SearchDistortion) -> Self {
+        self.search_distortion = d;
         self
     }
 

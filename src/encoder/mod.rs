@@ -35,13 +35,14 @@ use gscodec_decoder::{RenderOptions, Splats};
 pub use crate::rate::Lambda;
 pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, TrainJob};
 pub use breakdown::CodingStage;
-pub use config::{EncoderConfig, InvalidConfig, Profile, DEFAULT_DATASET_ITERS, MAX_ITERS};
+pub use config::{EncoderConfig, InvalidConfig, Profile, SearchDistortion, DEFAULT_DATASET_ITERS, MAX_ITERS};
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
 pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 
 use crate::io::{Dataset, Split};
+use crate::loss::LossKind;
 use crate::rate::group::Group;
-use crate::rate::rd::RdViews;
+use crate::rate::rd::{RdDistortion, RdViews};
 use crate::rate::{self, EncodeConfig, Steps};
 use crate::train::{Progress, RunOptions, TrainConfig, TrainReport};
 use crate::views::{orbit_cameras, training_cameras, UpAxis};
@@ -263,7 +264,9 @@ impl Encoder {
         // RD choices on the trained scene, with D on views from the dataset's training cameras
         // (against the trained scene, not the images, so they stay out of the held-out series).
         let t = Instant::now();
-        let views = RdViews::of_dataset(dataset).ok_or_else(|| Error::Input("the dataset has no training views".into()))?;
+        let views = RdViews::of_dataset(dataset)
+            .ok_or_else(|| Error::Input("the dataset has no training views".into()))?
+            .measuring(self.search_distortion());
         let mut trials = rate::rd::Trials::with_views(&trained, views.clone()).map_err(|e| Error::Input(e.to_string()))?;
         let (mut config, _) = rate::rd::search_with(&mut trials, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
             .map_err(|e| Error::Input(e.to_string()))?;
@@ -315,6 +318,18 @@ impl Encoder {
         let config = rate::rd::retune_tail(trained, views, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
         stages.rd_search_s += t.elapsed().as_secs_f64();
         Ok(config)
+    }
+
+    /// What the RD search of a trained dataset scene measures `D` with
+    /// ([`EncoderConfig::search_distortion`]).
+    fn search_distortion(&self) -> RdDistortion {
+        let sigma = Some(self.config.loss.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA));
+        match (self.config.search_distortion, self.config.loss.kind) {
+            (SearchDistortion::Mse, _) => RdDistortion::Mse,
+            (SearchDistortion::Loss, LossKind::L1ssim) => RdDistortion::Loss { wd_sigma: None, l_orig: 1.0 },
+            (SearchDistortion::Loss, LossKind::Wd) => RdDistortion::Loss { wd_sigma: sigma, l_orig: 0.0 },
+            (SearchDistortion::Loss, LossKind::Wdr) => RdDistortion::Loss { wd_sigma: sigma, l_orig: crate::loss::wdr::BETA },
+        }
     }
 
     /// The settings a file is written with: the RD choices `config` and the caller's
@@ -429,6 +444,7 @@ impl Encoder {
             wd_warmup: train.as_ref().and_then(|_| self.config.loss.reported_warmup()),
             iters,
             retrain_iters: 0,
+            search_distortion: heldout.map(|_| self.config.search_distortion.name()),
             backend: train.as_ref().map(|t| t.backend),
             file_bytes: bytes.len(),
             estimated_bytes: r.estimated_bits() / 8.0,

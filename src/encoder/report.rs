@@ -60,6 +60,9 @@ pub struct EncodeReport {
     /// Iterations that retrained what the RD search kept of a trained dataset scene
     /// ([`super::EncoderConfig::retrain_iters`]; 0: none).
     pub retrain_iters: usize,
+    /// What the RD search measured `D` with (`mse`, `loss`: `encode --search-distortion`),
+    /// for a dataset input.
+    pub search_distortion: Option<&'static str>,
     /// The training backend that ran (`cpu`, `gpu`), when the encode trained.
     pub backend: Option<&'static str>,
     /// Size of the file.

@@ -41,6 +41,15 @@ impl Default for L1Ssim {
 }
 
 impl L1Ssim {
+    /// The loss value alone (what [`L1Ssim::eval`] returns with the gradient).
+    pub fn value(&self, rendered: &Image, target: &Image) -> f64 {
+        assert_eq!((rendered.width, rendered.height), (target.width, target.height), "L1 of images of different sizes");
+        let l1 =
+            rendered.data.iter().zip(&target.data).map(|(x, y)| f64::from((x - y).abs())).sum::<f64>() / rendered.data.len().max(1) as f64;
+        let lam = self.ssim_weight;
+        (1.0 - lam) * l1 + lam * (1.0 - ssim::ssim(rendered, target))
+    }
+
     /// The loss value and its gradient w.r.t. `rendered`.
     pub fn eval(&self, rendered: &Image, target: &Image) -> (f64, Vec<f32>) {
         let lam = self.ssim_weight;
@@ -61,5 +70,21 @@ impl ImageLoss for L1Ssim {
 
     fn name(&self) -> &'static str {
         "l1ssim"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn value_is_the_evaluated_loss() {
+        let (w, h) = (23, 17);
+        let img = |k: u32| Image { width: w, height: h, data: (0..3 * w * h).map(|i| ((i * k) % 97) as f32 / 97.0).collect() };
+        let (a, b) = (img(7), img(13));
+        let loss = L1Ssim::default();
+        let (v, e) = (loss.value(&a, &b), loss.eval(&a, &b).0);
+        assert!(v > 0.1 && (v - e).abs() < 1e-12, "{v} against {e}");
+        assert_eq!(loss.value(&a, &a), 0.0);
     }
 }

@@ -19,6 +19,10 @@ use super::group::Group;
 use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
 use super::{encode_cached, pruned, CoarseTail, EncodeConfig};
+use crate::loss::features::{pyramid::Pyramid, FeatureSpace};
+use crate::loss::tensor::Tensor;
+use crate::loss::wd::{self, Reference, Sigma};
+use crate::loss::L1Ssim;
 use crate::views::{orbit_cameras, UpAxis};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
@@ -27,26 +31,53 @@ use std::time::Instant;
 pub const VIEWS: usize = 8;
 pub const SIZE: u32 = 96;
 
-/// The views `D` is measured on: cameras and the background they are drawn over.
+/// The views `D` is measured on: cameras, the background they are drawn over, and what `D`
+/// measures on them ([`RdDistortion`]).
 #[derive(Debug, Clone)]
 pub struct RdViews {
     cams: Vec<gscodec_decoder::Camera>,
     background: [f32; 3],
+    /// Per view, its pixels per pixel of the image it stands for (1, or less for a dataset
+    /// camera scaled down to [`MAX_CAMERA_SIDE`]): WD's pooling scale σ, given in image
+    /// pixels, is scaled by it.
+    pixel_scale: Vec<f64>,
+    distortion: RdDistortion,
+}
+
+/// What `D` measures on the views.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum RdDistortion {
+    /// 255² × mean squared error (RGB, all pixels): the search's default.
+    #[default]
+    Mse,
+    /// A training loss's distortion of the decoded views against the input's, mean over views:
+    /// d_WD in the built-in `pyramid` feature space with pooling scale `wd_sigma` (image pixels;
+    /// no WD term when `None`) plus `l_orig` × (0.8·L1 + 0.2·(1 − SSIM)). So `l1ssim` is
+    /// `{ None, 1 }`, `wd` is `{ Some(σ), 0 }` and `wdr` is `{ Some(σ), β }`, γ left out (a scale).
+    /// It is brought into `D`'s unit (255²·MSE) by one factor per search, fixed on the search's
+    /// first configuration ([`Trials::calibrate`]), so that λ trades the same bits for both.
+    Loss { wd_sigma: Option<f64>, l_orig: f64 },
 }
 
 impl RdViews {
     /// The scene's [`VIEWS`] standard orbit views at [`SIZE`]², over black (a scene without cameras).
     pub fn orbit(scene: &Splats) -> Self {
-        RdViews { cams: orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector()), background: [0.0; 3] }
+        Self::cameras(orbit_cameras(scene, VIEWS, SIZE, SIZE, UpAxis::NegY.vector()), [0.0; 3])
     }
 
-    /// Given cameras over `background`.
+    /// Given cameras over `background`, `D` the squared error ([`RdDistortion::Mse`]).
     ///
     /// # Panics
     /// If `cams` is empty.
     pub fn cameras(cams: Vec<gscodec_decoder::Camera>, background: [f32; 3]) -> Self {
         assert!(!cams.is_empty(), "D needs at least one view");
-        RdViews { cams, background }
+        let pixel_scale = vec![1.0; cams.len()];
+        RdViews { cams, background, pixel_scale, distortion: RdDistortion::Mse }
+    }
+
+    /// The same views with `D` measuring `distortion`.
+    pub fn measuring(self, distortion: RdDistortion) -> Self {
+        RdViews { distortion, ..self }
     }
 
     /// [`VIEWS`] of `dataset`'s training cameras, evenly spread through its training frames
@@ -56,15 +87,17 @@ impl RdViews {
     pub fn of_dataset(dataset: &crate::io::Dataset) -> Option<Self> {
         let train = dataset.split(crate::io::Split::Train);
         let n = VIEWS.min(train.len());
-        let cams = (0..n)
+        let (cams, pixel_scale): (Vec<_>, Vec<_>) = (0..n)
             .map(|i| {
                 let c = &train[(2 * i + 1) * train.len() / (2 * n)].camera;
                 let scale = (MAX_CAMERA_SIDE as f32 / c.width.max(c.height) as f32).min(1.0);
                 let side = |v: u32| ((v as f32 * scale).round() as u32).max(1);
-                c.resized(side(c.width), side(c.height))
+                let view = c.resized(side(c.width), side(c.height));
+                let pixels = f64::from(view.width) / f64::from(c.width);
+                (view, pixels)
             })
-            .collect::<Vec<_>>();
-        (!cams.is_empty()).then(|| RdViews::cameras(cams, dataset.background))
+            .unzip();
+        (!cams.is_empty()).then(|| RdViews { pixel_scale, ..RdViews::cameras(cams, dataset.background) })
     }
 }
 
@@ -88,6 +121,8 @@ pub struct Evaluator<'a> {
     cams: Vec<gscodec_decoder::Camera>,
     refs: Vec<Image>,
     opts: RenderOptions,
+    /// `D` as a loss measures it ([`RdDistortion::Loss`]); `None` for the squared error.
+    loss: Option<LossD>,
     /// The scene's significance ([`super::importance::significance`]), computed once.
     significance: Vec<f32>,
     /// CPU time spent encoding and rendering trials (nanoseconds, summed over threads), for
@@ -101,6 +136,24 @@ pub struct Evaluator<'a> {
     /// The groups the trials have coded ([`GroupCache`]): a trial changing one group's step
     /// codes only that group.
     cache: GroupCache,
+}
+
+/// [`RdDistortion::Loss`] on the evaluator's views.
+struct LossD {
+    /// Per view, the WD statistics of its reference render (empty without a WD term).
+    wd: Vec<Reference<f32>>,
+    l_orig: f64,
+    /// `D` units (255²·MSE) per unit of the loss, fixed by [`Trials::calibrate`].
+    scale: Option<f64>,
+}
+
+/// The measures of one configuration's decoded views, means over the views: 255²·MSE and the
+/// loss's distortion (0 for [`RdDistortion::Mse`]). (Per view, [`Evaluator::view_measure`]
+/// gives the plain MSE, and [`Evaluator::mean`] scales the mean.)
+#[derive(Debug, Clone, Copy)]
+struct Measured {
+    mse: f64,
+    loss: f64,
 }
 
 /// Whether `a` and `b` have the same geometry (positions, scales, rotations, opacities), bit for bit.
@@ -125,9 +178,24 @@ impl<'a> Evaluator<'a> {
         let t = Instant::now();
         let significance = super::importance::significance(scene);
         let sig_s = t.elapsed().as_secs_f64();
-        let RdViews { cams, background } = views;
+        let RdViews { cams, background, pixel_scale, distortion } = views;
         let opts = RenderOptions { background, ..RenderOptions::default() };
-        let refs = cams.par_iter().map(|c| render(scene, c, &opts)).collect();
+        let refs: Vec<Image> = cams.par_iter().map(|c| render(scene, c, &opts)).collect();
+        let loss = match distortion {
+            RdDistortion::Mse => None,
+            RdDistortion::Loss { wd_sigma, l_orig } => {
+                let wd = wd_sigma.map_or_else(Vec::new, |sigma| {
+                    refs.par_iter()
+                        .zip(&pixel_scale)
+                        .map(|(r, s)| {
+                            let feats = Pyramid.features(&Tensor::from_image(r));
+                            Reference::new(&feats, &Sigma::Constant(sigma * s), r.height as usize, r.width as usize)
+                        })
+                        .collect()
+                });
+                Some(LossD { wd, l_orig, scale: None })
+            }
+        };
         if timing() {
             eprintln!(
                 "timing: significance ({} views) {sig_s:.3} s wall; reference renders {:.3} s wall",
@@ -140,6 +208,7 @@ impl<'a> Evaluator<'a> {
             cams,
             refs,
             opts,
+            loss,
             significance,
             encode_ns: AtomicU64::new(0),
             render_ns: AtomicU64::new(0),
@@ -155,11 +224,15 @@ impl<'a> Evaluator<'a> {
 
     /// (bytes, D, encoder report) of `config`.
     pub fn eval_report(&self, config: &EncodeConfig) -> Result<(usize, f64, super::EncodeReport), SceneError> {
+        self.outcome(config).map(|o| (o.bytes, o.d, o.report))
+    }
+
+    fn outcome(&self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
         let (bytes, report, dec) = self.code(config)?;
         let t = Instant::now();
-        let d = self.distortion(&dec);
+        let m = self.measure(&dec);
         self.render_ns.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
-        Ok((bytes, d, report))
+        Ok(self.outcome_of(bytes, m, report))
     }
 
     /// (bytes, encoder report, decoded scene) of `config`, its encode time counted for [`Clock`].
@@ -171,29 +244,73 @@ impl<'a> Evaluator<'a> {
         Ok((bytes.len(), report, dec))
     }
 
-    /// `D` of a decoded scene: 255² × the mean squared error of its views against the input's.
-    /// A scene with the base's geometry is drawn by replaying the base's frames.
+    /// `D` of a decoded scene on these views (see [`RdDistortion`]). A scene with the base's
+    /// geometry is drawn by replaying the base's frames.
+    ///
+    /// # Panics
+    /// For [`RdDistortion::Loss`] before [`Trials::calibrate`] has fixed its scale.
     pub fn distortion(&self, dec: &Splats) -> f64 {
-        let base = self.base.as_ref().filter(|(b, _)| same_geometry(b, dec));
-        let frame = |v: usize| match base {
-            Some((_, recordings)) => replay(&recordings[v], dec, &self.cams[v], &self.opts),
-            None => render(dec, &self.cams[v], &self.opts),
-        };
-        // Views in parallel (a frame at 96² has only 6 rows of tiles to share out), summed in order.
-        let per_view: Vec<f64> = self.refs.par_iter().enumerate().map(|(v, r)| crate::metrics::mse(r, &frame(v))).collect();
-        per_view.iter().sum::<f64>() / self.cams.len() as f64 * 255.0 * 255.0
+        self.d(self.measure(dec))
     }
 
-    /// [`Evaluator::eval_report`] of `config`, recording its frames as the base that later trials
+    fn measure(&self, dec: &Splats) -> Measured {
+        let base = self.base.as_ref().filter(|(b, _)| same_geometry(b, dec));
+        // Views in parallel (a frame at 96² has only 6 rows of tiles to share out), summed in order.
+        let per_view: Vec<Measured> = (0..self.cams.len())
+            .into_par_iter()
+            .map(|v| {
+                let frame = match base {
+                    Some((_, recordings)) => replay(&recordings[v], dec, &self.cams[v], &self.opts),
+                    None => render(dec, &self.cams[v], &self.opts),
+                };
+                self.view_measure(v, &frame)
+            })
+            .collect();
+        self.mean(&per_view)
+    }
+
+    /// The measures of view `v`'s `frame`.
+    fn view_measure(&self, v: usize, frame: &Image) -> Measured {
+        let r = &self.refs[v];
+        let mse = crate::metrics::mse(r, frame);
+        let loss = self.loss.as_ref().map_or(0.0, |l| {
+            let wd = l.wd.get(v).map_or(0.0, |reference| wd::distortion(reference, &Pyramid.features(&Tensor::from_image(frame))));
+            wd + if l.l_orig > 0.0 { l.l_orig * L1Ssim::default().value(frame, r) } else { 0.0 }
+        });
+        Measured { mse, loss }
+    }
+
+    fn mean(&self, per_view: &[Measured]) -> Measured {
+        let n = per_view.len() as f64;
+        Measured {
+            mse: per_view.iter().map(|m| m.mse).sum::<f64>() / n * 255.0 * 255.0,
+            loss: per_view.iter().map(|m| m.loss).sum::<f64>() / n,
+        }
+    }
+
+    /// `D` of measures: the squared error, or the loss in `D`'s unit.
+    fn d(&self, m: Measured) -> f64 {
+        match &self.loss {
+            None => m.mse,
+            Some(l) => m.loss * l.scale.expect("the loss's scale is fixed (Trials::calibrate) before D is measured"),
+        }
+    }
+
+    fn outcome_of(&self, bytes: usize, m: Measured, report: super::EncodeReport) -> Outcome {
+        Outcome { bytes, d: self.d(m), mse: m.mse, report }
+    }
+
+    /// [`Evaluator::outcome`] of `config`, recording its frames as the base that later trials
     /// changing only colours replay (the same outcome: [`record`] draws what [`render`] draws).
     fn eval_as_base(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
         let (bytes, report, dec) = self.code(config)?;
         let t = Instant::now();
         let (frames, recordings): (Vec<Image>, Vec<Recording>) = self.cams.par_iter().map(|c| record(&dec, c, &self.opts)).unzip();
-        let mse = self.refs.iter().zip(&frames).map(|(r, f)| crate::metrics::mse(r, f)).sum::<f64>() / self.cams.len() as f64;
+        let per_view: Vec<Measured> = frames.par_iter().enumerate().map(|(v, f)| self.view_measure(v, f)).collect();
+        let m = self.mean(&per_view);
         self.base = Some((dec, recordings));
         self.render_ns.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
-        Ok((bytes, mse * 255.0 * 255.0, report))
+        Ok(self.outcome_of(bytes, m, report))
     }
 }
 
@@ -275,8 +392,15 @@ pub struct Trials<'a> {
     seen: Vec<(EncodeConfig, Outcome)>,
 }
 
-/// (bytes, D, encoder report) of one configuration.
-type Outcome = (usize, f64, super::EncodeReport);
+/// What a configuration gives: its bytes, `D`, 255²·MSE (= `D` for [`RdDistortion::Mse`]) and
+/// encoder report.
+#[derive(Debug, Clone)]
+struct Outcome {
+    bytes: usize,
+    d: f64,
+    mse: f64,
+    report: super::EncodeReport,
+}
 
 impl<'a> Trials<'a> {
     /// No trials yet for `scene` (renders its reference views and computes its significance).
@@ -314,6 +438,28 @@ impl<'a> Trials<'a> {
     pub fn is_empty(&self) -> bool {
         self.seen.is_empty()
     }
+
+    /// Fixes the factor that brings [`RdDistortion::Loss`] into `D`'s unit: 255²·MSE over the
+    /// loss's distortion of `config`, so that `config`'s `D` is its squared error and λ trades
+    /// the same bits there whichever `D` is measured. The first call fixes it (the searches
+    /// sharing these trials compare outcomes in one unit); where `config` is lossless (no error
+    /// to compare), `D` stays the squared error. Nothing for [`RdDistortion::Mse`].
+    ///
+    /// # Errors
+    /// `config`'s encode.
+    pub fn calibrate(&mut self, config: &EncodeConfig) -> Result<(), SceneError> {
+        if self.ev.loss.as_ref().is_none_or(|l| l.scale.is_some()) {
+            return Ok(());
+        }
+        let (_, _, dec) = self.ev.code(config)?;
+        let m = self.ev.measure(&dec);
+        let scale = m.mse / m.loss;
+        match (m.mse > 0.0 && scale.is_finite() && scale > 0.0, self.ev.loss.as_mut()) {
+            (true, Some(l)) => l.scale = Some(scale),
+            _ => self.ev.loss = None,
+        }
+        Ok(())
+    }
 }
 
 impl Trials<'_> {
@@ -325,7 +471,7 @@ impl Trials<'_> {
                 todo.push(*c);
             }
         }
-        let done: Vec<Result<Outcome, SceneError>> = todo.par_iter().map(|c| self.ev.eval_report(c)).collect();
+        let done: Vec<Result<Outcome, SceneError>> = todo.par_iter().map(|c| self.ev.outcome(c)).collect();
         for (c, r) in todo.into_iter().zip(done) {
             self.seen.push((c, r?));
         }
@@ -359,9 +505,9 @@ impl<F: FnMut(&Trial)> Log<'_, F> {
         d + self.lambda.rate_cost(bytes)
     }
 
-    fn record(&mut self, change: String, bytes: usize, d: f64) {
-        let psnr = gscodec_decoder::render::psnr_of_mse(d / (255.0 * 255.0));
-        let p = Trial { step: self.path.len(), change, bytes, d, psnr, j: self.j(bytes, d) };
+    fn record(&mut self, change: String, o: &Outcome) {
+        let psnr = gscodec_decoder::render::psnr_of_mse(o.mse / (255.0 * 255.0));
+        let p = Trial { step: self.path.len(), change, bytes: o.bytes, d: o.d, psnr, j: self.j(o.bytes, o.d) };
         (self.on_step)(&p);
         self.path.push(p);
     }
@@ -377,10 +523,10 @@ impl<F: FnMut(&Trial)> Log<'_, F> {
     ) -> Result<(f64, EncodeConfig), SceneError> {
         let configs: Vec<EncodeConfig> = cands.iter().map(|c| c.1).collect();
         let mut best = keep;
-        for ((name, c), (b, d, _)) in cands.into_iter().zip(trials.run(&configs)?) {
-            self.record(name, b, d);
-            if self.j(b, d) < best.0 {
-                best = (self.j(b, d), c);
+        for ((name, c), o) in cands.into_iter().zip(trials.run(&configs)?) {
+            self.record(name, &o);
+            if self.j(o.bytes, o.d) < best.0 {
+                best = (self.j(o.bytes, o.d), c);
             }
         }
         Ok(best)
@@ -417,15 +563,15 @@ fn step_pass<F: FnMut(&Trial)>(
 ) -> Result<EncodeConfig, SceneError> {
     let group_bytes =
         |r: &super::EncodeReport, k: Group| r.groups.iter().find(|g| g.group == k.name()).map_or(0, |g| g.stream_bytes + g.table_bytes);
-    let (_, d0, r0) = trials.base(start)?;
+    let Outcome { d: d0, report: r0, .. } = trials.base(start)?;
     let knobs: Vec<(Group, f32)> =
         Group::ALL.into_iter().filter(|&k| group_bytes(&r0, k) > 0).flat_map(|k| mults.iter().map(move |&m| (k, m))).collect();
     let configs: Vec<EncodeConfig> = knobs.iter().map(|&(k, m)| with_knob(start, k, m)).collect();
     let outcomes = trials.run(&configs)?;
     let mut best: Vec<(Group, f64, f32)> = Vec::new();
-    for (&(k, m), (b, d, r)) in knobs.iter().zip(&outcomes) {
-        log.record(format!("pass{pass} {}x{m}", k.name()), *b, *d);
-        let cost = (d - d0) + log.lambda.rate_cost(group_bytes(r, k));
+    for (&(k, m), o) in knobs.iter().zip(&outcomes) {
+        log.record(format!("pass{pass} {}x{m}", k.name()), o);
+        let cost = (o.d - d0) + log.lambda.rate_cost(group_bytes(&o.report, k));
         match best.last_mut() {
             Some(x) if x.0 == k => {
                 if cost < x.1 {
@@ -445,7 +591,7 @@ fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: Enco
     let mut chosen = start;
     for b in 1..=chosen.max_sh_degree.min(degree).min(3) {
         let bi = usize::from(b) - 1;
-        let (bytes, d, _) = trials.one(&chosen)?;
+        let Outcome { bytes, d, .. } = trials.one(&chosen)?;
         let cands = VQ_ROWS
             .iter()
             .flat_map(|&k| VQ_STEPS.iter().map(move |&m| (k, m)))
@@ -476,7 +622,7 @@ pub fn tail_variants(from: &EncodeConfig) -> Vec<(String, EncodeConfig)> {
 /// Importance classes ([`CoarseTail`]): each of [`tail_variants`], or none as in `start`
 /// (whole-file J; the start stays a candidate, so the result's J is never above it).
 fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: EncodeConfig) -> Result<EncodeConfig, SceneError> {
-    let (b, d, _) = trials.one(&start)?;
+    let Outcome { bytes: b, d, .. } = trials.one(&start)?;
     Ok(log.stage(trials, (log.j(b, d), start), tail_variants(&start))?.1)
 }
 
@@ -494,6 +640,7 @@ pub fn retune_tail(scene: &Splats, views: RdViews, lambda: Lambda, config: Encod
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     // As in the search: trial encodes without the learned tables.
     let start = EncodeConfig { tail: CoarseTail::OFF, learned_tables: false, ..config };
+    trials.calibrate(&start)?;
     let chosen = tail_stage(&mut trials, &mut log, start)?;
     Ok(EncodeConfig { tail: chosen.tail, ..config })
 }
@@ -537,6 +684,7 @@ pub fn search_with(
     let mut clock = Clock::new(trials);
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
+    trials.calibrate(&fine)?;
     // 1. Pruning by significance (at fine steps): what the views see of a Gaussian after
     //    occlusion. It subsumes opacity and footprint thresholds, which it beat on every scene
     //    measured (docs/codec.md). Candidates: none, those no view sees, quantiles of the rest,
@@ -544,7 +692,7 @@ pub fn search_with(
     let sig = sorted(pruned(scene, &fine, Some(&trials.ev.significance)).1.expect("given"));
     let cands = prune_candidates(&sig, &fine);
     let base = log.stage(trials, (f64::INFINITY, fine), cands)?.1;
-    let (b0, _, _) = trials.base(&base)?;
+    let b0 = trials.base(&base)?.bytes;
     clock.lap(trials, "pruning");
     if b0 < 200 {
         return Ok((EncodeConfig { learned_tables: true, ..base }, log.path)); // nothing (or almost nothing) left to allocate
@@ -571,7 +719,7 @@ pub fn search_with(
                     (t > 0.0).then(|| (format!("sh_drop band{b}<q{f}"), cfg))
                 })
                 .collect();
-            let (bytes, d, _) = trials.base(&base)?;
+            let Outcome { bytes, d, .. } = trials.base(&base)?;
             let keep = (log.j(bytes, d), base);
             base = log.stage(trials, keep, cands)?.1;
             clock.lap(trials, &format!("SH band {b} dropping"));
@@ -586,7 +734,7 @@ pub fn search_with(
     }
     // 5. SH rest dead zone (whole-file J: it changes only the SH band groups).
     if chosen.max_sh_degree > 0 && scene.sh_degree > 0 {
-        let (b, d, _) = trials.base(&chosen)?;
+        let Outcome { bytes: b, d, .. } = trials.base(&chosen)?;
         let cands = DEADZONES
             .iter()
             .map(|&dz| {
@@ -663,7 +811,7 @@ const PRUNE_OPACITIES: [f32; 11] = [2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 3
 pub fn pruning_opacity(trials: &mut Trials, lambda: Lambda, config: &EncodeConfig) -> Result<f32, SceneError> {
     let mut log = Log { path: Vec::new(), on_step: &mut |_: &Trial| {}, lambda };
     let base = EncodeConfig { min_significance: 0.0, min_opacity: 1.0 / 255.0, learned_tables: false, ..*config };
-    let (b, d, _) = trials.one(&base)?;
+    let Outcome { bytes: b, d, .. } = trials.one(&base)?;
     let cands =
         PRUNE_OPACITIES.iter().map(|&m| (format!("prune opacity<{m}/255"), EncodeConfig { min_opacity: m / 255.0, ..base })).collect();
     Ok(log.stage(trials, (log.j(b, d), base), cands)?.1.min_opacity)
@@ -685,6 +833,7 @@ mod tests {
         let views = RdViews::of_dataset(&dataset).unwrap();
         assert_eq!((views.cams.len(), views.background), (VIEWS, [1.0, 0.5, 0.0]));
         let mut picked = Vec::new();
+        assert_eq!(views.pixel_scale, vec![f64::from(MAX_CAMERA_SIDE) / 600.0; VIEWS], "WD's σ follows the scaling");
         for v in &views.cams {
             assert_eq!((v.width, v.height), (MAX_CAMERA_SIDE, MAX_CAMERA_SIDE / 2));
             let i = cams.iter().position(|c| c.translation == v.translation && c.rotation == v.rotation).unwrap();
@@ -713,7 +862,7 @@ mod tests {
         let background = [0.2, 0.9, 0.4];
         let mut trials = Trials::with_views(&scene, RdViews::cameras(cams.clone(), background)).unwrap();
         let config = EncodeConfig { steps: Steps::default().scaled(4.0), ..EncodeConfig::default() };
-        let (_, d, _) = trials.one(&config).unwrap();
+        let d = trials.one(&config).unwrap().d;
         let (_, _, q) = super::super::encode(&scene, &config).unwrap();
         let opts = RenderOptions { background, ..RenderOptions::default() };
         let decoded = dequantise(&q);
@@ -722,8 +871,56 @@ mod tests {
         assert!(d > 0.0);
         assert!((d - 255.0 * 255.0 * mse).abs() <= 1e-9 * d, "D {d} against {}", 255.0 * 255.0 * mse);
         // The orbit views measure something else.
-        let (_, d_orbit, _) = Trials::new(&scene).unwrap().one(&config).unwrap();
+        let d_orbit = Trials::new(&scene).unwrap().one(&config).unwrap().d;
         assert_ne!(d, d_orbit);
+    }
+
+    /// A loss's `D` is the loss (WD in the `pyramid` space at σ × the views' pixel scale, plus
+    /// the weighted L1-SSIM) of the decoded views against the input's, mean over views, times
+    /// one factor: the calibrating configuration's squared error over its loss, so that there
+    /// it equals the squared error.
+    #[test]
+    fn a_losss_distortion_is_the_loss_in_the_squared_errors_unit() {
+        use crate::loss::wdr::{l_orig, WdDistortion, BETA};
+        let scene = crate::sample::scene(300, 4);
+        let cams = crate::views::training_cameras(&scene, 2, 64, 48, glam::Vec3::NEG_Y);
+        let background = [0.2, 0.9, 0.4];
+        let opts = RenderOptions { background, ..RenderOptions::default() };
+        let coarse = |m: f32| EncodeConfig { steps: Steps::default().scaled(m), learned_tables: false, ..EncodeConfig::default() };
+        let frames = |c: &EncodeConfig| {
+            let decoded = dequantise(&super::super::encode(&scene, c).unwrap().2);
+            cams.iter().map(|cam| (render(&scene, cam, &opts), render(&decoded, cam, &opts))).collect::<Vec<_>>()
+        };
+        for (loss, sigma, weight) in [("wdr", Some(2.0), BETA), ("wd", Some(2.0), 0.0), ("l1ssim", None, 1.0)] {
+            let mut views = RdViews::cameras(cams.clone(), background).measuring(RdDistortion::Loss { wd_sigma: sigma, l_orig: weight });
+            views.pixel_scale = vec![0.5; cams.len()];
+            let mut trials = Trials::with_views(&scene, views).unwrap();
+            let by_hand = |c: &EncodeConfig| {
+                let f = frames(c);
+                let mse = f.iter().map(|(r, d)| crate::metrics::mse(r, d)).sum::<f64>() / f.len() as f64 * 255.0 * 255.0;
+                let l = f
+                    .iter()
+                    .map(|(r, d)| {
+                        let wd = sigma
+                            .map_or(0.0, |s| WdDistortion::new(Box::new(Pyramid)).with_sigma(Sigma::Constant(s * 0.5)).value(d, r, None));
+                        wd + weight * l_orig(d, r).0
+                    })
+                    .sum::<f64>()
+                    / f.len() as f64;
+                (mse, l)
+            };
+            let (first, second) = (coarse(2.0), coarse(8.0));
+            trials.calibrate(&first).unwrap();
+            let ((mse1, l1), (mse2, l2)) = (by_hand(&first), by_hand(&second));
+            let (o1, o2) = (trials.one(&first).unwrap(), trials.one(&second).unwrap());
+            assert!((o1.d - mse1).abs() <= 1e-6 * mse1, "{loss}: D {} against its squared error {mse1}", o1.d);
+            let d2 = l2 * mse1 / l1;
+            assert!((o2.d - d2).abs() <= 1e-6 * d2, "{loss}: D {} against {d2}", o2.d);
+            assert!((o2.mse - mse2).abs() <= 1e-9 * mse2 && (l2 / l1 - mse2 / mse1).abs() > 1e-3, "{loss}: the loss is not the MSE");
+            // A second calibration changes nothing: outcomes stay in one unit.
+            trials.calibrate(&second).unwrap();
+            assert_eq!(trials.ev.distortion(&dequantise(&super::super::encode(&scene, &second).unwrap().2)).to_bits(), o2.d.to_bits());
+        }
     }
 
     /// λ measured end to end: the search's chosen file shrinks and its distortion grows as λ
@@ -800,9 +997,9 @@ mod tests {
             let mut on_step: fn(&Trial) = |_| {};
             let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
             let start = EncodeConfig { learned_tables: false, ..EncodeConfig::default() };
-            let (b0, d0, _) = trials.one(&start).unwrap();
+            let Outcome { bytes: b0, d: d0, .. } = trials.one(&start).unwrap();
             let out = stage(&mut trials, &mut log, start).unwrap();
-            let (b, d, _) = trials.one(&out).unwrap();
+            let Outcome { bytes: b, d, .. } = trials.one(&out).unwrap();
             let j = log.j(b, d);
             assert!(j <= log.j(b0, d0));
             assert!(log.path.iter().all(|t| t.j >= j - 1e-9), "λ {l}: a candidate had a lower J than the choice");
@@ -851,7 +1048,7 @@ mod tests {
             assert_eq!(EncodeConfig { tail: given.tail, ..out }, given, "λ {l}: only the classes change");
             let mut trials = Trials::new(&scene).unwrap();
             let mut j = |c: &EncodeConfig| {
-                let (b, d, _) = trials.one(&EncodeConfig { learned_tables: false, ..*c }).unwrap();
+                let Outcome { bytes: b, d, .. } = trials.one(&EncodeConfig { learned_tables: false, ..*c }).unwrap();
                 d + lambda.rate_cost(b)
             };
             let j_out = j(&out);

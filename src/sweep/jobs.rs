@@ -84,6 +84,7 @@ mod tests {
             coding_breakdown: false,
             wd_sigma: None,
             wd_warmup: None,
+            search_distortion: crate::encoder::SearchDistortion::Mse,
             backend: crate::encoder::Backend::Auto,
             dataset_args: Vec::new(),
         };

@@ -22,7 +22,7 @@ use gscodec_decoder::Splats;
 use serde_json::Value;
 
 use crate::cli::render::View;
-use crate::encoder::{Backend, EncodeReport, Encoder, EncoderConfig, Lambda, LossSpec};
+use crate::encoder::{Backend, EncodeReport, Encoder, EncoderConfig, Lambda, LossSpec, SearchDistortion};
 use crate::io::atomic::write_bytes_atomic;
 use crate::io::{Dataset, Split};
 use crate::loss::LossKind;
@@ -91,6 +91,8 @@ pub struct Plan {
     pub wd_sigma: Option<f64>,
     /// `encode --wd-warmup` (None: the default share).
     pub wd_warmup: Option<f64>,
+    /// `encode --search-distortion` (dataset input).
+    pub search_distortion: SearchDistortion,
     /// Training backend of every encode.
     pub backend: Backend,
     /// Dataset options (`--downscale N`, …) as command-line words, passed on to emitted jobs;
@@ -115,7 +117,8 @@ impl Plan {
         self.out.join("points").join(p.dir_name())
     }
 
-    /// Whether a point has a result file from the same settings (`--iters`, `--seed`, and `--wd-sigma` and
+    /// Whether a point has a result file from the same settings (`--iters`, `--seed`,
+    /// `--retrain-iters`, `--search-distortion`, and `--wd-sigma` and
     /// `--wd-warmup` for `wd` / `wdr`); a result from other settings, or an unreadable one, is
     /// redone.
     pub fn is_done(&self, p: &Point) -> bool {
@@ -128,6 +131,7 @@ impl Plan {
         r.iters == self.iters
             && r.seed == p.seed
             && r.retrain_iters == self.retrain_iters_applied()
+            && r.search_distortion == self.search_distortion
             && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
     }
 
@@ -176,6 +180,7 @@ impl Plan {
             "retrain_iters": self.retrain_iters_applied(),
             "wd_sigma": self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA),
             "wd_warmup": self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION),
+            "search_distortion": self.search_distortion,
         })
     }
 
@@ -200,6 +205,9 @@ impl Plan {
         }
         if self.coding_breakdown {
             c.push("--coding-breakdown".into());
+        }
+        if self.search_distortion != SearchDistortion::default() {
+            c.extend(["--search-distortion".into(), self.search_distortion.name().into()]);
         }
         if p.seed != 0 {
             c.extend(["--seeds".into(), p.seed.to_string()]);
@@ -232,6 +240,7 @@ impl Plan {
             .with_seed(p.seed)
             .with_retrain_iters(self.retrain_iters)
             .with_coding_breakdown(self.coding_breakdown)
+            .with_search_distortion(self.search_distortion)
             .with_loss(loss)
             .with_backend(self.backend))
     }
@@ -329,6 +338,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
         retrain_iters: plan.retrain_iters_applied(),
         wd_sigma: spec.reported_sigma(),
         wd_warmup: spec.reported_warmup(),
+        search_distortion: plan.search_distortion,
         bytes: out.bytes.len() as u64,
         gaussians: decoded.len() as u64,
         psnr: Some(m.psnr),
@@ -371,6 +381,7 @@ mod tests {
             coding_breakdown: false,
             wd_sigma: None,
             wd_warmup: None,
+            search_distortion: SearchDistortion::Mse,
             backend: Backend::Auto,
             dataset_args: Vec::new(),
         };

@@ -55,6 +55,10 @@ pub struct PointResult {
     /// results written before it was an option (0.1 then).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wd_warmup: Option<f64>,
+    /// What the RD search measured `D` with (`encode --search-distortion`; `mse` in results
+    /// written before it was an option).
+    #[serde(default)]
+    pub search_distortion: crate::encoder::SearchDistortion,
     /// Size of the `.gsc` bitstream.
     pub bytes: u64,
     /// Gaussians in the decoded scene.
