@@ -118,20 +118,29 @@ impl Encoder {
         let explicit_iters = if self.config.profile == Profile::Anchor { Some(0) } else { self.config.iters };
         let explicit = Encoder { config: self.config.clone().with_iters(explicit_iters) };
         let e = explicit.encode_explicit(trials, orbit, progress)?;
-        self.with_anchors(e, trials.scene(), orbit, None)
+        self.with_anchors(e, trials.scene(), orbit, None, None)
     }
 
     /// The explicit result `e` of `scene` replaced by the anchor profile's file where the profile
     /// asks for it: always for [`Profile::Anchor`], when its `J` is lower for [`Profile::Auto`].
     /// The anchors are fine-tuned to `views` (a dataset's training images), else to renders of
-    /// `scene`.
-    fn with_anchors(&self, e: Encoded, scene: &Splats, orbit: &Orbit, views: Option<&crate::anchor::FitViews>) -> Result<Encoded> {
+    /// `scene`. `rd_views` are the RD search's for a dataset, whose significance prunes
+    /// ([`RdViews::significance`]); else the scene's own.
+    fn with_anchors(
+        &self,
+        e: Encoded,
+        scene: &Splats,
+        orbit: &Orbit,
+        views: Option<&crate::anchor::FitViews>,
+        rd_views: Option<&RdViews>,
+    ) -> Result<Encoded> {
         let start = Instant::now();
-        let prepared = rate::prepared(scene, &e.config, None);
+        let significance = |s: &Splats| rd_views.map_or_else(|| rate::importance::significance(s), |v| v.significance(s));
+        let prepared = rate::prepared(scene, &e.config, Some(&significance(scene)));
         if prepared.is_empty() {
             return Ok(e);
         }
-        let sig = rate::importance::significance(&prepared);
+        let sig = significance(&prepared);
         let d = crate::anchor::AnchorConfig::default();
         let cfg = crate::anchor::AnchorConfig {
             position_bits: Some(e.report.position_bits),
@@ -270,13 +279,16 @@ impl Encoder {
         let mut trials = rate::rd::Trials::with_views(&trained, views.clone()).map_err(|e| Error::Input(e.to_string()))?;
         let (mut config, _) = rate::rd::search_with(&mut trials, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
             .map_err(|e| Error::Input(e.to_string()))?;
+        // Pruning and the importance classes take the Gaussians in the order of their
+        // significance from the dataset's training cameras, in the search and in the file.
+        let significance = trials.significance().to_vec();
         drop(trials); // its reference renders and coded groups, before retraining
         stages.rd_search_s = t.elapsed().as_secs_f64();
         let orbit = Orbit::new(&trained);
         // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against
         // the images (the .ply path's fine-tuning, with the images as targets).
         let retrain = self.config.retrain_iters_for(true);
-        let init = (retrain > 0).then(|| rate::prepared(&trained, &config, None)).filter(|s| !s.is_empty());
+        let init = (retrain > 0).then(|| rate::prepared(&trained, &config, Some(&significance))).filter(|s| !s.is_empty());
         let retrained = if let Some(init) = init {
             let cfg = self.fine_tune_config(retrain, &init);
             // The loss of the main run, with WD / WD-R from the first iteration.
@@ -289,23 +301,25 @@ impl Encoder {
             series[first..].iter_mut().for_each(|p| p.iteration += iters);
             config.steps = learned_steps(config.steps, &r2);
             stages.train_s += r2.train_seconds;
-            config = self.retune_tail(&s, views, config, &mut stages)?;
+            config = self.retune_tail(&s, views.clone(), config, &mut stages)?;
             Some(s)
         } else {
             None
         };
         let coded = retrained.as_ref().unwrap_or(&trained);
-        let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, Some(r), Some(dataset))?;
+        let significance = if retrained.is_some() { views.significance(coded) } else { significance };
+        let heldout = Some((dataset, &significance[..]));
+        let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, Some(r), heldout)?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
         if self.config.coding_breakdown {
-            e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, &self.file_config(&config), dataset)?);
+            e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, &significance, &self.file_config(&config), dataset)?);
         }
         match self.config.profile {
             Profile::Explicit => Ok(e),
             // The anchors are distilled from the trained scene, then fine-tuned to the images.
             _ => {
-                let views = crate::anchor::FitViews::training_views(dataset)?;
-                Encoder { config: self.config.clone().with_iters(None) }.with_anchors(e, &trained, &orbit, Some(&views))
+                let fit = crate::anchor::FitViews::training_views(dataset)?;
+                Encoder { config: self.config.clone().with_iters(None) }.with_anchors(e, &trained, &orbit, Some(&fit), Some(&views))
             }
         }
     }
@@ -400,7 +414,9 @@ impl Encoder {
     }
 
     /// Codes `coded` with `config`, measures the result against `reference`'s orbit views and
-    /// builds the report.
+    /// builds the report. For a dataset input, `heldout` is the dataset (the coded scene is
+    /// measured on its held-out views) and the significance `coded` is pruned with
+    /// ([`RdViews::significance`]); else `coded`'s own.
     #[allow(clippy::too_many_arguments)]
     fn finish(
         &self,
@@ -412,15 +428,15 @@ impl Encoder {
         mut stages: EncodeStages,
         mut series: Vec<SeriesPoint>,
         train: Option<TrainReport>,
-        heldout: Option<&Dataset>,
+        heldout: Option<(&Dataset, &[f32])>,
     ) -> Result<Encoded> {
         let t = Instant::now();
         let config = &self.file_config(config);
-        let (bytes, r, q) = rate::encode(coded, config).map_err(|e| Error::Input(e.to_string()))?;
+        let (bytes, r, q) = rate::encode_with(coded, config, heldout.map(|h| h.1)).map_err(|e| Error::Input(e.to_string()))?;
         stages.write_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let decoded = rate::quantise::dequantise(&q);
-        if let Some(ds) = heldout {
+        if let Some((ds, _)) = heldout {
             // The final point of the series: the coded scene on the held-out images.
             if let Some((psnr, _)) = crate::metrics::view::mean_psnr_ssim(&decoded, &ds.split(Split::Test), ds.background)? {
                 series.push(SeriesPoint {

@@ -11,6 +11,10 @@
 //! alone covers one pixel fully in one view scores 1; one that no view sees (culled, off-screen,
 //! always under 1/255 alpha or behind opaque Gaussians) scores 0.
 //!
+//! A scene trained from a dataset is measured from the cameras it was trained for instead:
+//! [`significance_on`] its [`dataset_views`] (every training camera, at most [`SIZE`] pixels on
+//! its longer side), which the encoder uses for such a scene (`rd::RdViews::significance`).
+//!
 //! [`levels`] cuts the Gaussians, most significant first, into the importance levels of a
 //! progressive file (SPEC §3.1): sizes doubling, 1/16, 1/16, 1/8, 1/4, 1/2 of them.
 
@@ -29,10 +33,30 @@ pub fn views(scene: &Splats) -> Vec<gscodec_decoder::Camera> {
     cams
 }
 
+/// The cameras a scene trained from `dataset` is significant from: every training camera, scaled
+/// down to at most [`SIZE`] pixels on its longer side (at its own size when smaller). Held-out
+/// cameras are not among them.
+pub fn dataset_views(dataset: &crate::io::Dataset) -> Vec<gscodec_decoder::Camera> {
+    dataset
+        .split(crate::io::Split::Train)
+        .iter()
+        .map(|f| {
+            let c = &f.camera;
+            let scale = (SIZE as f32 / c.width.max(c.height) as f32).min(1.0);
+            let side = |v: u32| ((v as f32 * scale).round() as u32).max(1);
+            c.resized(side(c.width), side(c.height))
+        })
+        .collect()
+}
+
 /// Per Gaussian, the sum over [`views`] of its blending weight `α·T` over all pixels (see the
 /// module docs). Deterministic; the views are summed in order, in f64.
 pub fn significance(scene: &Splats) -> Vec<f32> {
-    let cams = views(scene);
+    significance_on(scene, &views(scene))
+}
+
+/// [`significance`] over the cameras `cams` (e.g. [`dataset_views`]).
+pub fn significance_on(scene: &Splats, cams: &[gscodec_decoder::Camera]) -> Vec<f32> {
     // The weights do not depend on colour: skip the SH bands.
     let opts = RenderOptions { max_sh_degree: 0, ..RenderOptions::default() };
     // The views are rendered in parallel, then summed in order (the same sum on any number of

@@ -42,6 +42,9 @@ pub struct RdViews {
     /// pixels, is scaled by it.
     pixel_scale: Vec<f64>,
     distortion: RdDistortion,
+    /// The cameras the significance is summed over ([`RdViews::significance`]); `None`: the
+    /// scene's own ([`super::importance::views`]).
+    significance_cams: Option<Vec<gscodec_decoder::Camera>>,
 }
 
 /// What `D` measures on the views.
@@ -72,7 +75,7 @@ impl RdViews {
     pub fn cameras(cams: Vec<gscodec_decoder::Camera>, background: [f32; 3]) -> Self {
         assert!(!cams.is_empty(), "D needs at least one view");
         let pixel_scale = vec![1.0; cams.len()];
-        RdViews { cams, background, pixel_scale, distortion: RdDistortion::Mse }
+        RdViews { cams, background, pixel_scale, distortion: RdDistortion::Mse, significance_cams: None }
     }
 
     /// The same views with `D` measuring `distortion`.
@@ -80,10 +83,23 @@ impl RdViews {
         RdViews { distortion, ..self }
     }
 
+    /// The significance of each Gaussian of `scene` (which ones pruning and the importance
+    /// classes take first): summed over the dataset's training cameras for views from
+    /// [`RdViews::of_dataset`] ([`super::importance::dataset_views`]), else over the scene's own
+    /// views ([`super::importance::significance`]). An encode prunes with the significance of
+    /// the views its search measured on, so that the search's trials and the file agree.
+    pub fn significance(&self, scene: &Splats) -> Vec<f32> {
+        match &self.significance_cams {
+            Some(cams) => super::importance::significance_on(scene, cams),
+            None => super::importance::significance(scene),
+        }
+    }
+
     /// [`VIEWS`] of `dataset`'s training cameras, evenly spread through its training frames
     /// (never a held-out one), over its background, each at its own size or scaled down to at
     /// most [`MAX_CAMERA_SIDE`] pixels on its longer side: the views a scene trained from the
-    /// dataset is made to be seen from. `None` when the dataset has no training frames.
+    /// dataset is made to be seen from; the significance is summed over all its training
+    /// cameras. `None` when the dataset has no training frames.
     pub fn of_dataset(dataset: &crate::io::Dataset) -> Option<Self> {
         let train = dataset.split(crate::io::Split::Train);
         let n = VIEWS.min(train.len());
@@ -97,7 +113,8 @@ impl RdViews {
                 (view, pixels)
             })
             .unzip();
-        (!cams.is_empty()).then(|| RdViews { pixel_scale, ..RdViews::cameras(cams, dataset.background) })
+        let significance_cams = Some(super::importance::dataset_views(dataset));
+        (!cams.is_empty()).then(|| RdViews { pixel_scale, significance_cams, ..RdViews::cameras(cams, dataset.background) })
     }
 }
 
@@ -171,14 +188,14 @@ impl<'a> Evaluator<'a> {
         Self::with_views(scene, RdViews::orbit(scene))
     }
 
-    /// `D` on `views`. The significance (which Gaussians pruning and the importance classes
-    /// take first) is the scene's own ([`super::importance::significance`]) whatever the views,
-    /// so that every encode of the scene prunes the same Gaussians for the same threshold.
+    /// `D` on `views`, pruning and the importance classes taking the Gaussians in the order of
+    /// their [`RdViews::significance`].
     pub fn with_views(scene: &'a Splats, views: RdViews) -> Self {
         let t = Instant::now();
-        let significance = super::importance::significance(scene);
+        let significance = views.significance(scene);
         let sig_s = t.elapsed().as_secs_f64();
-        let RdViews { cams, background, pixel_scale, distortion } = views;
+        let sig_views = views.significance_cams.as_ref().map_or_else(|| super::importance::views(scene).len(), Vec::len);
+        let RdViews { cams, background, pixel_scale, distortion, .. } = views;
         let opts = RenderOptions { background, ..RenderOptions::default() };
         let refs: Vec<Image> = cams.par_iter().map(|c| render(scene, c, &opts)).collect();
         let loss = match distortion {
@@ -199,7 +216,7 @@ impl<'a> Evaluator<'a> {
         if timing() {
             eprintln!(
                 "timing: significance ({} views) {sig_s:.3} s wall; reference renders {:.3} s wall",
-                super::importance::views(scene).len(),
+                sig_views,
                 t.elapsed().as_secs_f64() - sig_s
             );
         }
@@ -844,6 +861,14 @@ mod tests {
         // Evenly spread: the 21 training frames in 8 buckets, the middle of each (training
         // frames 1, 3, 6, 9, 11, 14, 17, 19 of 0..21, i.e. these frame indices).
         assert_eq!(picked, [2, 4, 7, 11, 13, 17, 20, 22]);
+        // The significance is summed over every training camera, at most SIZE on a side.
+        let sig_cams = super::super::importance::dataset_views(&dataset);
+        let training: Vec<_> = cams.iter().enumerate().filter(|(i, _)| i % 8 != 0).map(|(_, c)| c.resized(SIZE, SIZE / 2)).collect();
+        assert_eq!(sig_cams, training);
+        assert_eq!(views.significance_cams.as_ref(), Some(&sig_cams));
+        let sig = views.significance(&scene);
+        assert_eq!(sig, super::super::importance::significance_on(&scene, &sig_cams));
+        assert_ne!(sig, super::super::importance::significance(&scene), "not the orbit views' significance");
         // A small camera keeps its size; no training frame, no views.
         let mut small =
             crate::train::targets::render_targets(&scene, &cams[1..2].iter().map(|c| c.resized(40, 30)).collect::<Vec<_>>(), [0.0; 3]);
