@@ -29,6 +29,14 @@ pub fn robust_frame(splats: &Splats) -> (Vec3, f32) {
     (c, if ext.is_finite() && ext > 0.0 { ext } else { 1.0 })
 }
 
+/// `cam` at its own size, or scaled down so that its longer side is `max_side` pixels (each
+/// side rounded, at least 1).
+pub fn fit_within(cam: &Camera, max_side: u32) -> Camera {
+    let scale = (max_side as f32 / cam.width.max(cam.height) as f32).min(1.0);
+    let side = |v: u32| ((v as f32 * scale).round() as u32).max(1);
+    cam.resized(side(cam.width), side(cam.height))
+}
+
 /// `n` cameras on a circle around the scene's robust centre, at [`ORBIT_ELEVATION`], radius
 /// [`ORBIT_RADIUS_FACTOR`] × the robust extent, with `up` as the world up axis.
 pub fn orbit_cameras(splats: &Splats, n: usize, width: u32, height: u32, up: Vec3) -> Vec<Camera> {

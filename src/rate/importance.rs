@@ -37,16 +37,7 @@ pub fn views(scene: &Splats) -> Vec<gscodec_decoder::Camera> {
 /// down to at most [`SIZE`] pixels on its longer side (at its own size when smaller). Held-out
 /// cameras are not among them.
 pub fn dataset_views(dataset: &crate::io::Dataset) -> Vec<gscodec_decoder::Camera> {
-    dataset
-        .split(crate::io::Split::Train)
-        .iter()
-        .map(|f| {
-            let c = &f.camera;
-            let scale = (SIZE as f32 / c.width.max(c.height) as f32).min(1.0);
-            let side = |v: u32| ((v as f32 * scale).round() as u32).max(1);
-            c.resized(side(c.width), side(c.height))
-        })
-        .collect()
+    dataset.split(crate::io::Split::Train).iter().map(|f| crate::views::fit_within(&f.camera, SIZE)).collect()
 }
 
 /// Per Gaussian, the sum over [`views`] of its blending weight `α·T` over all pixels (see the

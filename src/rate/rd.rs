@@ -106,9 +106,7 @@ impl RdViews {
         let (cams, pixel_scale): (Vec<_>, Vec<_>) = (0..n)
             .map(|i| {
                 let c = &train[(2 * i + 1) * train.len() / (2 * n)].camera;
-                let scale = (MAX_CAMERA_SIDE as f32 / c.width.max(c.height) as f32).min(1.0);
-                let side = |v: u32| ((v as f32 * scale).round() as u32).max(1);
-                let view = c.resized(side(c.width), side(c.height));
+                let view = crate::views::fit_within(c, MAX_CAMERA_SIDE);
                 let pixels = f64::from(view.width) / f64::from(c.width);
                 (view, pixels)
             })
