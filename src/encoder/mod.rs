@@ -135,12 +135,11 @@ impl Encoder {
         rd_views: Option<&RdViews>,
     ) -> Result<Encoded> {
         let start = Instant::now();
-        let significance = |s: &Splats| rd_views.map_or_else(|| rate::importance::significance(s), |v| v.significance(s));
-        let prepared = rate::prepared(scene, &e.config, Some(&significance(scene)));
+        let prepared = rate::prepared(scene, &e.config, rd_views.map(|v| v.significance(scene)).as_deref());
         if prepared.is_empty() {
             return Ok(e);
         }
-        let sig = significance(&prepared);
+        let sig = rd_views.map_or_else(|| rate::importance::significance(&prepared), |v| v.significance(&prepared));
         let d = crate::anchor::AnchorConfig::default();
         let cfg = crate::anchor::AnchorConfig {
             position_bits: Some(e.report.position_bits),
@@ -218,7 +217,7 @@ impl Encoder {
             let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
             stages.train_s = r.train_seconds;
-            config = self.retune_tail(&s, RdViews::orbit(&s), config, &mut stages)?;
+            config = self.retune_tail(&s, RdViews::orbit(&s), config, &mut stages)?.0;
             trained = Some(s);
             train_report = Some(r);
         }
@@ -301,18 +300,18 @@ impl Encoder {
             series[first..].iter_mut().for_each(|p| p.iteration += iters);
             config.steps = learned_steps(config.steps, &r2);
             stages.train_s += r2.train_seconds;
-            config = self.retune_tail(&s, views.clone(), config, &mut stages)?;
-            Some(s)
+            let (c, sig) = self.retune_tail(&s, views.clone(), config, &mut stages)?;
+            config = c;
+            Some((s, sig))
         } else {
             None
         };
-        let coded = retrained.as_ref().unwrap_or(&trained);
-        let significance = if retrained.is_some() { views.significance(coded) } else { significance };
+        let (coded, significance) = retrained.as_ref().map_or((&trained, &significance), |(s, sig)| (s, sig));
         let heldout = Some((dataset, &significance[..]));
         let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, Some(r), heldout)?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
         if self.config.coding_breakdown {
-            e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, &significance, &self.file_config(&config), dataset)?);
+            e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, significance, &self.file_config(&config), dataset)?);
         }
         match self.config.profile {
             Profile::Explicit => Ok(e),
@@ -326,12 +325,20 @@ impl Encoder {
 
     /// `config` with its importance classes chosen again on `trained`, the scene retraining or
     /// fine-tuning made of what the search chose: the least significant Gaussians are no longer
-    /// those the search coarsened (docs/codec.md, "Retraining"). Its time counts as search time.
-    fn retune_tail(&self, trained: &Splats, views: RdViews, config: EncodeConfig, stages: &mut EncodeStages) -> Result<EncodeConfig> {
+    /// those the search coarsened (docs/codec.md, "Retraining"); and `trained`'s significance
+    /// from `views` ([`RdViews::significance`]). Its time counts as search time.
+    fn retune_tail(
+        &self,
+        trained: &Splats,
+        views: RdViews,
+        config: EncodeConfig,
+        stages: &mut EncodeStages,
+    ) -> Result<(EncodeConfig, Vec<f32>)> {
         let t = Instant::now();
-        let config = rate::rd::retune_tail(trained, views, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
+        let mut trials = rate::rd::Trials::with_views(trained, views).map_err(|e| Error::Input(e.to_string()))?;
+        let config = rate::rd::retune_tail(&mut trials, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
         stages.rd_search_s += t.elapsed().as_secs_f64();
-        Ok(config)
+        Ok((config, trials.significance().to_vec()))
     }
 
     /// What the RD search of a trained dataset scene measures `D` with

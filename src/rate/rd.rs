@@ -138,7 +138,7 @@ pub struct Evaluator<'a> {
     opts: RenderOptions,
     /// `D` as a loss measures it ([`RdDistortion::Loss`]); `None` for the squared error.
     loss: Option<LossD>,
-    /// The scene's significance ([`super::importance::significance`]), computed once.
+    /// The scene's significance from the views' cameras ([`RdViews::significance`]), computed once.
     significance: Vec<f32>,
     /// CPU time spent encoding and rendering trials (nanoseconds, summed over threads), for
     /// [`Clock`].
@@ -192,7 +192,11 @@ impl<'a> Evaluator<'a> {
         let t = Instant::now();
         let significance = views.significance(scene);
         let sig_s = t.elapsed().as_secs_f64();
-        let sig_views = views.significance_cams.as_ref().map_or_else(|| super::importance::views(scene).len(), Vec::len);
+        let sig_views = match (timing(), &views.significance_cams) {
+            (false, _) => 0,
+            (true, Some(cams)) => cams.len(),
+            (true, None) => super::importance::views(scene).len(),
+        };
         let RdViews { cams, background, pixel_scale, distortion, .. } = views;
         let opts = RenderOptions { background, ..RenderOptions::default() };
         let refs: Vec<Image> = cams.par_iter().map(|c| render(scene, c, &opts)).collect();
@@ -281,7 +285,7 @@ impl<'a> Evaluator<'a> {
                 self.view_measure(v, &frame)
             })
             .collect();
-        self.mean(&per_view)
+        Self::mean(&per_view)
     }
 
     /// The measures of view `v`'s `frame`.
@@ -295,7 +299,7 @@ impl<'a> Evaluator<'a> {
         Measured { mse, loss }
     }
 
-    fn mean(&self, per_view: &[Measured]) -> Measured {
+    fn mean(per_view: &[Measured]) -> Measured {
         let n = per_view.len() as f64;
         Measured {
             mse: per_view.iter().map(|m| m.mse).sum::<f64>() / n * 255.0 * 255.0,
@@ -322,7 +326,7 @@ impl<'a> Evaluator<'a> {
         let t = Instant::now();
         let (frames, recordings): (Vec<Image>, Vec<Recording>) = self.cams.par_iter().map(|c| record(&dec, c, &self.opts)).unzip();
         let per_view: Vec<Measured> = frames.par_iter().enumerate().map(|(v, f)| self.view_measure(v, f)).collect();
-        let m = self.mean(&per_view);
+        let m = Self::mean(&per_view);
         self.base = Some((dec, recordings));
         self.render_ns.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
         Ok(self.outcome_of(bytes, m, report))
@@ -641,22 +645,21 @@ fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: En
     Ok(log.stage(trials, (log.j(b, d), start), tail_variants(&start))?.1)
 }
 
-/// The importance classes of `config` chosen again for `scene`, as the search's last stage
-/// ([`tail_stage`]) chooses them, from `config` without classes, with `D` on `views` of `scene`;
-/// every other choice of `config` stays. For a scene that changed after the search (the
+/// The importance classes of `config` chosen again for `trials`' scene, as the search's last
+/// stage ([`tail_stage`]) chooses them, from `config` without classes, with `D` on the trials'
+/// views; every other choice of `config` stays. For a scene that changed after the search (the
 /// encoder's retraining): which Gaussians matter, and so what coarser steps for the least
 /// significant cost, is no longer what the search measured.
 ///
 /// # Errors
 /// A scene the coder refuses.
-pub fn retune_tail(scene: &Splats, views: RdViews, lambda: Lambda, config: EncodeConfig) -> Result<EncodeConfig, SceneError> {
-    let mut trials = Trials::with_views(scene, views)?;
+pub fn retune_tail(trials: &mut Trials, lambda: Lambda, config: EncodeConfig) -> Result<EncodeConfig, SceneError> {
     let mut on_step = |_: &Trial| {};
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     // As in the search: trial encodes without the learned tables.
     let start = EncodeConfig { tail: CoarseTail::OFF, learned_tables: false, ..config };
     trials.calibrate(&start)?;
-    let chosen = tail_stage(&mut trials, &mut log, start)?;
+    let chosen = tail_stage(trials, &mut log, start)?;
     Ok(EncodeConfig { tail: chosen.tail, ..config })
 }
 
@@ -1067,7 +1070,7 @@ mod tests {
         };
         for l in [0.0, 50.0, 500.0] {
             let lambda = Lambda::new(l).unwrap();
-            let out = retune_tail(&scene, RdViews::orbit(&scene), lambda, given).unwrap();
+            let out = retune_tail(&mut Trials::new(&scene).unwrap(), lambda, given).unwrap();
             assert_eq!(EncodeConfig { tail: given.tail, ..out }, given, "λ {l}: only the classes change");
             let mut trials = Trials::new(&scene).unwrap();
             let mut j = |c: &EncodeConfig| {
