@@ -124,22 +124,22 @@ impl Encoder {
     /// The explicit result `e` of `scene` replaced by the anchor profile's file where the profile
     /// asks for it: always for [`Profile::Anchor`], when its `J` is lower for [`Profile::Auto`].
     /// The anchors are fine-tuned to `views` (a dataset's training images), else to renders of
-    /// `scene`. `rd_views` are the RD search's for a dataset, whose significance prunes
-    /// ([`RdViews::significance`]); else the scene's own.
+    /// `scene`. For a dataset, `significance` holds the RD search's views and `scene`'s
+    /// significance from them ([`RdViews::significance`]), which prunes; else the scene's own.
     fn with_anchors(
         &self,
         e: Encoded,
         scene: &Splats,
         orbit: &Orbit,
         views: Option<&crate::anchor::FitViews>,
-        rd_views: Option<&RdViews>,
+        significance: Option<(&RdViews, &[f32])>,
     ) -> Result<Encoded> {
         let start = Instant::now();
-        let prepared = rate::prepared(scene, &e.config, rd_views.map(|v| v.significance(scene)).as_deref());
+        let prepared = rate::prepared(scene, &e.config, significance.map(|s| s.1));
         if prepared.is_empty() {
             return Ok(e);
         }
-        let sig = rd_views.map_or_else(|| rate::importance::significance(&prepared), |v| v.significance(&prepared));
+        let sig = significance.map_or_else(|| rate::importance::significance(&prepared), |(v, _)| v.significance(&prepared));
         let d = crate::anchor::AnchorConfig::default();
         let cfg = crate::anchor::AnchorConfig {
             position_bits: Some(e.report.position_bits),
@@ -280,14 +280,14 @@ impl Encoder {
             .map_err(|e| Error::Input(e.to_string()))?;
         // Pruning and the importance classes take the Gaussians in the order of their
         // significance from the dataset's training cameras, in the search and in the file.
-        let significance = trials.significance().to_vec();
+        let trained_significance = trials.significance().to_vec();
         drop(trials); // its reference renders and coded groups, before retraining
         stages.rd_search_s = t.elapsed().as_secs_f64();
         let orbit = Orbit::new(&trained);
         // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against
         // the images (the .ply path's fine-tuning, with the images as targets).
         let retrain = self.config.retrain_iters_for(true);
-        let init = (retrain > 0).then(|| rate::prepared(&trained, &config, Some(&significance))).filter(|s| !s.is_empty());
+        let init = (retrain > 0).then(|| rate::prepared(&trained, &config, Some(&trained_significance))).filter(|s| !s.is_empty());
         let retrained = if let Some(init) = init {
             let cfg = self.fine_tune_config(retrain, &init);
             // The loss of the main run, with WD / WD-R from the first iteration.
@@ -306,7 +306,7 @@ impl Encoder {
         } else {
             None
         };
-        let (coded, significance) = retrained.as_ref().map_or((&trained, &significance), |(s, sig)| (s, sig));
+        let (coded, significance) = retrained.as_ref().map_or((&trained, &trained_significance), |(s, sig)| (s, sig));
         let heldout = Some((dataset, &significance[..]));
         let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, Some(r), heldout)?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
@@ -318,7 +318,13 @@ impl Encoder {
             // The anchors are distilled from the trained scene, then fine-tuned to the images.
             _ => {
                 let fit = crate::anchor::FitViews::training_views(dataset)?;
-                Encoder { config: self.config.clone().with_iters(None) }.with_anchors(e, &trained, &orbit, Some(&fit), Some(&views))
+                Encoder { config: self.config.clone().with_iters(None) }.with_anchors(
+                    e,
+                    &trained,
+                    &orbit,
+                    Some(&fit),
+                    Some((&views, &trained_significance)),
+                )
             }
         }
     }
