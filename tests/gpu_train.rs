@@ -441,7 +441,7 @@ fn unsupported_losses_are_input_errors() {
         assert!(e.exit_code() == 2 && e.to_string().contains("--wd-warmup 1"), "{e}");
         // the warm-up share sets the GPU WD stage's first iteration as the CPU loss's
         let wc = |f| gscodec::train::gpu::wd::WdConfig::new(kind, None, None, f, 300).warmup;
-        assert_eq!((wc(Some(0.1)), wc(Some(0.0)), wc(None)), (30, 0, 150));
+        assert_eq!((wc(Some(0.1)), wc(Some(0.0)), wc(None)), (30, 0, 90));
         GpuLoss::new(kind, &FeatureSpec::Pyramid, None, None).check().unwrap();
     }
     let _ = Mat3::IDENTITY;
@@ -537,7 +537,7 @@ fn wdr_loss_and_gradient_match_cpu() {
     assert_close("WD-R warm-up gradient", &gg, &cg);
 }
 
-/// 60 iterations of WD-R (normalised γ, warm-up of 30) on `samples/tiny` through the backend seam
+/// 60 iterations of WD-R (normalised γ, warm-up of 18) on `samples/tiny` through the backend seam
 /// (`--backend gpu`, as `gscodec train samples/tiny --loss wdr --backend gpu --iters 60`): held-out
 /// PSNR within 0.3 dB of the CPU trainer.
 #[test]

@@ -451,13 +451,13 @@ fn wdr_matches_its_formula(rng: &mut Rng, x: &Tensor<f64>, target: &Tensor<f64>,
     if let Some(s) = sigma {
         loss = loss.with_sigma(Sigma::Constant(s));
     }
-    assert_eq!(loss.warmup, 500, "half the run (wdr::WARMUP_FRACTION)");
+    assert_eq!(loss.warmup, 300, "three tenths of the run (wdr::WARMUP_FRACTION)");
     // warm-up: L_orig alone
-    let (lw, gw) = loss.loss_and_grad(&xi, &ti, 0, 499);
+    let (lw, gw) = loss.loss_and_grad(&xi, &ti, 0, 299);
     let (lo, go) = wdr::l_orig(&xi, &ti);
     assert_eq!((lw, &gw), (lo, &go));
     // after: γ(d_WD + β L_orig), checked against f64 finite differences of that formula
-    let (l, g) = loss.loss_and_grad(&xi, &ti, 0, 500);
+    let (l, g) = loss.loss_and_grad(&xi, &ti, 0, 300);
     let sigma = Sigma::Constant(sigma.unwrap_or(wd::DEFAULT_SIGMA));
     let r = Reference::new(&Pyramid.features(target), &sigma, h, w);
     let f = |t: &Tensor<f64>| {
@@ -645,7 +645,7 @@ fn loss_options_parse_and_fail_cleanly() {
     for (args, first_wd) in [
         (vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-warmup", "0.1"], 10),
         (vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-warmup", "0"], 0),
-        (vec!["x", "--loss", "wd", "--wd-gamma", "1"], 50),
+        (vec!["x", "--loss", "wd", "--wd-gamma", "1"], 30),
     ] {
         let c = Cli::try_parse_from(args).unwrap();
         let mut loss = build_loss(&c.loss, 100, LossKind::L1ssim).unwrap();

@@ -68,7 +68,8 @@ pub struct LossArgs {
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
     /// Share of the iterations trained with L1-SSIM alone before `wd` / `wdr` take over:
-    /// 0 ≤ F < 1 (default: 0.5, where densification ends; the paper's is 0.1; see docs/wd.md).
+    /// 0 ≤ F < 1 (default: 0.3, before densification ends at 0.5; the paper's is 0.1; see
+    /// docs/wd.md §17).
     #[arg(long = "wd-warmup", value_name = "F")]
     pub wd_warmup: Option<f64>,
 }

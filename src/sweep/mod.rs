@@ -432,7 +432,7 @@ mod tests {
         assert_eq!(s2.settings()["wd_sigma"], 2.0);
         assert_eq!((s2.loss_spec(&pts[0]).unwrap().reported_sigma(), s2.loss_spec(&pts[3]).unwrap().reported_sigma()), (None, Some(2.0)));
         // --wd-warmup likewise
-        assert_eq!(plan.settings()["wd_warmup"], 0.5, "the default warm-up is recorded");
+        assert_eq!(plan.settings()["wd_warmup"], 0.3, "the default warm-up is recorded");
         let w = Plan { wd_warmup: Some(0.25), ..plan.clone() };
         w.validate().unwrap();
         assert!(w.point_command(&pts[3]).join(" ").ends_with("--iters 300 --wd-warmup 0.25 --points-only --quiet"));

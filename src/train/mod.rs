@@ -95,8 +95,7 @@ pub struct Schedule {
     pub opacity_reset_every: usize,
 }
 
-/// Share of a run during which it densifies (15,000 of the reference 30,000 iterations); WD and
-/// WD-R take over when it ends ([`crate::loss::wdr::WARMUP_FRACTION`]).
+/// Share of a run during which it densifies (15,000 of the reference 30,000 iterations).
 pub const DENSIFY_UNTIL_SHARE: f64 = 0.5;
 /// Fewest iterations between two densification steps.
 pub const MIN_DENSIFY_EVERY: usize = 50;
