@@ -25,8 +25,9 @@ pub const DEFAULT_GAMMA_WD: f64 = 0.03;
 /// over while densification still runs (it ends at [`crate::train::DENSIFY_UNTIL_SHARE`]), so
 /// the Gaussians they add are grown under the perceptual loss. Measured on lego-200 against 0.5
 /// (docs/wd.md §16–§17: GPU, two seeds, five λ: ꟻLIP BD-rate against L1-SSIM −16.4 % at 0.3,
-/// where 0.5 measured −7.4 %); the paper warms up for 3k of 30k ([`PAPER_WARMUP_FRACTION`]) and
-/// tunes γ per scene to keep the splat count (docs/wd.md §8).
+/// where 0.5 measured −7.4 % with the search before sessions 18–19); the paper warms up for 3k
+/// of 30k ([`PAPER_WARMUP_FRACTION`]) and tunes γ per scene to keep the splat count (docs/wd.md
+/// §8).
 pub const WARMUP_FRACTION: f64 = 0.3;
 /// The paper's warm-up share (3k of 30k iterations), this crate's default before `--wd-warmup`
 /// (what results that record no share were trained with).
