@@ -303,11 +303,10 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     let default_warmup = Plan { wd_warmup: None, ..s2.clone() };
     let w5 = Plan { wd_warmup: Some(0.5), ..s2.clone() };
     assert!(s2.is_done(&wdr) && !default_warmup.is_done(&wdr) && !w5.is_done(&wdr) && w5.is_done(&l1));
-    write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), ..fake("wdr", 2.0, 1.0) });
-    assert!(w5.is_done(&wdr) && !default_warmup.is_done(&wdr) && !s2.is_done(&wdr));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.3), ..fake("wdr", 2.0, 1.0) });
     assert!(default_warmup.is_done(&wdr) && !w5.is_done(&wdr));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), ..fake("wdr", 2.0, 1.0) });
+    assert!(w5.is_done(&wdr) && !default_warmup.is_done(&wdr) && !s2.is_done(&wdr));
     // a result from before --seeds existed was trained with seed 0; another seed's point is
     // another directory, and a result of another seed in a point's directory is redone
     let l1_seed1 = Point { seed: 1, ..l1.clone() };
