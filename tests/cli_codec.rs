@@ -314,6 +314,9 @@ fn encode_seed_and_retraining_change_the_training() {
     };
     let (default, psnr, report) = encode("plain.gsc", &["--retrain-iters", "0"]);
     assert_eq!(report["retrain_iters"], 0);
+    assert_eq!(report["train"]["config"]["max_gaussians"], 100_000);
+    let (_, _, report) = encode("capped.gsc", &["--retrain-iters", "0", "--max-gaussians", "12345"]);
+    assert_eq!(report["train"]["config"]["max_gaussians"], 12_345, "the budget reaches the trainer");
     assert!(encode("three.gsc", &["--retrain-iters", "0", "--seed", "3"]).0 != default, "another seed trains another scene");
     assert!(report.get("coding_breakdown").is_none(), "only when asked");
     assert_eq!(report["search_distortion"], "mse");

@@ -81,3 +81,42 @@ fn pruning_keeps_the_most_opaque_down_to_the_floor() {
     assert_eq!((pruned, b.len(), adam_b.m.len()), (7, 3, 3));
     assert_eq!(b.positions.iter().map(|q| q[0]).collect::<Vec<_>>(), [7.0, 8.0, 9.0]);
 }
+
+/// `max_gaussians` (`encode --max-gaussians`): when the budget is short, the Gaussians with the
+/// largest gradients grow first, and a split (two halves in place of one) counts as one more.
+#[test]
+fn densification_stops_at_the_budget_largest_gradients_first() {
+    let mut p = Splats::new(0);
+    for i in 0..10 {
+        // Gaussian 9 is large (split), the others small (cloned); all opaque.
+        let log_scale = if i == 9 { -1.0 } else { -5.0 };
+        p.push([i as f32, 0.0, 0.0], [log_scale; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3], &[]);
+    }
+    let mut stats = DensifyStats::new(10);
+    for i in 0..10 {
+        (stats.grad_accum[i], stats.count[i]) = ((i + 1) as f32, 1);
+    }
+    let dp = DensifyParams {
+        grad_threshold: 0.5,
+        percent_dense: 0.01,
+        extent: 1.0,
+        min_opacity: 0.005,
+        max_screen_radius: None,
+        max_world_fraction: 0.1,
+        max_gaussians: 13,
+    };
+    let mut adam = Adam::new(&p);
+    let (cloned, split, pruned) = densify_and_prune_keeping(&mut p, &mut adam, &stats, &dp, &mut Rng::new(0), 0);
+    assert_eq!((cloned, split, pruned, p.len(), adam.m.len()), (2, 1, 0, 13, 13));
+    let xs: Vec<f32> = p.positions.iter().map(|q| q[0]).collect();
+    assert_eq!(xs[..11], [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 8.0, 7.0], "9 split, then 8 and 7 cloned");
+    // Without room nothing grows; with room for all, every one does.
+    let mut full = p.clone();
+    let mut adam = Adam::new(&full);
+    let stats = DensifyStats { grad_accum: vec![1.0; 13], count: vec![1; 13], max_radius: vec![0.0; 13] };
+    assert_eq!(densify_and_prune_keeping(&mut full, &mut adam, &stats, &dp, &mut Rng::new(0), 0), (0, 0, 0));
+    assert_eq!(full.len(), 13);
+    let roomy = DensifyParams { max_gaussians: 100, ..dp };
+    assert_eq!(densify_and_prune_keeping(&mut full, &mut adam, &stats, &roomy, &mut Rng::new(0), 0), (11, 2, 0));
+    assert_eq!(full.len(), 13 + 11 + 2, "11 small cloned, the 2 large halves split again");
+}

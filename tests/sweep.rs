@@ -25,6 +25,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
         wd_sigma: None,
         wd_warmup: None,
         search_distortion: SearchDistortion::Mse,
+        max_gaussians: None,
         bytes: (bytes0 * scale).round() as u64,
         gaussians: (bytes0 / 10.0) as u64,
         psnr: Some(20.0 + 3.0 * q),
@@ -283,6 +284,7 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         // the share results from before --wd-warmup existed were trained with
         wd_warmup: Some(0.1),
         search_distortion: SearchDistortion::Mse,
+        max_gaussians: None,
         backend: gscodec::encoder::Backend::Cpu,
         dataset_args: Vec::new(),
     };
@@ -328,4 +330,20 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(by_loss.is_done(&wdr) && !retrain.is_done(&wdr));
     assert!(by_loss.point_command(&wdr).join(" ").contains("--search-distortion loss"));
     assert!(!retrain.point_command(&wdr).join(" ").contains("--search-distortion"));
+    // a Gaussian budget: a point grown without one is redone under one, and the other way round
+    let capped = Plan { max_gaussians: Some(15_000), ..by_loss.clone() };
+    assert!(by_loss.is_done(&wdr) && !capped.is_done(&wdr));
+    let r = PointResult {
+        wd_sigma: Some(2.0),
+        wd_warmup: Some(0.5),
+        retrain_iters: 300,
+        search_distortion: SearchDistortion::Loss,
+        ..fake("wdr", 2.0, 1.0)
+    };
+    write_point(tmp.path(), &PointResult { max_gaussians: Some(15_000), ..r });
+    assert!(capped.is_done(&wdr) && !by_loss.is_done(&wdr));
+    assert!(!Plan { max_gaussians: Some(20_000), ..capped.clone() }.is_done(&wdr));
+    assert!(capped.point_command(&wdr).join(" ").contains("--max-gaussians 15000"));
+    assert!(!by_loss.point_command(&wdr).join(" ").contains("--max-gaussians"));
+    assert!(Plan { max_gaussians: Some(0), ..capped }.validate().unwrap_err().to_string().contains("--max-gaussians 0"));
 }

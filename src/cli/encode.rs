@@ -56,6 +56,10 @@ pub struct Args {
     /// search's first configuration so that λ means the same (docs/wd.md §15).
     #[arg(long, value_enum, default_value_t = SearchDistortion::Mse, value_name = "mse|loss")]
     pub search_distortion: SearchDistortion,
+    /// Dataset input: densification never grows the scene beyond N Gaussians (the initial
+    /// points are kept when there are more). Default: 100000.
+    #[arg(long, value_name = "N")]
+    pub max_gaussians: Option<usize>,
     /// Random seed of training and fine-tuning (initialisation, view order, densification). The
     /// CPU trainer gives the same file for the same seed; other seeds measure training noise.
     #[arg(long, default_value_t = 0)]
@@ -116,6 +120,7 @@ impl Args {
             .with_retrain_iters(self.retrain_iters)
             .with_coding_breakdown(self.coding_breakdown)
             .with_search_distortion(self.search_distortion)
+            .with_max_gaussians(self.max_gaussians)
             .with_learned_steps(!self.fixed_steps)
             .with_loss(LossSpec::from_args(&self.loss, LossKind::Wdr))
             .with_backend(self.backend)

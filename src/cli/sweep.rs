@@ -49,6 +49,10 @@ pub struct Args {
     /// measures D with, `mse` or the training `loss`'s distortion.
     #[arg(long, value_enum, default_value_t = SearchDistortion::Mse, value_name = "mse|loss")]
     pub search_distortion: SearchDistortion,
+    /// `encode --max-gaussians` of every point (dataset input): densification never grows a
+    /// scene beyond N Gaussians [default: 100000].
+    #[arg(long, value_name = "N")]
+    pub max_gaussians: Option<usize>,
     /// Training backend of every encode: cpu, gpu, or auto (a hardware GPU if there is one).
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
@@ -92,6 +96,7 @@ pub fn run(args: Args) -> Result<()> {
         wd_sigma: args.wd_sigma,
         wd_warmup: args.wd_warmup,
         search_distortion: args.search_distortion,
+        max_gaussians: args.max_gaussians,
         backend: args.backend,
         dataset_args: args.dataset.to_args(),
     };

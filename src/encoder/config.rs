@@ -47,6 +47,10 @@ pub struct EncoderConfig {
     pub coding_breakdown: bool,
     /// Dataset input: what the RD search measures `D` with on the training cameras' views.
     pub search_distortion: SearchDistortion,
+    /// Dataset input: densification never grows the scene beyond this many Gaussians (`None`:
+    /// [`crate::train::TrainConfig`]'s default, 100,000; the initial points are kept when there
+    /// are more).
+    pub max_gaussians: Option<usize>,
 }
 
 /// What the RD search of a scene trained from a dataset measures `D` with, on views from the
@@ -115,6 +119,7 @@ impl Default for EncoderConfig {
             retrain_iters: None,
             coding_breakdown: false,
             search_distortion: SearchDistortion::Mse,
+            max_gaussians: None,
         }
     }
 }
@@ -189,6 +194,12 @@ impl EncoderConfig {
         self
     }
 
+    /// Sets the most Gaussians densification may grow when training from a dataset.
+    pub fn with_max_gaussians(mut self, n: Option<usize>) -> Self {
+        self.max_gaussians = n;
+        self
+    }
+
     /// Sets what the RD search of a dataset's trained scene measures `D` with.
     pub fn with_search_distortion(mut self, d: SearchDistortion) -> Self {
         self.search_distortion = d;
@@ -224,6 +235,9 @@ impl EncoderConfig {
         }
         if let Some(v) = self.retrain_iters.filter(|&n| n > MAX_ITERS) {
             return Err(InvalidConfig::RetrainIters { value: v, max: MAX_ITERS });
+        }
+        if self.max_gaussians == Some(0) {
+            return Err(InvalidConfig::MaxGaussians);
         }
         if let Some(g) = self.loss.wd_gamma.filter(|g| !(g.is_finite() && *g > 0.0)) {
             return Err(InvalidConfig::WdGamma { value: g });
@@ -270,6 +284,9 @@ pub enum InvalidConfig {
         /// The largest accepted.
         max: usize,
     },
+    /// A Gaussian budget of 0.
+    #[error("--max-gaussians 0: must be at least 1")]
+    MaxGaussians,
     /// γ of WD / WD-R must be a finite number > 0.
     #[error("--wd-gamma {value}: must be a finite number > 0")]
     WdGamma {
@@ -346,6 +363,9 @@ mod tests {
         assert_eq!(c.clone().with_retrain_iters(Some(7)).retrain_iters_for(true), 7);
         let e = c.with_retrain_iters(Some(MAX_ITERS + 1)).validate().unwrap_err();
         assert_eq!(e.to_string(), format!("--retrain-iters {}: at most {MAX_ITERS}", MAX_ITERS + 1));
+        let e = EncoderConfig::default().with_max_gaussians(Some(0)).validate().unwrap_err();
+        assert_eq!(e.to_string(), "--max-gaussians 0: must be at least 1");
+        assert_eq!(EncoderConfig::default().with_max_gaussians(Some(1)).validate(), Ok(()));
         let c = EncoderConfig::default().with_iters(Some(0));
         assert_eq!(c.validate(), Ok(()), "a scene may be coded as is");
         assert_eq!(c.validate_for_dataset(), Err(InvalidConfig::DatasetWithoutTraining));

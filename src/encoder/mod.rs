@@ -263,7 +263,8 @@ impl Encoder {
         let mut series = Vec::new();
         // Nothing to search before training: training starts from the fixed ladder for λ.
         let ladder = EncodeConfig::for_lambda(self.config.lambda);
-        let cfg = TrainConfig { iters, seed: self.config.seed, eval_interval: (iters / 10).max(1), ..Default::default() };
+        let mut cfg = TrainConfig { iters, seed: self.config.seed, eval_interval: (iters / 10).max(1), ..Default::default() };
+        cfg.max_gaussians = self.config.max_gaussians.unwrap_or(cfg.max_gaussians);
         // The rate term starts when densification ends (half way): with it from the start,
         // lego-200 at λ = 4 stalled at 23.7 dB held-out with 9k Gaussians; with the warm-up it
         // reaches 30.6 dB (docs/codec.md).

@@ -85,6 +85,7 @@ mod tests {
             wd_sigma: None,
             wd_warmup: None,
             search_distortion: crate::encoder::SearchDistortion::Mse,
+            max_gaussians: None,
             backend: crate::encoder::Backend::Auto,
             dataset_args: Vec::new(),
         };

@@ -93,6 +93,8 @@ pub struct Plan {
     pub wd_warmup: Option<f64>,
     /// `encode --search-distortion` (dataset input).
     pub search_distortion: SearchDistortion,
+    /// `encode --max-gaussians` (dataset input; None: the encoder's default).
+    pub max_gaussians: Option<usize>,
     /// Training backend of every encode.
     pub backend: Backend,
     /// Dataset options (`--downscale N`, …) as command-line words, passed on to emitted jobs;
@@ -118,7 +120,7 @@ impl Plan {
     }
 
     /// Whether a point has a result file from the same settings (`--iters`, `--seed`,
-    /// `--retrain-iters`, `--search-distortion`, and `--wd-sigma` and
+    /// `--retrain-iters`, `--search-distortion`, `--max-gaussians`, and `--wd-sigma` and
     /// `--wd-warmup` for `wd` / `wdr`); a result from other settings, or an unreadable one, is
     /// redone.
     pub fn is_done(&self, p: &Point) -> bool {
@@ -132,6 +134,7 @@ impl Plan {
             && r.seed == p.seed
             && r.retrain_iters == self.retrain_iters_applied()
             && r.search_distortion == self.search_distortion
+            && r.max_gaussians == self.max_gaussians
             && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
     }
 
@@ -166,6 +169,9 @@ impl Plan {
         if let Some(f) = self.wd_warmup {
             crate::loss::check_wd_warmup(f).map_err(|e| Error::input(arg, e))?;
         }
+        if self.max_gaussians == Some(0) {
+            return Err(Error::input(arg, crate::encoder::InvalidConfig::MaxGaussians));
+        }
         Ok(())
     }
 
@@ -181,6 +187,7 @@ impl Plan {
             "wd_sigma": self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA),
             "wd_warmup": self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION),
             "search_distortion": self.search_distortion,
+            "max_gaussians": self.max_gaussians,
         })
     }
 
@@ -208,6 +215,9 @@ impl Plan {
         }
         if self.search_distortion != SearchDistortion::default() {
             c.extend(["--search-distortion".into(), self.search_distortion.name().into()]);
+        }
+        if let Some(n) = self.max_gaussians {
+            c.extend(["--max-gaussians".into(), n.to_string()]);
         }
         if p.seed != 0 {
             c.extend(["--seeds".into(), p.seed.to_string()]);
@@ -241,6 +251,7 @@ impl Plan {
             .with_retrain_iters(self.retrain_iters)
             .with_coding_breakdown(self.coding_breakdown)
             .with_search_distortion(self.search_distortion)
+            .with_max_gaussians(self.max_gaussians)
             .with_loss(loss)
             .with_backend(self.backend))
     }
@@ -339,6 +350,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
         wd_sigma: spec.reported_sigma(),
         wd_warmup: spec.reported_warmup(),
         search_distortion: plan.search_distortion,
+        max_gaussians: plan.max_gaussians,
         bytes: out.bytes.len() as u64,
         gaussians: decoded.len() as u64,
         psnr: Some(m.psnr),
@@ -382,6 +394,7 @@ mod tests {
             wd_sigma: None,
             wd_warmup: None,
             search_distortion: SearchDistortion::Mse,
+            max_gaussians: None,
             backend: Backend::Auto,
             dataset_args: Vec::new(),
         };

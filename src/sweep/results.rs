@@ -55,6 +55,10 @@ pub struct PointResult {
     /// results written before it was an option (0.1 then).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wd_warmup: Option<f64>,
+    /// `encode --max-gaussians` (None: the encoder's default, and in results written before it
+    /// was an option).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_gaussians: Option<usize>,
     /// What the RD search measured `D` with (`encode --search-distortion`; `mse` in results
     /// written before it was an option).
     #[serde(default)]
