@@ -315,8 +315,10 @@ fn encode_seed_and_retraining_change_the_training() {
     let (default, psnr, report) = encode("plain.gsc", &["--retrain-iters", "0"]);
     assert_eq!(report["retrain_iters"], 0);
     assert_eq!(report["train"]["config"]["max_gaussians"], 100_000);
-    let (_, _, report) = encode("capped.gsc", &["--retrain-iters", "0", "--max-gaussians", "12345"]);
+    let (_, _, report) = encode("capped.gsc", &["--retrain-iters", "0", "--max-gaussians", "12345", "--densify-grad-threshold", "0.0001"]);
     assert_eq!(report["train"]["config"]["max_gaussians"], 12_345, "the budget reaches the trainer");
+    let threshold = report["train"]["config"]["densify_grad_threshold"].as_f64().unwrap();
+    assert!((threshold - 1e-4).abs() < 1e-9, "the threshold reaches the trainer: {threshold}");
     assert!(encode("three.gsc", &["--retrain-iters", "0", "--seed", "3"]).0 != default, "another seed trains another scene");
     assert!(report.get("coding_breakdown").is_none(), "only when asked");
     assert_eq!(report["search_distortion"], "mse");

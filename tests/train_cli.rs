@@ -37,6 +37,14 @@ fn bad_input_exits_2_without_output() {
         vec!["train".to_string(), dir.path().join("missing").display().to_string(), "-o".into(), out.display().to_string()],
         vec!["train".to_string(), tiny().display().to_string(), "-o".into(), dir.path().join("out.txt").display().to_string()],
         vec!["train".to_string(), tiny().display().to_string(), "-o".into(), out.display().to_string(), "--iters".into(), "0".into()],
+        vec![
+            "train".to_string(),
+            tiny().display().to_string(),
+            "-o".into(),
+            out.display().to_string(),
+            "--densify-grad-threshold".into(),
+            "0".into(),
+        ],
     ] {
         let o = Command::new(env!("CARGO_BIN_EXE_gscodec")).args(&args).output().unwrap();
         assert_eq!(o.status.code(), Some(2), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));

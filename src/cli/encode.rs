@@ -60,6 +60,11 @@ pub struct Args {
     /// points are kept when there are more). Default: 100000.
     #[arg(long, value_name = "N")]
     pub max_gaussians: Option<usize>,
+    /// Dataset input: densification clones or splits the Gaussians whose mean view-space
+    /// positional gradient (NDC units) reaches G; lower grows more. Default: 0.0002 (the
+    /// reference 3DGS value).
+    #[arg(long, value_name = "G")]
+    pub densify_grad_threshold: Option<f32>,
     /// Random seed of training and fine-tuning (initialisation, view order, densification). The
     /// CPU trainer gives the same file for the same seed; other seeds measure training noise.
     #[arg(long, default_value_t = 0)]
@@ -121,6 +126,7 @@ impl Args {
             .with_coding_breakdown(self.coding_breakdown)
             .with_search_distortion(self.search_distortion)
             .with_max_gaussians(self.max_gaussians)
+            .with_densify_grad_threshold(self.densify_grad_threshold)
             .with_learned_steps(!self.fixed_steps)
             .with_loss(LossSpec::from_args(&self.loss, LossKind::Wdr))
             .with_backend(self.backend)

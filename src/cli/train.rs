@@ -36,6 +36,10 @@ pub struct Args {
     /// Upper bound on the number of Gaussians densification may reach.
     #[arg(long, default_value_t = 100_000)]
     pub max_gaussians: usize,
+    /// Densification clones or splits the Gaussians whose mean view-space positional gradient
+    /// (NDC units) reaches G; lower grows more.
+    #[arg(long, value_name = "G", default_value_t = 2e-4)]
+    pub densify_grad_threshold: f32,
     /// Turn off densification and pruning (fine-tuning).
     #[arg(long)]
     pub no_densify: bool,
@@ -63,6 +67,10 @@ pub fn run(args: Args) -> Result<()> {
     if args.iters == 0 {
         return Err(Error::Input("--iters must be at least 1".into()));
     }
+    if !(args.densify_grad_threshold.is_finite() && args.densify_grad_threshold > 0.0) {
+        let value = args.densify_grad_threshold;
+        return Err(Error::Input(crate::encoder::InvalidConfig::DensifyGradThreshold { value }.to_string()));
+    }
     check_output(&args.output, "ply")?;
     // Before the dataset, so a bad --features file fails fast.
     let loss = LossSpec::from_args(&args.loss, crate::loss::LossKind::L1ssim);
@@ -81,6 +89,7 @@ pub fn run(args: Args) -> Result<()> {
         eval_interval: args.eval_every,
         init_points: args.init_points,
         max_gaussians: args.max_gaussians,
+        densify_grad_threshold: args.densify_grad_threshold,
         ..Default::default()
     };
     let pb = super::progress::bar(args.iters as u64, "train", args.quiet);

@@ -51,6 +51,10 @@ pub struct EncoderConfig {
     /// [`crate::train::TrainConfig`]'s default, 100,000; the initial points are kept when there
     /// are more).
     pub max_gaussians: Option<usize>,
+    /// Dataset input: densification clones or splits the Gaussians whose mean view-space
+    /// positional gradient reaches this (NDC units; `None`: the reference's 2e-4). Lower grows
+    /// more.
+    pub densify_grad_threshold: Option<f32>,
 }
 
 /// What the RD search of a scene trained from a dataset measures `D` with, on views from the
@@ -120,6 +124,7 @@ impl Default for EncoderConfig {
             coding_breakdown: false,
             search_distortion: SearchDistortion::Mse,
             max_gaussians: None,
+            densify_grad_threshold: None,
         }
     }
 }
@@ -200,6 +205,12 @@ impl EncoderConfig {
         self
     }
 
+    /// Sets the densification gradient threshold when training from a dataset.
+    pub fn with_densify_grad_threshold(mut self, g: Option<f32>) -> Self {
+        self.densify_grad_threshold = g;
+        self
+    }
+
     /// Sets what the RD search of a dataset's trained scene measures `D` with.
     pub fn with_search_distortion(mut self, d: SearchDistortion) -> Self {
         self.search_distortion = d;
@@ -238,6 +249,9 @@ impl EncoderConfig {
         }
         if self.max_gaussians == Some(0) {
             return Err(InvalidConfig::MaxGaussians);
+        }
+        if let Some(g) = self.densify_grad_threshold.filter(|g| !(g.is_finite() && *g > 0.0)) {
+            return Err(InvalidConfig::DensifyGradThreshold { value: g });
         }
         if let Some(g) = self.loss.wd_gamma.filter(|g| !(g.is_finite() && *g > 0.0)) {
             return Err(InvalidConfig::WdGamma { value: g });
@@ -287,6 +301,12 @@ pub enum InvalidConfig {
     /// A Gaussian budget of 0.
     #[error("--max-gaussians 0: must be at least 1")]
     MaxGaussians,
+    /// The densification threshold must be a finite number > 0.
+    #[error("--densify-grad-threshold {value}: must be a finite number > 0")]
+    DensifyGradThreshold {
+        /// The value given.
+        value: f32,
+    },
     /// γ of WD / WD-R must be a finite number > 0.
     #[error("--wd-gamma {value}: must be a finite number > 0")]
     WdGamma {
@@ -366,6 +386,10 @@ mod tests {
         let e = EncoderConfig::default().with_max_gaussians(Some(0)).validate().unwrap_err();
         assert_eq!(e.to_string(), "--max-gaussians 0: must be at least 1");
         assert_eq!(EncoderConfig::default().with_max_gaussians(Some(1)).validate(), Ok(()));
+        let e = EncoderConfig::default().with_densify_grad_threshold(Some(0.0)).validate().unwrap_err();
+        assert_eq!(e.to_string(), "--densify-grad-threshold 0: must be a finite number > 0");
+        assert!(EncoderConfig::default().with_densify_grad_threshold(Some(f32::NAN)).validate().is_err());
+        assert_eq!(EncoderConfig::default().with_densify_grad_threshold(Some(1e-4)).validate(), Ok(()));
         let c = EncoderConfig::default().with_iters(Some(0));
         assert_eq!(c.validate(), Ok(()), "a scene may be coded as is");
         assert_eq!(c.validate_for_dataset(), Err(InvalidConfig::DatasetWithoutTraining));

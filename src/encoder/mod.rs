@@ -265,6 +265,7 @@ impl Encoder {
         let ladder = EncodeConfig::for_lambda(self.config.lambda);
         let mut cfg = TrainConfig { iters, seed: self.config.seed, eval_interval: (iters / 10).max(1), ..Default::default() };
         cfg.max_gaussians = self.config.max_gaussians.unwrap_or(cfg.max_gaussians);
+        cfg.densify_grad_threshold = self.config.densify_grad_threshold.unwrap_or(cfg.densify_grad_threshold);
         // The rate term starts when densification ends (half way): with it from the start,
         // lego-200 at λ = 4 stalled at 23.7 dB held-out with 9k Gaussians; with the warm-up it
         // reaches 30.6 dB (docs/codec.md).
