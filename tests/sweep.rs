@@ -340,9 +340,12 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         search_distortion: SearchDistortion::Loss,
         ..fake("wdr", 2.0, 1.0)
     };
-    write_point(tmp.path(), &PointResult { max_gaussians: Some(15_000), ..r });
+    write_point(tmp.path(), &PointResult { max_gaussians: Some(15_000), ..r.clone() });
     assert!(capped.is_done(&wdr) && !by_loss.is_done(&wdr));
     assert!(!Plan { max_gaussians: Some(20_000), ..capped.clone() }.is_done(&wdr));
+    let default_budget = gscodec::train::TrainConfig::default().max_gaussians;
+    write_point(tmp.path(), &PointResult { max_gaussians: None, ..r.clone() });
+    assert!(Plan { max_gaussians: Some(default_budget), ..capped.clone() }.is_done(&wdr), "the default budget, given");
     assert!(capped.point_command(&wdr).join(" ").contains("--max-gaussians 15000"));
     assert!(!by_loss.point_command(&wdr).join(" ").contains("--max-gaussians"));
     assert!(Plan { max_gaussians: Some(0), ..capped }.validate().unwrap_err().to_string().contains("--max-gaussians 0"));

@@ -130,11 +130,13 @@ impl Plan {
         let wd = r.loss != "l1ssim";
         let done_sigma = r.wd_sigma.or_else(|| wd.then_some(crate::loss::wd::DEFAULT_SIGMA));
         let done_warmup = r.wd_warmup.or_else(|| wd.then_some(crate::loss::wdr::PAPER_WARMUP_FRACTION));
+        // No budget given is the trainer's default one.
+        let default_budget = crate::train::TrainConfig::default().max_gaussians;
         r.iters == self.iters
             && r.seed == p.seed
             && r.retrain_iters == self.retrain_iters_applied()
             && r.search_distortion == self.search_distortion
-            && r.max_gaussians == self.max_gaussians
+            && r.max_gaussians.unwrap_or(default_budget) == self.max_gaussians.unwrap_or(default_budget)
             && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
     }
 
