@@ -297,7 +297,8 @@ fn anchor_profile_encodes_decodes_and_auto_picks_one_of_the_two() {
 /// Gaussians the RD search keeps, trained again on the images, cover for those it pruned: on the
 /// sample the file is smaller and its held-out PSNR higher than without. `--coding-breakdown`:
 /// its last cumulative row is the file itself (bytes and held-out PSNR). `--search-distortion`
-/// reaches the report, and its file decodes.
+/// reaches the report, and its file decodes; `--max-gaussians` and `--densify-grad-threshold`
+/// reach the trainer (their effect: `tests/schedule.rs`).
 #[test]
 fn encode_seed_and_retraining_change_the_training() {
     let dir = tempfile::tempdir().unwrap();
