@@ -67,10 +67,7 @@ pub fn run(args: Args) -> Result<()> {
     if args.iters == 0 {
         return Err(Error::Input("--iters must be at least 1".into()));
     }
-    if !(args.densify_grad_threshold.is_finite() && args.densify_grad_threshold > 0.0) {
-        let value = args.densify_grad_threshold;
-        return Err(Error::Input(crate::encoder::InvalidConfig::DensifyGradThreshold { value }.to_string()));
-    }
+    crate::encoder::check_densify_grad_threshold(args.densify_grad_threshold).map_err(|e| Error::Input(e.to_string()))?;
     check_output(&args.output, "ply")?;
     // Before the dataset, so a bad --features file fails fast.
     let loss = LossSpec::from_args(&args.loss, crate::loss::LossKind::L1ssim);

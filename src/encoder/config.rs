@@ -250,8 +250,8 @@ impl EncoderConfig {
         if self.max_gaussians == Some(0) {
             return Err(InvalidConfig::MaxGaussians);
         }
-        if let Some(g) = self.densify_grad_threshold.filter(|g| !(g.is_finite() && *g > 0.0)) {
-            return Err(InvalidConfig::DensifyGradThreshold { value: g });
+        if let Some(g) = self.densify_grad_threshold {
+            check_densify_grad_threshold(g)?;
         }
         if let Some(g) = self.loss.wd_gamma.filter(|g| !(g.is_finite() && *g > 0.0)) {
             return Err(InvalidConfig::WdGamma { value: g });
@@ -275,6 +275,17 @@ impl EncoderConfig {
             return Err(InvalidConfig::DatasetWithoutTraining);
         }
         Ok(())
+    }
+}
+
+/// Checks a densification gradient threshold (`--densify-grad-threshold`): finite and > 0.
+///
+/// # Errors
+/// [`InvalidConfig::DensifyGradThreshold`] otherwise.
+pub fn check_densify_grad_threshold(value: f32) -> Result<(), InvalidConfig> {
+    match value.is_finite() && value > 0.0 {
+        true => Ok(()),
+        false => Err(InvalidConfig::DensifyGradThreshold { value }),
     }
 }
 

@@ -35,7 +35,7 @@ use gscodec_decoder::{RenderOptions, Splats};
 pub use crate::rate::Lambda;
 pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, TrainJob};
 pub use breakdown::CodingStage;
-pub use config::{EncoderConfig, InvalidConfig, Profile, SearchDistortion, DEFAULT_DATASET_ITERS, MAX_ITERS};
+pub use config::{check_densify_grad_threshold, EncoderConfig, InvalidConfig, Profile, SearchDistortion, DEFAULT_DATASET_ITERS, MAX_ITERS};
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
 pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 
