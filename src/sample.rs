@@ -7,11 +7,17 @@
 //! horizontal field of view of 0.6911 rad (the NeRF-synthetic one), on a white background, and
 //! saved as 8-bit RGB PNGs. Everything comes from a seeded SplitMix64 generator and plain
 //! arithmetic, so the same options give the same files on every machine.
+//!
+//! `gscodec sample --scene SCENE` writes the same kind of dataset from any scene instead: the
+//! cameras on a sphere around its robust centre at the orbit's distance and field of view
+//! ([`Rig::around`]), so that every scene can be trained from images (a second scene for studies
+//! that must not rest on one data set).
 
 use crate::io::atomic::write_dir_atomic;
 use crate::io::image::write_png;
 use crate::io::{camera_spread, nerf, ply};
 use crate::rng::Rng;
+use crate::views::{robust_frame, ORBIT_FOV_X, ORBIT_RADIUS_FACTOR};
 use crate::{Error, Result};
 use glam::Vec3;
 use gscodec_decoder::camera::DEFAULT_ZNEAR;
@@ -27,7 +33,8 @@ pub const RADIUS: f32 = 4.0;
 /// Background the views are rendered on.
 pub const BACKGROUND: [f32; 3] = [1.0; 3];
 
-/// What to generate.
+/// What to generate. `gaussians` is the procedural scene's size; [`write_scene_sample`] takes
+/// its scene instead.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SampleOptions {
     pub gaussians: usize,
@@ -35,6 +42,54 @@ pub struct SampleOptions {
     pub width: u32,
     pub height: u32,
     pub seed: u64,
+}
+
+/// Where a sample's cameras stand: on a sphere of `radius` around `centre`, looking at it, with
+/// `up` as the world up axis and `fov_x` as the horizontal field of view (radians).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rig {
+    pub centre: Vec3,
+    pub radius: f32,
+    pub up: Vec3,
+    pub fov_x: f64,
+}
+
+impl Rig {
+    /// The procedural scene's cameras: radius [`RADIUS`] around the origin, +z up, [`FOV_X`].
+    pub const PROCEDURAL: Rig = Rig { centre: Vec3::ZERO, radius: RADIUS, up: Vec3::Z, fov_x: FOV_X };
+
+    /// Cameras framing `scene` as the evaluation orbit does (`views::orbit_cameras`): its robust
+    /// centre, [`ORBIT_RADIUS_FACTOR`] × its robust extent, [`ORBIT_FOV_X`]; `up` normalised.
+    pub fn around(scene: &Splats, up: Vec3) -> Rig {
+        let (centre, extent) = robust_frame(scene);
+        Rig { centre, radius: ORBIT_RADIUS_FACTOR * extent, up: up.normalize(), fov_x: f64::from(ORBIT_FOV_X) }
+    }
+
+    /// Camera-to-world matrices (OpenGL axes, like NeRF's `transform_matrix`) of `views` cameras
+    /// on the rig's sphere: azimuths evenly spaced with a seeded jitter of ±0.3 of a step,
+    /// elevations spread between 15° and 65° above the plane normal to `up`.
+    pub fn poses(&self, views: usize, seed: u64) -> Vec<[[f32; 4]; 4]> {
+        let mut rng = sample_rng(seed.wrapping_add(1));
+        // A basis of the horizontal plane; for +z up it is exactly (x, y), so the procedural
+        // sample's poses keep their bits.
+        let a = if self.up.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
+        let a = (a - self.up * self.up.dot(a)).normalize();
+        let b = self.up.cross(a);
+        (0..views)
+            .map(|i| {
+                let azim = std::f32::consts::TAU * (i as f32 + rng.range(-0.3, 0.3)) / views.max(1) as f32;
+                // Low-discrepancy spread of elevations between 15 and 65 degrees.
+                let elev = (15.0 + 50.0 * ((i as f32 * 0.618_034) % 1.0)).to_radians();
+                let dir = a * (azim.cos() * elev.cos()) + b * (azim.sin() * elev.cos()) + self.up * elev.sin();
+                let eye = dir * self.radius + self.centre;
+                let cam = Camera::look_at(eye, self.centre, self.up, 64, 64, self.fov_x as f32);
+                // OpenCV world-to-camera -> OpenGL camera-to-world: columns x, -y, -z of R^T.
+                let rt = cam.rotation.transpose();
+                let (x, y, z) = (rt.x_axis, -rt.y_axis, -rt.z_axis);
+                [[x.x, y.x, z.x, eye.x], [x.y, y.y, z.y, eye.y], [x.z, y.z, z.z, eye.z], [0.0, 0.0, 0.0, 1.0]]
+            })
+            .collect()
+    }
 }
 
 impl Default for SampleOptions {
@@ -119,32 +174,42 @@ pub fn scene(n: usize, seed: u64) -> Splats {
     s
 }
 
-/// Camera-to-world matrices (OpenGL axes, like NeRF's `transform_matrix`) of `views` cameras on
-/// the sphere of [`RADIUS`], looking at the origin with +z up.
+/// The procedural sample's camera-to-world matrices: [`Rig::PROCEDURAL`]'s poses.
 pub fn nerf_poses(views: usize, seed: u64) -> Vec<[[f32; 4]; 4]> {
-    let mut rng = sample_rng(seed.wrapping_add(1));
-    (0..views)
-        .map(|i| {
-            let azim = std::f32::consts::TAU * (i as f32 + rng.range(-0.3, 0.3)) / views.max(1) as f32;
-            // Low-discrepancy spread of elevations between 15 and 65 degrees.
-            let elev = (15.0 + 50.0 * ((i as f32 * 0.618_034) % 1.0)).to_radians();
-            let eye = Vec3::new(azim.cos() * elev.cos(), azim.sin() * elev.cos(), elev.sin()) * RADIUS;
-            let cam = Camera::look_at(eye, Vec3::ZERO, Vec3::Z, 64, 64, FOV_X as f32);
-            // OpenCV world-to-camera -> OpenGL camera-to-world: columns x, -y, -z of R^T.
-            let rt = cam.rotation.transpose();
-            let (x, y, z) = (rt.x_axis, -rt.y_axis, -rt.z_axis);
-            [[x.x, y.x, z.x, eye.x], [x.y, y.y, z.y, eye.y], [x.z, y.z, z.z, eye.z], [0.0, 0.0, 0.0, 1.0]]
-        })
-        .collect()
+    Rig::PROCEDURAL.poses(views, seed)
 }
 
-/// Writes the dataset: `transforms_train.json`, `train/r_<i>.png`, `truth.ply`, all or nothing.
+/// Writes the procedural dataset: `transforms_train.json`, `train/r_<i>.png`, `truth.ply`, all or
+/// nothing.
 pub fn write_sample(dir: &Path, opts: &SampleOptions, progress: &indicatif::ProgressBar) -> Result<()> {
-    if opts.gaussians == 0 || opts.views == 0 || opts.width == 0 || opts.height == 0 {
-        return Err(Error::input(dir, "--gaussians, --views and --size must be positive"));
+    if opts.gaussians == 0 {
+        return Err(Error::input(dir, "--gaussians must be positive"));
     }
-    let splats = scene(opts.gaussians, opts.seed);
-    let poses = nerf_poses(opts.views, opts.seed);
+    write_dataset(dir, &scene(opts.gaussians, opts.seed), &Rig::PROCEDURAL, opts, progress)
+}
+
+/// Writes the dataset of `splats` (read from `source`, which errors name) as [`write_sample`]
+/// writes the procedural one, with the cameras of [`Rig::around`]`(splats, up)`; `truth.ply` is
+/// `splats`. `opts.gaussians` is not used.
+pub fn write_scene_sample(
+    dir: &Path,
+    source: &Path,
+    splats: &Splats,
+    up: Vec3,
+    opts: &SampleOptions,
+    progress: &indicatif::ProgressBar,
+) -> Result<()> {
+    if splats.is_empty() {
+        return Err(Error::input(source, "the scene has no Gaussians to render"));
+    }
+    write_dataset(dir, splats, &Rig::around(splats, up), opts, progress)
+}
+
+fn write_dataset(dir: &Path, splats: &Splats, rig: &Rig, opts: &SampleOptions, progress: &indicatif::ProgressBar) -> Result<()> {
+    if opts.views == 0 || opts.width == 0 || opts.height == 0 {
+        return Err(Error::input(dir, "--views and --size must be positive"));
+    }
+    let poses = rig.poses(opts.views, opts.seed);
     write_dir_atomic(dir, |tmp| {
         // f32 values are written as their exact f64 so that reading them back gives the same bits.
         let frames: Vec<serde_json::Value> = poses
@@ -155,11 +220,11 @@ pub fn write_sample(dir: &Path, opts: &SampleOptions, progress: &indicatif::Prog
                 serde_json::json!({ "file_path": format!("./train/r_{i}"), "transform_matrix": rows })
             })
             .collect();
-        let json = serde_json::json!({ "camera_angle_x": FOV_X, "frames": frames });
+        let json = serde_json::json!({ "camera_angle_x": rig.fov_x, "frames": frames });
         let json_path = tmp.join("transforms_train.json");
         let text = serde_json::to_string_pretty(&json).expect("JSON of numbers and strings");
         std::fs::write(&json_path, text).map_err(|e| Error::failure(&json_path, format!("cannot write: {e}")))?;
-        ply::write_ply(&tmp.join("truth.ply"), &splats)?;
+        ply::write_ply(&tmp.join("truth.ply"), splats)?;
         // Cameras exactly as `load_dataset` rebuilds them from the JSON just written.
         let specs = nerf::parse_transforms(&json_path)?;
         let mut cams: Vec<Camera> =
@@ -171,7 +236,7 @@ pub fn write_sample(dir: &Path, opts: &SampleOptions, progress: &indicatif::Prog
         progress.set_length(cams.len() as u64);
         let ropts = RenderOptions { background: BACKGROUND, max_sh_degree: 3 };
         for (i, cam) in cams.iter().enumerate() {
-            write_png(&train.join(format!("r_{i}.png")), &render(&splats, cam, &ropts))?;
+            write_png(&train.join(format!("r_{i}.png")), &render(splats, cam, &ropts))?;
             progress.inc(1);
         }
         Ok(())

@@ -86,6 +86,20 @@ fn bad_inputs_exit_2_with_one_error_line_and_no_output() {
     assert_bad(&["render", s(&truth), "--orbit", "2", "--format", "gif", "-o", s(&out)], "gif", &out);
     assert_bad(&["eval", s(&truth)], "required", &out);
     assert_bad(&["sample", s(&out), "--views", "0", "--quiet"], "positive", &out);
+    assert_bad(&["sample", s(&out), "--scene", s(&missing), "--quiet"], "missing.ply", &out);
+    assert_bad(&["sample", s(&out), "--scene", s(&d.join("nan.ply")), "--quiet"], "not finite", &out);
+    assert_bad(&["sample", s(&out), "--scene", s(&truth), "--gaussians", "10", "--quiet"], "--gaussians", &out);
+    assert_bad(&["sample", s(&out), "--up", "x", "--quiet"], "required", &out);
+    let empty = d.join("empty.ply");
+    std::fs::write(
+        &empty,
+        ply_with(|b, s| {
+            b.truncate(s);
+            *b = String::from_utf8_lossy(b).replacen("vertex 1000", "vertex 0", 1).into_bytes();
+        }),
+    )
+    .unwrap();
+    assert_bad(&["sample", s(&out), "--scene", s(&empty), "--quiet"], "empty.ply", &out);
 }
 
 #[test]

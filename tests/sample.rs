@@ -5,11 +5,24 @@ use gscodec::decoder::render::render;
 use gscodec::decoder::{Camera, RenderOptions};
 use gscodec::io::image::to_rgb8;
 use gscodec::io::{load_dataset, read_ply, LoadOptions, Split};
-use gscodec::sample::{write_sample, SampleOptions};
+use gscodec::sample::{write_sample, write_scene_sample, Rig, SampleOptions};
+use gscodec::views::robust_frame;
 use std::path::Path;
 
 fn tiny() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny")
+}
+
+/// Rendering `dir`'s `truth.ply` from the cameras `load_dataset` rebuilds gives every stored PNG.
+fn assert_truth_reproduces_the_pngs(dir: &Path) {
+    let ds = load_dataset(dir, &LoadOptions::default()).unwrap();
+    let scene = read_ply(&dir.join("truth.ply")).unwrap();
+    let opts = RenderOptions { background: ds.background, max_sh_degree: 3 };
+    for f in ds.split(Split::All) {
+        let img = render(&scene, &f.camera, &opts);
+        let stored: Vec<u8> = f.image.get().unwrap().data.iter().map(|v| (v * 255.0).round() as u8).collect();
+        assert!(to_rgb8(&img) == stored, "frame {} differs", f.name);
+    }
 }
 
 #[test]
@@ -17,12 +30,53 @@ fn rendering_truth_from_the_dataset_cameras_reproduces_the_pngs() {
     let ds = load_dataset(&tiny(), &LoadOptions::default()).unwrap();
     let scene = read_ply(&tiny().join("truth.ply")).unwrap();
     assert_eq!((ds.frames.len(), scene.len(), scene.sh_degree), (16, 1000, 3));
-    let opts = RenderOptions { background: ds.background, max_sh_degree: 3 };
-    for f in ds.split(Split::All) {
-        let img = render(&scene, &f.camera, &opts);
-        let stored: Vec<u8> = f.image.get().unwrap().data.iter().map(|v| (v * 255.0).round() as u8).collect();
-        assert!(to_rgb8(&img) == stored, "frame {} differs", f.name);
+    assert_truth_reproduces_the_pngs(&tiny());
+}
+
+/// `sample --scene`: a dataset of any scene, its cameras framing it as the evaluation orbit does.
+#[test]
+fn a_scenes_sample_looks_at_its_robust_centre_from_the_orbit_distance() {
+    // The tiny sample's scene moved off the origin and turned to -y up, so that the rig must
+    // find it: (x, y, z) -> (x, -z, y) + t.
+    let mut scene = read_ply(&tiny().join("truth.ply")).unwrap();
+    let t = Vec3::new(3.0, -1.0, 2.0);
+    for p in &mut scene.positions {
+        *p = (Vec3::new(p[0], -p[2], p[1]) + t).into();
     }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("moved");
+    let opts = SampleOptions { gaussians: 0, views: 12, width: 48, height: 40, seed: 5 };
+    write_scene_sample(&out, Path::new("moved.ply"), &scene, Vec3::NEG_Y, &opts, &indicatif::ProgressBar::hidden()).unwrap();
+    assert!(read_ply(&out.join("truth.ply")).unwrap() == scene, "truth.ply is the scene given");
+    assert_truth_reproduces_the_pngs(&out);
+
+    let (centre, extent) = robust_frame(&scene);
+    let rig = Rig::around(&scene, Vec3::NEG_Y);
+    assert_eq!((rig.centre, rig.radius), (centre, 2.5 * extent));
+    let ds = load_dataset(&out, &LoadOptions::default()).unwrap();
+    assert_eq!(ds.frames.len(), 12);
+    let mut heights = Vec::new();
+    for f in ds.split(Split::All) {
+        let cam = &f.camera;
+        assert_eq!((cam.width, cam.height), (48, 40));
+        assert!((cam.center().distance(centre) - rig.radius).abs() < 1e-4 * rig.radius, "{}", f.name);
+        // The centre projects to the image centre; world up (-y) points up the image.
+        let project = |p: Vec3| {
+            let c = cam.to_camera(p);
+            (cam.fx * c.x / c.z + cam.cx, cam.fy * c.y / c.z + cam.cy)
+        };
+        let (u, v) = project(centre);
+        assert!((u - 24.0).abs() < 1e-2 && (v - 20.0).abs() < 1e-2, "{}: centre at ({u}, {v})", f.name);
+        assert!(project(centre - Vec3::Y * 0.1 * extent).1 < v, "{}: -y is not up", f.name);
+        // Elevation above the plane normal to -y, between 15° and 65°.
+        let e = ((centre.y - cam.center().y) / rig.radius).asin().to_degrees();
+        assert!((14.9..65.1).contains(&e), "{}: elevation {e}", f.name);
+        heights.push(e);
+    }
+    assert!(heights.iter().cloned().fold(f32::MAX, f32::min) < 30.0 && heights.iter().cloned().fold(0.0, f32::max) > 50.0);
+    let text = std::fs::read_to_string(out.join("transforms_train.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(json["camera_angle_x"].as_f64(), Some(f64::from(gscodec::views::ORBIT_FOV_X)));
 }
 
 #[test]
