@@ -174,11 +174,6 @@ pub fn scene(n: usize, seed: u64) -> Splats {
     s
 }
 
-/// The procedural sample's camera-to-world matrices: [`Rig::PROCEDURAL`]'s poses.
-pub fn nerf_poses(views: usize, seed: u64) -> Vec<[[f32; 4]; 4]> {
-    Rig::PROCEDURAL.poses(views, seed)
-}
-
 /// Writes the procedural dataset: `transforms_train.json`, `train/r_<i>.png`, `truth.ply`, all or
 /// nothing.
 pub fn write_sample(dir: &Path, opts: &SampleOptions, progress: &indicatif::ProgressBar) -> Result<()> {
