@@ -17,7 +17,7 @@ use crate::io::atomic::write_dir_atomic;
 use crate::io::image::write_png;
 use crate::io::{camera_spread, nerf, ply};
 use crate::rng::Rng;
-use crate::views::{robust_frame, ORBIT_FOV_X, ORBIT_RADIUS_FACTOR};
+use crate::views::{orbit_frame, ORBIT_FOV_X};
 use crate::{Error, Result};
 use glam::Vec3;
 use gscodec_decoder::camera::DEFAULT_ZNEAR;
@@ -58,11 +58,11 @@ impl Rig {
     /// The procedural scene's cameras: radius [`RADIUS`] around the origin, +z up, [`FOV_X`].
     pub const PROCEDURAL: Rig = Rig { centre: Vec3::ZERO, radius: RADIUS, up: Vec3::Z, fov_x: FOV_X };
 
-    /// Cameras framing `scene` as the evaluation orbit does (`views::orbit_cameras`): its robust
-    /// centre, [`ORBIT_RADIUS_FACTOR`] × its robust extent, [`ORBIT_FOV_X`]; `up` normalised.
+    /// Cameras framing `scene` as the evaluation orbit does: [`orbit_frame`]'s centre and
+    /// radius, [`ORBIT_FOV_X`]; `up` normalised.
     pub fn around(scene: &Splats, up: Vec3) -> Rig {
-        let (centre, extent) = robust_frame(scene);
-        Rig { centre, radius: ORBIT_RADIUS_FACTOR * extent, up: up.normalize(), fov_x: f64::from(ORBIT_FOV_X) }
+        let (centre, radius) = orbit_frame(scene);
+        Rig { centre, radius, up: up.normalize(), fov_x: f64::from(ORBIT_FOV_X) }
     }
 
     /// Camera-to-world matrices (OpenGL axes, like NeRF's `transform_matrix`) of `views` cameras

@@ -29,6 +29,13 @@ pub fn robust_frame(splats: &Splats) -> (Vec3, f32) {
     (c, if ext.is_finite() && ext > 0.0 { ext } else { 1.0 })
 }
 
+/// Where orbit cameras look at `splats` from: its robust centre and the orbit radius,
+/// [`ORBIT_RADIUS_FACTOR`] × its robust extent ([`robust_frame`]).
+pub fn orbit_frame(splats: &Splats) -> (Vec3, f32) {
+    let (centre, extent) = robust_frame(splats);
+    (centre, ORBIT_RADIUS_FACTOR * extent)
+}
+
 /// `cam` at its own size, or scaled down so that its longer side is `max_side` pixels (each
 /// side rounded, at least 1).
 pub fn fit_within(cam: &Camera, max_side: u32) -> Camera {
@@ -40,17 +47,17 @@ pub fn fit_within(cam: &Camera, max_side: u32) -> Camera {
 /// `n` cameras on a circle around the scene's robust centre, at [`ORBIT_ELEVATION`], radius
 /// [`ORBIT_RADIUS_FACTOR`] × the robust extent, with `up` as the world up axis.
 pub fn orbit_cameras(splats: &Splats, n: usize, width: u32, height: u32, up: Vec3) -> Vec<Camera> {
-    let (centre, extent) = robust_frame(splats);
-    Camera::orbit(n, centre, ORBIT_RADIUS_FACTOR * extent, ORBIT_ELEVATION, up, width, height, ORBIT_FOV_X)
+    let (centre, radius) = orbit_frame(splats);
+    Camera::orbit(n, centre, radius, ORBIT_ELEVATION, up, width, height, ORBIT_FOV_X)
 }
 
 /// Cameras for fine-tuning a scene against renders of itself: three rings of `per_ring` views at
 /// [`ORBIT_ELEVATION`] and 15° below and above it, with azimuths half a step off those of
 /// [`orbit_cameras`]`(…, per_ring, …)`, so that no training view is one of the evaluation views.
 pub fn training_cameras(splats: &Splats, per_ring: usize, width: u32, height: u32, up: Vec3) -> Vec<Camera> {
-    let (centre, extent) = robust_frame(splats);
+    let (centre, radius) = orbit_frame(splats);
     let ring = |elevation: f32| {
-        let twice = Camera::orbit(2 * per_ring, centre, ORBIT_RADIUS_FACTOR * extent, elevation, up, width, height, ORBIT_FOV_X);
+        let twice = Camera::orbit(2 * per_ring, centre, radius, elevation, up, width, height, ORBIT_FOV_X);
         twice.into_iter().skip(1).step_by(2) // azimuths (2i+1)·π/per_ring
     };
     let tilt = 15f32.to_radians();
