@@ -37,6 +37,13 @@ pub struct Args {
     /// Default: 0 for a .ply, 3000 for a dataset.
     #[arg(long)]
     pub iters: Option<usize>,
+    /// Dataset input: code SCENE, a scene trained on this dataset elsewhere (.ply, .spz, …, in
+    /// the dataset's world frame), instead of training one from the images: the RD search
+    /// measures on the dataset's training cameras, retraining (--retrain-iters, default 300)
+    /// fine-tunes the Gaussians it keeps to the training images, and the report measures the
+    /// held-out views.
+    #[arg(long, value_name = "SCENE", conflicts_with_all = ["iters", "max_gaussians", "densify_grad_threshold"])]
+    pub init: Option<PathBuf>,
     /// Dataset input: after the RD search has pruned the trained scene (and dropped SH bands),
     /// train the Gaussians it keeps N more iterations on the images under D + λ·R (no
     /// densification; WD / WD-R without warm-up), then code them. Default: a tenth of --iters;
@@ -147,7 +154,11 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
         other => other,
     };
     let dataset = args.input.is_dir();
-    let iters = encoder.config().iters_for(dataset) + encoder.config().retrain_iters_for(dataset);
+    if args.init.is_some() && !dataset {
+        return Err(Error::input(&args.input, "--init needs a dataset input (the images the scene was trained on)"));
+    }
+    let training = if args.init.is_some() { 0 } else { encoder.config().iters_for(dataset) };
+    let iters = training + encoder.config().retrain_iters_for(dataset);
     let pb = super::progress::bar(iters as u64, "train", args.quiet || iters == 0);
     let mut progress = |p: &crate::train::Progress| pb.set_position(p.iteration as u64);
     let out = if let Some(target) = args.target() {
@@ -157,6 +168,14 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
         }
         let scene: Splats = crate::io::read_scene(&args.input)?;
         encoder.encode_scene_to(&scene, target, &mut progress)
+    } else if let Some(init) = &args.init {
+        encoder.config().validate().map_err(|e| name(e.into()))?;
+        let scene: Splats = crate::io::read_scene(init)?;
+        let ds = crate::io::load_dataset(&args.input, &args.dataset.load_options())?;
+        encoder.encode_trained(&ds, &scene, &mut progress).map(|mut e| {
+            e.report.init = Some(init.display().to_string());
+            e
+        })
     } else if dataset {
         encoder.config().validate_for_dataset().map_err(|e| name(e.into()))?;
         let ds = crate::io::load_dataset(&args.input, &args.dataset.load_options())?;

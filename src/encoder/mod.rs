@@ -255,11 +255,8 @@ impl Encoder {
     pub fn encode_dataset(&self, dataset: &Dataset, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
         let start = Instant::now();
         self.config.validate_for_dataset()?;
-        if self.config.coding_breakdown && dataset.split(Split::Test).is_empty() {
-            return Err(Error::Input("--coding-breakdown: the dataset has no held-out views to measure on".into()));
-        }
+        check_breakdown_views(&self.config, dataset)?;
         let iters = self.config.iters_for(true);
-        let mut stages = EncodeStages::default();
         let mut series = Vec::new();
         // Nothing to search before training: training starts from the fixed ladder for λ.
         let ladder = EncodeConfig::for_lambda(self.config.lambda);
@@ -270,26 +267,62 @@ impl Encoder {
         // lego-200 at λ = 4 stalled at 23.7 dB held-out with 9k Gaussians; with the warm-up it
         // reaches 30.6 dB (docs/codec.md).
         let (trained, r) = self.train(dataset, None, &cfg, &ladder, iters / 2, start, &mut series, progress)?;
-        stages.train_s = r.train_seconds;
+        let steps = learned_steps(ladder.steps, &r);
+        self.code_trained(dataset, &trained, steps, Some(r), iters, start, series, progress)
+    }
+
+    /// Codes `scene`, a scene trained on `dataset` elsewhere (`encode DATASET --init SCENE`: by
+    /// the reference 3DGS trainer, gsplat, Brush, or `gscodec train`), as [`Encoder::encode_dataset`]
+    /// codes the scene it trains: the RD search measures on the dataset's training cameras,
+    /// retraining (`retrain_iters`, default a tenth of the default `iters`) fine-tunes the
+    /// Gaussians it keeps to the training images under `D + λ·R`, and the report measures the
+    /// held-out views. The scene must be in the dataset's world frame. `iters`, `max_gaussians`
+    /// and `densify_grad_threshold`, which shape training from the images, are not used.
+    ///
+    /// # Errors
+    /// As [`Encoder::encode_dataset`], but a scene needs no training.
+    pub fn encode_trained(&self, dataset: &Dataset, scene: &Splats, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
+        let start = Instant::now();
+        self.config.validate()?;
+        check_breakdown_views(&self.config, dataset)?;
+        self.code_trained(dataset, scene, rate::rd::fine_steps(), None, 0, start, Vec::new(), progress)
+    }
+
+    /// The part of [`Encoder::encode_dataset`] after training: `trained` (trained `iters`
+    /// iterations, reported by `train`, or given) searched from `steps` on the dataset's
+    /// training cameras, retrained, coded and measured.
+    #[allow(clippy::too_many_arguments)]
+    fn code_trained(
+        &self,
+        dataset: &Dataset,
+        trained: &Splats,
+        steps: Steps,
+        r: Option<TrainReport>,
+        iters: usize,
+        start: Instant,
+        mut series: Vec<SeriesPoint>,
+        progress: &mut dyn FnMut(&Progress),
+    ) -> Result<Encoded> {
+        let mut stages = EncodeStages { train_s: r.as_ref().map_or(0.0, |r| r.train_seconds), ..EncodeStages::default() };
         // RD choices on the trained scene, with D on views from the dataset's training cameras
         // (against the trained scene, not the images, so they stay out of the held-out series).
         let t = Instant::now();
         let views = RdViews::of_dataset(dataset)
             .ok_or_else(|| Error::Input("the dataset has no training views".into()))?
             .measuring(self.search_distortion());
-        let mut trials = rate::rd::Trials::with_views(&trained, views.clone()).map_err(|e| Error::Input(e.to_string()))?;
-        let (mut config, _) = rate::rd::search_with(&mut trials, self.config.lambda, learned_steps(ladder.steps, &r), |_| {})
-            .map_err(|e| Error::Input(e.to_string()))?;
+        let mut trials = rate::rd::Trials::with_views(trained, views.clone()).map_err(|e| Error::Input(e.to_string()))?;
+        let (mut config, _) =
+            rate::rd::search_with(&mut trials, self.config.lambda, steps, |_| {}).map_err(|e| Error::Input(e.to_string()))?;
         // Pruning and the importance classes take the Gaussians in the order of their
         // significance from the dataset's training cameras, in the search and in the file.
         let trained_significance = trials.significance().to_vec();
         drop(trials); // its reference renders and coded groups, before retraining
         stages.rd_search_s = t.elapsed().as_secs_f64();
-        let orbit = Orbit::new(&trained);
+        let orbit = Orbit::new(trained);
         // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against
         // the images (the .ply path's fine-tuning, with the images as targets).
         let retrain = self.config.retrain_iters_for(true);
-        let init = (retrain > 0).then(|| rate::prepared(&trained, &config, Some(&trained_significance))).filter(|s| !s.is_empty());
+        let init = (retrain > 0).then(|| rate::prepared(trained, &config, Some(&trained_significance))).filter(|s| !s.is_empty());
         let retrained = if let Some(init) = init {
             let cfg = self.fine_tune_config(retrain, &init);
             // The loss of the main run, with WD / WD-R from the first iteration.
@@ -304,13 +337,15 @@ impl Encoder {
             stages.train_s += r2.train_seconds;
             let (c, sig) = self.retune_tail(&s, views.clone(), config, &mut stages)?;
             config = c;
-            Some((s, sig))
+            Some((s, sig, r2))
         } else {
             None
         };
-        let (coded, significance) = retrained.as_ref().map_or((&trained, &trained_significance), |(s, sig)| (s, sig));
+        let (coded, significance) = retrained.as_ref().map_or((trained, &trained_significance), |(s, sig, _)| (s, sig));
         let heldout = Some((dataset, &significance[..]));
-        let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, Some(r), heldout)?;
+        // The report's run: the training from the images, else (a given scene) the retraining.
+        let r = r.or_else(|| retrained.as_ref().map(|t| t.2.clone()));
+        let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, r, heldout)?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
         if self.config.coding_breakdown {
             e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, significance, &self.file_config(&config), dataset)?);
@@ -322,7 +357,7 @@ impl Encoder {
                 let fit = crate::anchor::FitViews::training_views(dataset)?;
                 Encoder { config: self.config.clone().with_iters(None) }.with_anchors(
                     e,
-                    &trained,
+                    trained,
                     &orbit,
                     Some(&fit),
                     Some((&views, &trained_significance)),
@@ -469,6 +504,7 @@ impl Encoder {
         stages.total_s = start.elapsed().as_secs_f64();
         let report = EncodeReport {
             input: String::new(),
+            init: None,
             lambda: self.config.lambda,
             loss: train.as_ref().map(|_| self.config.loss.name()),
             wd_sigma: train.as_ref().and_then(|_| self.config.loss.reported_sigma()),
@@ -501,6 +537,14 @@ impl Encoder {
             explicit_alternative: None,
         };
         Ok(Encoded { bytes, decoded, report, config: *config })
+    }
+}
+
+/// `--coding-breakdown` measures on the held-out views: refused for a dataset without any.
+fn check_breakdown_views(config: &EncoderConfig, dataset: &Dataset) -> Result<()> {
+    match config.coding_breakdown && dataset.split(Split::Test).is_empty() {
+        true => Err(Error::Input("--coding-breakdown: the dataset has no held-out views to measure on".into())),
+        false => Ok(()),
     }
 }
 

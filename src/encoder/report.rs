@@ -47,6 +47,10 @@ pub struct SeriesPoint {
 pub struct EncodeReport {
     /// The input, as the caller named it (empty when it did not).
     pub input: String,
+    /// The trained scene a dataset encode coded instead of training one (`encode DATASET
+    /// --init SCENE`, [`super::Encoder::encode_trained`]), as the caller named it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub init: Option<String>,
     /// λ (unit: see [`Lambda`]).
     pub lambda: Lambda,
     /// Training distortion, when the encode trained.
