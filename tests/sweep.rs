@@ -26,6 +26,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
         wd_warmup: None,
         search_distortion: SearchDistortion::Mse,
         max_gaussians: None,
+        init: None,
         bytes: (bytes0 * scale).round() as u64,
         gaussians: (bytes0 / 10.0) as u64,
         psnr: Some(20.0 + 3.0 * q),
@@ -285,6 +286,7 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         wd_warmup: Some(0.1),
         search_distortion: SearchDistortion::Mse,
         max_gaussians: None,
+        init: None,
         backend: gscodec::encoder::Backend::Cpu,
         dataset_args: Vec::new(),
     };
@@ -348,5 +350,60 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(Plan { max_gaussians: Some(default_budget), ..capped.clone() }.is_done(&wdr), "the default budget, given");
     assert!(capped.point_command(&wdr).join(" ").contains("--max-gaussians 15000"));
     assert!(!by_loss.point_command(&wdr).join(" ").contains("--max-gaussians"));
-    assert!(Plan { max_gaussians: Some(0), ..capped }.validate().unwrap_err().to_string().contains("--max-gaussians 0"));
+    assert!(Plan { max_gaussians: Some(0), ..capped.clone() }.validate().unwrap_err().to_string().contains("--max-gaussians 0"));
+    // a trained scene coded against the dataset (`--init`): a point trained from the images is
+    // redone, and the other way round
+    let init = Plan { init: Some("/s/scene.ply".into()), ..capped.clone() };
+    write_point(tmp.path(), &PointResult { max_gaussians: Some(15_000), ..r.clone() });
+    assert!(capped.is_done(&wdr) && !init.is_done(&wdr));
+    write_point(tmp.path(), &PointResult { max_gaussians: Some(15_000), init: Some("/s/scene.ply".into()), ..r.clone() });
+    assert!(init.is_done(&wdr) && !capped.is_done(&wdr));
+    assert!(!Plan { init: Some("/s/other.ply".into()), ..capped.clone() }.is_done(&wdr));
+    assert!(init.point_command(&wdr).join(" ").contains("--init /s/scene.ply"));
+    assert_eq!(init.settings()["init"], "/s/scene.ply");
+    let on_a_scene = Plan { input: "/s/scene.ply".into(), ..init };
+    assert!(on_a_scene.validate().unwrap_err().to_string().contains("--init needs a dataset input"));
+}
+
+/// `sweep DATASET --init SCENE`: every point codes the given trained scene against the dataset
+/// (no training from the images), measured on the held-out views; a missing scene is bad input.
+#[test]
+fn a_sweep_of_a_trained_scene_against_its_dataset() {
+    let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
+    let truth = tiny.join("truth.ply");
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("sw");
+    let sweep = |init: &Path| {
+        gscodec()
+            .arg("sweep")
+            .arg(&tiny)
+            .arg("-o")
+            .arg(&out)
+            .arg("--init")
+            .arg(init)
+            .args(["--lambdas", "20,200", "--loss", "l1ssim", "--retrain-iters", "0", "--backend", "cpu", "--quiet"])
+            .output()
+            .unwrap()
+    };
+    let res = sweep(&truth);
+    assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
+    let rows = read_results(&out).unwrap();
+    assert_eq!(rows.len(), 2);
+    let canonical = std::fs::canonicalize(&truth).unwrap().display().to_string();
+    for r in &rows {
+        assert_eq!(r.init.as_deref(), Some(canonical.as_str()));
+        // The sample's images were rendered from this scene: far above what training gives.
+        assert!(r.psnr.unwrap() > 30.0, "{r:?}");
+        let report: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join("points").join(format!("l1ssim_lambda{}", r.lambda)).join("report.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!((report["iters"].as_u64(), report["train"].is_null()), (Some(0), true));
+    }
+    let bytes = |l: f64| rows.iter().find(|r| r.lambda == l).unwrap().bytes;
+    assert!(bytes(20.0) > bytes(200.0), "λ 20 keeps more than λ 200: {rows:?}");
+    let missing = tmp.path().join("missing.ply");
+    let res = sweep(&missing);
+    assert_eq!(res.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&res.stderr).contains("missing.ply"));
 }

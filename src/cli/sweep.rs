@@ -53,6 +53,11 @@ pub struct Args {
     /// scene beyond N Gaussians [default: 100000].
     #[arg(long, value_name = "N")]
     pub max_gaussians: Option<usize>,
+    /// `encode --init` of every point (dataset input): code SCENE, trained on the dataset
+    /// elsewhere, at each λ (its Gaussians retrained to the images with each loss, as
+    /// --retrain-iters says) instead of training a scene from the images per point.
+    #[arg(long, value_name = "SCENE", conflicts_with_all = ["iters", "max_gaussians"])]
+    pub init: Option<PathBuf>,
     /// Training backend of every encode: cpu, gpu, or auto (a hardware GPU if there is one).
     #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
@@ -97,6 +102,7 @@ pub fn run(args: Args) -> Result<()> {
         wd_warmup: args.wd_warmup,
         search_distortion: args.search_distortion,
         max_gaussians: args.max_gaussians,
+        init: args.init.clone(),
         backend: args.backend,
         dataset_args: args.dataset.to_args(),
     };
@@ -122,6 +128,9 @@ pub fn run(args: Args) -> Result<()> {
     // Absolute paths: children and emitted jobs may run from elsewhere.
     plan.input = std::fs::canonicalize(&plan.input).map_err(|e| Error::input(&plan.input, e))?;
     plan.out = std::fs::canonicalize(&plan.out).map_err(|e| Error::failure(&plan.out, e))?;
+    if let Some(init) = &plan.init {
+        plan.init = Some(std::fs::canonicalize(init).map_err(|e| Error::input(init, e))?);
+    }
     let exe = std::env::current_exe().map_err(|e| Error::failure(Path::new("gscodec"), format!("cannot find own executable: {e}")))?;
 
     if let Some(file) = &args.emit_jobs {
@@ -134,7 +143,7 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("sweep: {skipped} finished point(s) kept, {} to run", pending.len());
     }
     // Loaded once for every point, and only when a point is to run.
-    let input = if pending.is_empty() { None } else { Some(Input::load(&plan.input, &args.dataset.load_options())?) };
+    let input = if pending.is_empty() { None } else { Some(Input::load(&plan.input, &args.dataset.load_options(), plan.init.as_deref())?) };
     let bar = super::progress::bar(pending.len() as u64, "sweep", args.quiet || pending.is_empty());
     let next = AtomicUsize::new(0);
     let failures = Mutex::new(Vec::new());

@@ -86,6 +86,7 @@ mod tests {
             wd_warmup: None,
             search_distortion: crate::encoder::SearchDistortion::Mse,
             max_gaussians: None,
+            init: None,
             backend: crate::encoder::Backend::Auto,
             dataset_args: Vec::new(),
         };

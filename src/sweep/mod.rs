@@ -95,6 +95,9 @@ pub struct Plan {
     pub search_distortion: SearchDistortion,
     /// `encode --max-gaussians` (dataset input; None: the encoder's default).
     pub max_gaussians: Option<usize>,
+    /// `encode --init` (dataset input): every point codes this trained scene against the
+    /// dataset instead of training one from the images.
+    pub init: Option<PathBuf>,
     /// Training backend of every encode.
     pub backend: Backend,
     /// Dataset options (`--downscale N`, …) as command-line words, passed on to emitted jobs;
@@ -120,7 +123,7 @@ impl Plan {
     }
 
     /// Whether a point has a result file from the same settings (`--iters`, `--seed`,
-    /// `--retrain-iters`, `--search-distortion`, `--max-gaussians`, and `--wd-sigma` and
+    /// `--retrain-iters`, `--search-distortion`, `--max-gaussians`, `--init`, and `--wd-sigma` and
     /// `--wd-warmup` for `wd` / `wdr`); a result from other settings, or an unreadable one, is
     /// redone.
     pub fn is_done(&self, p: &Point) -> bool {
@@ -137,7 +140,13 @@ impl Plan {
             && r.retrain_iters == self.retrain_iters_applied()
             && r.search_distortion == self.search_distortion
             && r.max_gaussians.unwrap_or(default_budget) == self.max_gaussians.unwrap_or(default_budget)
+            && r.init == self.init_name()
             && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
+    }
+
+    /// `--init` as recorded in results and settings.
+    fn init_name(&self) -> Option<String> {
+        self.init.as_ref().map(|p| p.display().to_string())
     }
 
     /// The retraining iterations every point runs with: `--retrain-iters` or the encoder's
@@ -174,6 +183,9 @@ impl Plan {
         if self.max_gaussians == Some(0) {
             return Err(Error::input(arg, crate::encoder::InvalidConfig::MaxGaussians));
         }
+        if self.init.is_some() && is_ply(&self.input) {
+            return Err(Error::input(&self.input, "--init needs a dataset input (the images the scene was trained on)"));
+        }
         Ok(())
     }
 
@@ -190,6 +202,7 @@ impl Plan {
             "wd_warmup": self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION),
             "search_distortion": self.search_distortion,
             "max_gaussians": self.max_gaussians,
+            "init": self.init_name(),
         })
     }
 
@@ -220,6 +233,9 @@ impl Plan {
         }
         if let Some(n) = self.max_gaussians {
             c.extend(["--max-gaussians".into(), n.to_string()]);
+        }
+        if let Some(init) = &self.init {
+            c.extend(["--init".into(), init.display().to_string()]);
         }
         if p.seed != 0 {
             c.extend(["--seeds".into(), p.seed.to_string()]);
@@ -285,14 +301,17 @@ pub enum Source {
     Scene(Splats),
     /// A posed-image dataset.
     Dataset(Dataset),
+    /// A posed-image dataset and a scene trained on it (`--init`).
+    Trained(Dataset, Splats),
 }
 
 impl Input {
-    /// Loads `path`: a `.ply` scene or a dataset directory (with `opts`).
+    /// Loads `path`: a `.ply` scene or a dataset directory (with `opts`), and with a dataset
+    /// the scene `init` trained on it, when given.
     ///
     /// # Errors
-    /// An unreadable input (exit 2, naming it).
-    pub fn load(path: &Path, opts: &crate::io::LoadOptions) -> Result<Input> {
+    /// An unreadable input or scene (exit 2, naming it).
+    pub fn load(path: &Path, opts: &crate::io::LoadOptions, init: Option<&Path>) -> Result<Input> {
         if is_ply(path) {
             let scene = crate::io::read_ply(path)?;
             let (views, background) = crate::cli::eval::reference_views(&scene, PLY_EVAL_ORBIT, None, crate::views::UpAxis::NegY);
@@ -308,7 +327,11 @@ impl Input {
                 return Err(Error::input(path, "the dataset has no test views to measure a sweep on"));
             }
             let background = ds.background;
-            Ok(Input { source: Source::Dataset(ds), views, background })
+            let source = match init {
+                Some(init) => Source::Trained(ds, crate::io::read_scene(init)?),
+                None => Source::Dataset(ds),
+            };
+            Ok(Input { source, views, background })
         }
     }
 }
@@ -326,6 +349,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
     let mut out = match &input.source {
         Source::Scene(s) => encoder.encode_scene(s, &mut |_| {}),
         Source::Dataset(d) => encoder.encode_dataset(d, &mut |_| {}),
+        Source::Trained(d, s) => encoder.encode_trained(d, s, &mut |_| {}),
     }
     .map_err(|e| match e {
         Error::Input(m) => Error::input(&plan.input, m),
@@ -353,6 +377,7 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
         wd_warmup: spec.reported_warmup(),
         search_distortion: plan.search_distortion,
         max_gaussians: plan.max_gaussians,
+        init: plan.init_name(),
         bytes: out.bytes.len() as u64,
         gaussians: decoded.len() as u64,
         psnr: Some(m.psnr),
@@ -397,6 +422,7 @@ mod tests {
             wd_warmup: None,
             search_distortion: SearchDistortion::Mse,
             max_gaussians: None,
+            init: None,
             backend: Backend::Auto,
             dataset_args: Vec::new(),
         };

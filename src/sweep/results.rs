@@ -59,6 +59,10 @@ pub struct PointResult {
     /// was an option).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_gaussians: Option<usize>,
+    /// `encode --init`: the trained scene the point coded against the dataset (None: trained
+    /// from the images).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init: Option<String>,
     /// What the RD search measured `D` with (`encode --search-distortion`; `mse` in results
     /// written before it was an option).
     #[serde(default)]
