@@ -264,7 +264,7 @@ fn anchor_profile_encodes_decodes_and_auto_picks_one_of_the_two() {
     assert!(&auto == expected, "auto wrote the {} profile's file", ra["profile"]);
     assert!(ra["anchor"].is_object());
     // A dataset: trained from its images (the explicit scene), then the anchors fitted to it.
-    let from_images = dir.path().join("images.gsc");
+    let (from_images, images_report) = (dir.path().join("images.gsc"), dir.path().join("images.json"));
     let dataset = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
     let o = gscodec(&[
         "encode",
@@ -279,12 +279,21 @@ fn anchor_profile_encodes_decodes_and_auto_picks_one_of_the_two() {
         "anchor",
         "--anchor-iters",
         "5",
+        "--report",
+        images_report.to_str().unwrap(),
         "--quiet",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let bytes = std::fs::read(&from_images).unwrap();
     assert_eq!(gscodec_decoder::peek_header(&bytes).unwrap().version_major, 7);
     gscodec_decoder::decode(&bytes).unwrap();
+    // The series ends with the anchor file (not the explicit one) on the held-out views.
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&images_report).unwrap()).unwrap();
+    let coded = r["series"].as_array().unwrap().iter().rfind(|p| p["trial"] == "coded").unwrap().clone();
+    assert_eq!(coded["estimated_bits"].as_f64(), Some(8.0 * bytes.len() as f64));
+    let o = gscodec(&["eval", from_images.to_str().unwrap(), dataset.to_str().unwrap(), "--json", "--quiet"]);
+    let e: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!((e["psnr"].as_f64().unwrap() - coded["heldout_psnr"].as_f64().unwrap()).abs() < 1e-6, "{e} against {coded}");
     // The anchor shape flags are checked at the door: exit 2, one line, no output.
     let out = dir.path().join("bad.gsc");
     let o = gscodec(&["encode", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--profile", "anchor", "--anchor-hidden", "513"]);

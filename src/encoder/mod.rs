@@ -123,15 +123,15 @@ impl Encoder {
 
     /// The explicit result `e` of `scene` replaced by the anchor profile's file where the profile
     /// asks for it: always for [`Profile::Anchor`], when its `J` is lower for [`Profile::Auto`].
-    /// The anchors are fine-tuned to `views` (a dataset's training images), else to renders of
-    /// `scene`. For a dataset, `significance` holds the RD search's views and `scene`'s
+    /// The anchors are fine-tuned to `dataset`'s training images, whose held-out views then
+    /// measure the file (the series' `coded` point), else to renders of `scene`. For a dataset, `significance` holds the RD search's views and `scene`'s
     /// significance from them ([`RdViews::significance`]), which prunes; else the scene's own.
     fn with_anchors(
         &self,
         e: Encoded,
         scene: &Splats,
         orbit: &Orbit,
-        views: Option<&crate::anchor::FitViews>,
+        dataset: Option<&Dataset>,
         significance: Option<(&RdViews, &[f32])>,
     ) -> Result<Encoded> {
         let start = Instant::now();
@@ -149,7 +149,8 @@ impl Encoder {
             seed: self.config.seed,
             ..d
         };
-        let a = crate::anchor::encode(&prepared, &sig, &cfg, (scene.len(), scene.sh_degree), views);
+        let fit = dataset.map(crate::anchor::FitViews::training_views).transpose()?;
+        let a = crate::anchor::encode(&prepared, &sig, &cfg, (scene.len(), scene.sh_degree), fit.as_ref());
         let orbit_psnr = orbit.psnr(&a.decoded);
         let j = |d: &Splats, bytes: usize| orbit.distortion(d) + self.config.lambda.rate_cost(bytes);
         let alternative = (e.bytes.len(), e.report.orbit_psnr);
@@ -161,6 +162,17 @@ impl Encoder {
             let report = EncodeReport { profile: "explicit", anchor: Some(a.report), stages, ..e.report };
             return Ok(Encoded { report, ..e });
         }
+        // The series ends with the file written: the anchor file on the held-out views.
+        let mut series = e.report.series;
+        if let (Some(ds), Some(coded)) = (dataset, series.iter_mut().rev().find(|p| p.trial == "coded")) {
+            let psnr = crate::metrics::view::mean_psnr_ssim(&a.decoded, &ds.split(Split::Test), ds.background)?.map(|m| m.0);
+            *coded = SeriesPoint {
+                wall_s: coded.wall_s + start.elapsed().as_secs_f64(),
+                estimated_bits: Some(8.0 * a.bytes.len() as f64),
+                heldout_psnr: psnr,
+                ..coded.clone()
+            };
+        }
         let report = EncodeReport {
             file_bytes: a.bytes.len(),
             estimated_bytes: a.bytes.len() as f64,
@@ -168,6 +180,7 @@ impl Encoder {
             sh_degree: a.decoded.sh_degree,
             orbit_psnr,
             stages,
+            series,
             profile: "anchor",
             explicit_alternative: Some(alternative),
             anchor: Some(a.report),
@@ -353,16 +366,13 @@ impl Encoder {
         match self.config.profile {
             Profile::Explicit => Ok(e),
             // The anchors are distilled from the trained scene, then fine-tuned to the images.
-            _ => {
-                let fit = crate::anchor::FitViews::training_views(dataset)?;
-                Encoder { config: self.config.clone().with_iters(None) }.with_anchors(
-                    e,
-                    trained,
-                    &orbit,
-                    Some(&fit),
-                    Some((&views, &trained_significance)),
-                )
-            }
+            _ => Encoder { config: self.config.clone().with_iters(None) }.with_anchors(
+                e,
+                trained,
+                &orbit,
+                Some(dataset),
+                Some((&views, &trained_significance)),
+            ),
         }
     }
 
