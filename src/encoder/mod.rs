@@ -124,8 +124,9 @@ impl Encoder {
     /// The explicit result `e` of `scene` replaced by the anchor profile's file where the profile
     /// asks for it: always for [`Profile::Anchor`], when its `J` is lower for [`Profile::Auto`].
     /// The anchors are fine-tuned to `dataset`'s training images, whose held-out views then
-    /// measure the file (the series' `coded` point), else to renders of `scene`. For a dataset, `significance` holds the RD search's views and `scene`'s
-    /// significance from them ([`RdViews::significance`]), which prunes; else the scene's own.
+    /// measure the file (the series' `coded` point), else to renders of `scene`. For a dataset,
+    /// `significance` holds the RD search's views and `scene`'s significance from them
+    /// ([`RdViews::significance`]), which prunes; else the scene's own.
     fn with_anchors(
         &self,
         e: Encoded,
