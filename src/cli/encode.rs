@@ -8,6 +8,9 @@ use crate::loss::LossKind;
 use crate::Error;
 use gscodec_decoder::Splats;
 
+/// The error of `--init` beside a scene input (`encode` and `sweep`).
+pub(crate) const INIT_NEEDS_DATASET: &str = "--init needs a dataset input (the images the scene was trained on)";
+
 /// Compress a scene into a .gsc bitstream.
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -155,7 +158,7 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
     };
     let dataset = args.input.is_dir();
     if args.init.is_some() && !dataset {
-        return Err(Error::input(&args.input, "--init needs a dataset input (the images the scene was trained on)"));
+        return Err(Error::input(&args.input, INIT_NEEDS_DATASET));
     }
     let training = if args.init.is_some() { 0 } else { encoder.config().iters_for(dataset) };
     let iters = training + encoder.config().retrain_iters_for(dataset);

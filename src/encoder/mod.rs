@@ -337,6 +337,7 @@ impl Encoder {
         // the images (the .ply path's fine-tuning, with the images as targets).
         let retrain = self.config.retrain_iters_for(true);
         let init = (retrain > 0).then(|| rate::prepared(trained, &config, Some(&trained_significance))).filter(|s| !s.is_empty());
+        let mut retrain_report = None;
         let retrained = if let Some(init) = init {
             let cfg = self.fine_tune_config(retrain, &init);
             // The loss of the main run, with WD / WD-R from the first iteration.
@@ -351,14 +352,15 @@ impl Encoder {
             stages.train_s += r2.train_seconds;
             let (c, sig) = self.retune_tail(&s, views.clone(), config, &mut stages)?;
             config = c;
-            Some((s, sig, r2))
+            retrain_report = Some(r2);
+            Some((s, sig))
         } else {
             None
         };
-        let (coded, significance) = retrained.as_ref().map_or((trained, &trained_significance), |(s, sig, _)| (s, sig));
+        let (coded, significance) = retrained.as_ref().map_or((trained, &trained_significance), |(s, sig)| (s, sig));
         let heldout = Some((dataset, &significance[..]));
         // The report's run: the training from the images, else (a given scene) the retraining.
-        let r = r.or_else(|| retrained.as_ref().map(|t| t.2.clone()));
+        let r = r.or(retrain_report);
         let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, r, heldout)?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
         if self.config.coding_breakdown {

@@ -184,7 +184,7 @@ impl Plan {
             return Err(Error::input(arg, crate::encoder::InvalidConfig::MaxGaussians));
         }
         if self.init.is_some() && is_ply(&self.input) {
-            return Err(Error::input(&self.input, "--init needs a dataset input (the images the scene was trained on)"));
+            return Err(Error::input(&self.input, crate::cli::encode::INIT_NEEDS_DATASET));
         }
         Ok(())
     }
