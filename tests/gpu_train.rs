@@ -23,7 +23,7 @@ use gscodec::encoder::{Backend, LossSpec, TrainJob};
 use gscodec::io::{load_dataset, LoadOptions, Split};
 use gscodec::loss::features::pyramid::Pyramid;
 use gscodec::loss::wd::Sigma;
-use gscodec::loss::wdr::{WdDistortion, WdrLoss};
+use gscodec::loss::wdr::{self, WdDistortion, WdrLoss};
 use gscodec::loss::{FeatureSpec, ImageLoss, L1Ssim, LossKind};
 use gscodec::raster;
 use gscodec::testkit::{random_splats, rig_cameras};
@@ -437,8 +437,9 @@ fn unsupported_losses_are_input_errors() {
         let e = GpuLoss::new(kind, &FeatureSpec::Pyramid, None, Some(0.5)).check().unwrap_err();
         assert!(e.exit_code() == 2 && e.to_string().contains("--wd-sigma 0.5"), "{e}");
         GpuLoss::new(kind, &FeatureSpec::Pyramid, None, Some(2.0)).check().unwrap();
-        let e = GpuLoss::new(kind, &FeatureSpec::Pyramid, None, None).with_warmup(Some(1.0)).check().unwrap_err();
-        assert!(e.exit_code() == 2 && e.to_string().contains("--wd-warmup 1"), "{e}");
+        let e = GpuLoss::new(kind, &FeatureSpec::Pyramid, None, None).with_warmup(Some(1.5)).check().unwrap_err();
+        assert!(e.exit_code() == 2 && e.to_string().contains("--wd-warmup 1.5"), "{e}");
+        GpuLoss::new(kind, &FeatureSpec::Pyramid, None, None).with_warmup(Some(1.0)).check().unwrap();
         // the warm-up share sets the GPU WD stage's first iteration as the CPU loss's
         let wc = |f| gscodec::train::gpu::wd::WdConfig::new(kind, None, None, f, 300).warmup;
         assert_eq!((wc(Some(0.1)), wc(Some(0.0)), wc(None)), (30, 0, 90));
@@ -529,12 +530,20 @@ fn wdr_loss_and_gradient_match_cpu() {
         assert_value(&format!("WD-R, gamma {gamma:?}"), gv, cv);
         assert_close(&format!("WD-R gradient, gamma {gamma:?}"), &gg, &cg);
     }
-    // In the warm-up (iteration 5 of 100) both train with L_orig alone.
+    // In the warm-up (iterations 5 and 30 of 100) both train with L_orig alone; from
+    // iteration 31 both with WD-R; at the share 1 neither does at the last iteration.
     let loss = GpuLoss::new(LossKind::Wdr, &FeatureSpec::Pyramid, None, None);
-    let (gv, gg) = gpu::training_loss_and_grad(&gpu, &r, &t, &loss, 100, 5).unwrap();
-    let (cv, cg) = WdrLoss::new(Box::new(Pyramid), 100).loss_and_grad(&r, &t, 0, 5);
-    assert_value("WD-R warm-up", gv, cv);
-    assert_close("WD-R warm-up gradient", &gg, &cg);
+    let (lo, _) = wdr::l_orig(&r, &t);
+    for (share, iter, warm) in [(None, 5, true), (None, 30, true), (None, 31, false), (Some(1.0), 100, true)] {
+        let loss = loss.with_warmup(share);
+        let (gv, gg) = gpu::training_loss_and_grad(&gpu, &r, &t, &loss, 100, iter).unwrap();
+        let mut cpu = WdrLoss::new(Box::new(Pyramid), 100);
+        cpu.warmup = wdr::warmup_iters(100, share.unwrap_or(wdr::WARMUP_FRACTION));
+        let (cv, cg) = cpu.loss_and_grad(&r, &t, 0, iter);
+        assert_value(&format!("WD-R, iteration {iter}"), gv, cv);
+        assert_close(&format!("WD-R gradient, iteration {iter}"), &gg, &cg);
+        assert_eq!(cv == lo, warm, "iteration {iter}: L_orig alone is the warm-up");
+    }
 }
 
 /// 60 iterations of WD-R (normalised γ, warm-up of 18) on `samples/tiny` through the backend seam

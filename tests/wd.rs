@@ -453,11 +453,11 @@ fn wdr_matches_its_formula(rng: &mut Rng, x: &Tensor<f64>, target: &Tensor<f64>,
     }
     assert_eq!(loss.warmup, 300, "three tenths of the run (wdr::WARMUP_FRACTION)");
     // warm-up: L_orig alone
-    let (lw, gw) = loss.loss_and_grad(&xi, &ti, 0, 299);
+    let (lw, gw) = loss.loss_and_grad(&xi, &ti, 0, 300);
     let (lo, go) = wdr::l_orig(&xi, &ti);
     assert_eq!((lw, &gw), (lo, &go));
     // after: γ(d_WD + β L_orig), checked against f64 finite differences of that formula
-    let (l, g) = loss.loss_and_grad(&xi, &ti, 0, 300);
+    let (l, g) = loss.loss_and_grad(&xi, &ti, 0, 301);
     let sigma = Sigma::Constant(sigma.unwrap_or(wd::DEFAULT_SIGMA));
     let r = Reference::new(&Pyramid.features(target), &sigma, h, w);
     let f = |t: &Tensor<f64>| {
@@ -500,7 +500,7 @@ fn wdr_normalised_gamma_matches_the_l1ssim_gradient_scale_then_freezes() {
     assert_eq!(loss.gamma, wdr::DEFAULT_GAMMA_WDR);
     // first WD iteration: the gradient has exactly the norm of L_orig's (= L1-SSIM's)
     let (x, t) = &views[0];
-    let (l, g) = loss.loss_and_grad(x, t, 0, loss.warmup);
+    let (l, g) = loss.loss_and_grad(x, t, 0, loss.warmup + 1);
     let (lo, go) = wdr::l_orig(x, t);
     assert!((l2(&g) / l2(&go) - 1.0).abs() < 1e-5, "{} vs {}", l2(&g), l2(&go));
     let mut plain = WdDistortion::new(Box::new(Pyramid));
@@ -511,7 +511,7 @@ fn wdr_normalised_gamma_matches_the_l1ssim_gradient_scale_then_freezes() {
     for (i, (x, t)) in views.iter().enumerate().skip(1) {
         let before = loss.gamma;
         let settled = loss.gamma_settled();
-        let (_, g) = loss.loss_and_grad(x, t, i, loss.warmup + i);
+        let (_, g) = loss.loss_and_grad(x, t, i, loss.warmup + 1 + i);
         let (_, go) = wdr::l_orig(x, t);
         let (_, gd) = plain.value_and_grad(x, t, None);
         let comb: Vec<f32> = gd.iter().zip(&go).map(|(a, b)| a + wdr::BETA as f32 * b).collect();
@@ -632,28 +632,31 @@ fn loss_options_parse_and_fail_cleanly() {
         assert!((got - d(sigma)).abs() <= 1e-6 * got, "σ {sigma}: {got} vs {}", d(sigma));
     }
     assert!((d(2.0) - d(4.0)).abs() > 1e-3 * d(4.0), "σ changes the value");
-    // --wd-warmup: [0, 1); outside, or NaN, is bad input naming the range
-    for bad in ["1", "-0.1", "NaN", "2"] {
+    // --wd-warmup: [0, 1]; outside, or NaN, is bad input naming the range
+    for bad in ["1.01", "-0.1", "NaN", "2"] {
         let c = Cli::try_parse_from(["x", "--loss", "wdr", &format!("--wd-warmup={bad}")]).unwrap();
         let e = build_loss(&c.loss, 10, LossKind::L1ssim).err().expect("warm-up out of range");
         assert_eq!(e.exit_code(), 2);
-        assert!(e.to_string().contains(&format!("--wd-warmup {bad}: must be in [0, 1)")), "{e}");
+        assert!(e.to_string().contains(&format!("--wd-warmup {bad}: must be in [0, 1]")), "{e}");
     }
-    // the share given is the warm-up trained with: over 100 iterations, `wd` is L_orig (the
-    // L1-SSIM loss) before iteration 100·F and γ·d_WD from it on
-    let l_orig = build_loss(&Cli::try_parse_from(["x"]).unwrap().loss, 100, LossKind::L1ssim).unwrap().loss_and_grad(&a, &b, 0, 0).0;
-    for (args, first_wd) in [
+    // the share given is the warm-up trained with: over 100 iterations (numbered from 1), `wd`
+    // is L_orig (the L1-SSIM loss) up to iteration 100·F and γ·d_WD after it; at 1, never WD
+    let l_orig = build_loss(&Cli::try_parse_from(["x"]).unwrap().loss, 100, LossKind::L1ssim).unwrap().loss_and_grad(&a, &b, 0, 1).0;
+    for (args, warmup) in [
         (vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-warmup", "0.1"], 10),
         (vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-warmup", "0"], 0),
         (vec!["x", "--loss", "wd", "--wd-gamma", "1"], 30),
+        (vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-warmup", "1"], 100),
     ] {
         let c = Cli::try_parse_from(args).unwrap();
         let mut loss = build_loss(&c.loss, 100, LossKind::L1ssim).unwrap();
-        if first_wd > 0 {
-            assert_eq!(loss.loss_and_grad(&a, &b, 0, first_wd - 1).0, l_orig, "warm-up {first_wd}");
+        for it in (1..=warmup).filter(|&it| it == 1 || it == warmup) {
+            assert_eq!(loss.loss_and_grad(&a, &b, 0, it).0, l_orig, "warm-up {warmup}, iteration {it}");
         }
-        let got = loss.loss_and_grad(&a, &b, 0, first_wd).0;
-        assert!((got - d(4.0)).abs() <= 1e-6 * got, "warm-up {first_wd}: {got} vs {}", d(4.0));
+        if warmup < 100 {
+            let got = loss.loss_and_grad(&a, &b, 0, warmup + 1).0;
+            assert!((got - d(4.0)).abs() <= 1e-6 * got, "warm-up {warmup}: {got} vs {}", d(4.0));
+        }
     }
 }
 
@@ -717,7 +720,7 @@ fn wd_sigma_or_warmup_out_of_range_is_bad_input_on_every_command() {
         vec!["sweep".into(), tiny.clone(), "-o".into(), out("sw")],
     ];
     for (flag, value, message) in
-        [("--wd-sigma", "0.5", "--wd-sigma 0.5: must be in [1, 32]"), ("--wd-warmup", "1", "--wd-warmup 1: must be in [0, 1)")]
+        [("--wd-sigma", "0.5", "--wd-sigma 0.5: must be in [1, 32]"), ("--wd-warmup", "1.5", "--wd-warmup 1.5: must be in [0, 1]")]
     {
         for args in &runs {
             let o = std::process::Command::new(env!("CARGO_BIN_EXE_gscodec"))

@@ -332,8 +332,8 @@ pub enum InvalidConfig {
         /// The largest accepted.
         max: f64,
     },
-    /// The warm-up share of WD / WD-R must be in [0, 1).
-    #[error("--wd-warmup {value}: must be in [0, 1)")]
+    /// The warm-up share of WD / WD-R must be in [0, 1].
+    #[error("--wd-warmup {value}: must be in [0, 1]")]
     WdWarmup {
         /// The value given.
         value: f64,

@@ -68,8 +68,9 @@ pub struct LossArgs {
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
     /// Share of the iterations trained with L1-SSIM alone before `wd` / `wdr` take over:
-    /// 0 ≤ F < 1 (default: 0.3, before densification ends at 0.5; the paper's is 0.1; see
-    /// docs/wd.md §17).
+    /// 0 ≤ F ≤ 1 (default: 0.3, before densification ends at 0.5; the paper's is 0.1; see
+    /// docs/wd.md §17). 1: the run from the images is L1-SSIM's, and `wd` / `wdr` train only in
+    /// the retraining after the RD search (docs/wd.md §23).
     #[arg(long = "wd-warmup", value_name = "F")]
     pub wd_warmup: Option<f64>,
 }
@@ -88,12 +89,12 @@ pub fn check_wd_sigma(sigma: f64) -> Result<(), crate::encoder::InvalidConfig> {
     }
 }
 
-/// Checks a `--wd-warmup`: in [0, 1) (NaN is not).
+/// Checks a `--wd-warmup`: in [0, 1] (NaN is not; 1: WD / WD-R only in retraining).
 ///
 /// # Errors
 /// [`InvalidConfig::WdWarmup`](crate::encoder::InvalidConfig::WdWarmup), naming the value.
 pub fn check_wd_warmup(fraction: f64) -> Result<(), crate::encoder::InvalidConfig> {
-    match (0.0..1.0).contains(&fraction) {
+    match (0.0..=1.0).contains(&fraction) {
         true => Ok(()),
         false => Err(crate::encoder::InvalidConfig::WdWarmup { value: fraction }),
     }

@@ -36,7 +36,8 @@ pub const PAPER_WARMUP_FRACTION: f64 = 0.1;
 pub const DEFAULT_CACHE_BYTES: usize = 2 << 30;
 
 /// Warm-up length for a run of `total_iters` iterations whose first `fraction` trains with
-/// `L_orig` alone (`--wd-warmup`; [`WARMUP_FRACTION`] by default).
+/// `L_orig` alone (`--wd-warmup`; [`WARMUP_FRACTION`] by default): iterations 1 to this number
+/// (1-based) are the warm-up, so a share of 1 never trains with WD.
 pub fn warmup_iters(total_iters: usize, fraction: f64) -> usize {
     (total_iters as f64 * fraction).round() as usize
 }
@@ -188,7 +189,7 @@ impl WdLoss {
 
 impl ImageLoss for WdLoss {
     fn loss_and_grad(&mut self, rendered: &Image, target: &Image, view: usize, iter: usize) -> (f64, Vec<f32>) {
-        if iter < self.warmup {
+        if iter <= self.warmup {
             return l_orig(rendered, target);
         }
         let (v, mut g) = self.distortion.value_and_grad(rendered, target, Some(view));
@@ -257,7 +258,7 @@ fn l2(v: &[f32]) -> f64 {
 impl ImageLoss for WdrLoss {
     fn loss_and_grad(&mut self, rendered: &Image, target: &Image, view: usize, iter: usize) -> (f64, Vec<f32>) {
         let (lo, go) = l_orig(rendered, target);
-        if iter < self.warmup {
+        if iter <= self.warmup {
             return (lo, go);
         }
         let (v, gw) = self.distortion.value_and_grad(rendered, target, Some(view));

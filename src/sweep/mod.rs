@@ -480,8 +480,9 @@ mod tests {
         assert_eq!(w.encoder_config(&pts[3]).unwrap().loss.wd_warmup, Some(0.25));
         assert_eq!(w.settings()["wd_warmup"], 0.25);
         assert_eq!((w.loss_spec(&pts[0]).unwrap().reported_warmup(), w.loss_spec(&pts[3]).unwrap().reported_warmup()), (None, Some(0.25)));
-        let bad = Plan { wd_warmup: Some(1.0), ..plan.clone() };
-        assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --wd-warmup 1: must be in [0, 1)");
+        Plan { wd_warmup: Some(1.0), ..plan.clone() }.validate().unwrap();
+        let bad = Plan { wd_warmup: Some(1.5), ..plan.clone() };
+        assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --wd-warmup 1.5: must be in [0, 1]");
         let bad = Plan { wd_sigma: Some(0.5), ..plan.clone() };
         assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --wd-sigma 0.5: must be in [1, 32]");
         let bad = Plan { lambdas: vec![-1.0], ..plan.clone() };

@@ -182,7 +182,7 @@ pub fn training_loss_and_grad(
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     s.loss(&mut enc, &tgt, loss.ssim_weight);
     if let Some(st) = stage.as_mut() {
-        st.record(&s, &mut enc, 0, &tgt, iter >= st.config.warmup)?;
+        st.record(&s, &mut enc, 0, &tgt, iter > st.config.warmup)?;
     }
     gpu.queue.submit([enc.finish()]);
     let dl = s.read_dl()?;
@@ -402,7 +402,7 @@ pub fn train_with(
                     wd_stages.len() - 1
                 }
             };
-            wd_stages[k].record(&session, &mut enc, fi, target, it >= wc.warmup)?;
+            wd_stages[k].record(&session, &mut enc, fi, target, it > wc.warmup)?;
         }
         let stats_on = cfg.densify && it < sched.densify_until;
         session.backward(&mut enc, &frame.camera, stats_on);

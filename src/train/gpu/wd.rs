@@ -123,7 +123,7 @@ pub struct WdConfig {
     pub gamma: Option<f64>,
     /// Uniform pooling scale σ (`--wd-sigma`; the level weights come from the CPU's [`Plan`]).
     pub sigma: f64,
-    /// Iterations (1-based numbers below this) trained with `L_orig` alone.
+    /// Iterations (1-based numbers up to this) trained with `L_orig` alone.
     pub warmup: usize,
     /// Budget of the reference cache in bytes.
     pub cache_bytes: u64,
