@@ -363,6 +363,14 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert_eq!(init.settings()["init"], "/s/scene.ply");
     let on_a_scene = Plan { input: "/s/scene.ply".into(), ..init };
     assert!(on_a_scene.validate().unwrap_err().to_string().contains("--init needs a dataset input"));
+    // with retraining and no share given, a dataset's wdr points train WD-R only in retraining
+    // (share 1): a result at 0.3 (the default of sessions 21–24) is redone, one at 1 is done
+    let by_default = Plan { wd_warmup: None, max_gaussians: None, search_distortion: SearchDistortion::Mse, ..retrain.clone() };
+    let r = PointResult { wd_sigma: Some(2.0), retrain_iters: 300, ..fake("wdr", 2.0, 1.0) };
+    write_point(tmp.path(), &PointResult { wd_warmup: Some(0.3), ..r.clone() });
+    assert!(!by_default.is_done(&wdr));
+    write_point(tmp.path(), &PointResult { wd_warmup: Some(1.0), ..r });
+    assert!(by_default.is_done(&wdr) && Plan { wd_warmup: Some(1.0), ..by_default.clone() }.is_done(&wdr));
 }
 
 /// `sweep DATASET --init SCENE`: every point codes the given trained scene against the dataset

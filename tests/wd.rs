@@ -736,3 +736,44 @@ fn wd_sigma_or_warmup_out_of_range_is_bad_input_on_every_command() {
     }
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no partial output");
 }
+
+/// `encode DATASET --loss wdr` with no `--wd-warmup` trains WD-R only in the retraining after the
+/// RD search (docs/wd.md §23): its run from the images is L1-SSIM's bit for bit (the CPU trainer
+/// is deterministic), its retraining is not, and the report records the share 1. Without
+/// retraining (`--retrain-iters 0`) the share is 0.3 and WD-R trains the run from the images.
+#[test]
+fn a_dataset_encode_trains_wdr_only_in_retraining_by_default() {
+    let dir = tempfile::tempdir().unwrap();
+    let tiny = format!("{}/samples/tiny", env!("CARGO_MANIFEST_DIR"));
+    let iters = 40;
+    let encode = |name: &str, extra: &[&str]| -> (serde_json::Value, Vec<u8>) {
+        let (out, report) = (dir.path().join(format!("{name}.gsc")), dir.path().join(format!("{name}.json")));
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_gscodec"))
+            .args(["encode", &tiny, "-o", out.to_str().unwrap(), "--report", report.to_str().unwrap()])
+            .args(["--iters", &iters.to_string(), "--lambda", "20", "--backend", "cpu", "--quiet"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{name}: {}", String::from_utf8_lossy(&o.stderr));
+        (serde_json::from_str(&std::fs::read_to_string(report).unwrap()).unwrap(), std::fs::read(out).unwrap())
+    };
+    // held-out PSNR along the run from the images (the retraining's points come after `iters`)
+    let main_run = |r: &serde_json::Value| -> Vec<(u64, f64)> {
+        let series = r["series"].as_array().unwrap().iter();
+        let train = series.filter(|p| p["trial"] == "train" && p["iteration"].as_u64().unwrap() <= iters);
+        train.map(|p| (p["iteration"].as_u64().unwrap(), p["heldout_psnr"].as_f64().unwrap())).collect()
+    };
+    let (l1, l1_file) = encode("l1", &["--loss", "l1ssim"]);
+    let (wdr, wdr_file) = encode("wdr", &["--loss", "wdr"]);
+    assert_eq!((l1["wd_warmup"].as_f64(), wdr["wd_warmup"].as_f64(), wdr["retrain_iters"].as_u64()), (None, Some(1.0), Some(4)));
+    assert!(main_run(&l1).len() >= 5, "{}", l1["series"]);
+    assert_eq!(main_run(&wdr), main_run(&l1), "the run from the images is L1-SSIM's");
+    assert_ne!(wdr_file, l1_file, "the retraining trains with WD-R");
+    let (early, _) = encode("early", &["--loss", "wdr", "--retrain-iters", "0"]);
+    assert_eq!(early["wd_warmup"].as_f64(), Some(0.3));
+    let (given, _) = encode("given", &["--loss", "wdr", "--wd-warmup", "0.3"]);
+    assert_eq!(given["wd_warmup"].as_f64(), Some(0.3));
+    let (a, b) = (main_run(&given), main_run(&l1));
+    assert_eq!(a[..2], b[..2], "the warm-up (iterations 1 to 12) is L1-SSIM's");
+    assert_ne!(a, b, "WD-R from iteration 13");
+}

@@ -42,7 +42,8 @@ pub struct Args {
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
     /// Share of each encode's iterations trained with L1-SSIM before `wd` / `wdr`
-    /// (0 ≤ F ≤ 1; 1: only in retraining) [default: 0.3].
+    /// (0 ≤ F ≤ 1; 1: only in retraining) [default: encode's: 1 for a dataset that retrains,
+    /// else 0.3].
     #[arg(long = "wd-warmup", value_name = "F")]
     pub wd_warmup: Option<f64>,
     /// `encode --search-distortion` of every point (dataset input): what the RD search

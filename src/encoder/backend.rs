@@ -125,6 +125,13 @@ impl LossSpec {
         (self.kind != LossKind::L1ssim).then(|| self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA))
     }
 
+    /// The same loss with the warm-up share `share` where `--wd-warmup` was not given (`wd` /
+    /// `wdr`; `l1ssim` has none).
+    pub fn with_default_warmup(self, share: f64) -> LossSpec {
+        let wd_warmup = self.wd_warmup.or((self.kind != LossKind::L1ssim).then_some(share));
+        LossSpec { wd_warmup, ..self }
+    }
+
     /// WD's warm-up share for reports: the value trained with for `wd` / `wdr`, None for `l1ssim`.
     pub fn reported_warmup(&self) -> Option<f64> {
         (self.kind != LossKind::L1ssim).then(|| self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION))

@@ -2,7 +2,7 @@
 //! [`EncoderConfig::validate`], which returns an [`InvalidConfig`] naming the bad value and its bound.
 
 use super::backend::{Backend, LossSpec};
-use crate::loss::LossKind;
+use crate::loss::{wdr, LossKind};
 use crate::rate::Lambda;
 
 /// Training iterations when encoding a dataset without [`EncoderConfig::iters`].
@@ -226,6 +226,16 @@ impl EncoderConfig {
     /// Iterations for a scene (`dataset` false) or a dataset.
     pub fn iters_for(&self, dataset: bool) -> usize {
         self.iters.unwrap_or(if dataset { DEFAULT_DATASET_ITERS } else { 0 })
+    }
+
+    /// The warm-up share a dataset's encode trains `wd` / `wdr` with when `--wd-warmup` is not
+    /// given: [`wdr::ENCODE_WARMUP_FRACTION`] (WD / WD-R only in retraining) when it retrains,
+    /// else [`wdr::WARMUP_FRACTION`].
+    pub fn dataset_wd_warmup(&self) -> f64 {
+        match self.retrain_iters_for(true) {
+            0 => wdr::WARMUP_FRACTION,
+            _ => wdr::ENCODE_WARMUP_FRACTION,
+        }
     }
 
     /// Retraining iterations for a scene (`dataset` false: none) or a dataset.

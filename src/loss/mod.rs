@@ -70,7 +70,8 @@ pub struct LossArgs {
     /// Share of the iterations trained with L1-SSIM alone before `wd` / `wdr` take over:
     /// 0 ≤ F ≤ 1 (default: 0.3, before densification ends at 0.5; the paper's is 0.1; see
     /// docs/wd.md §17). 1: the run from the images is L1-SSIM's, and `wd` / `wdr` train only in
-    /// the retraining after the RD search (docs/wd.md §23).
+    /// the retraining after the RD search: the default of `encode` of a dataset that retrains
+    /// (docs/wd.md §23).
     #[arg(long = "wd-warmup", value_name = "F")]
     pub wd_warmup: Option<f64>,
 }

@@ -29,6 +29,14 @@ pub const DEFAULT_GAMMA_WD: f64 = 0.03;
 /// of 30k ([`PAPER_WARMUP_FRACTION`]) and tunes γ per scene to keep the splat count (docs/wd.md
 /// §8).
 pub const WARMUP_FRACTION: f64 = 0.3;
+/// Default warm-up share of an `encode` of a dataset that retrains (`--wd-warmup 1`): the run
+/// from the images trains with `L_orig` alone, and WD / WD-R train only the retraining of the
+/// Gaussians the RD search keeps (docs/wd.md §23). On three scenes (GPU trainer, two seeds) its
+/// ꟻLIP BD-rates against L1-SSIM are −12.4 % (lego-200), +1.1 % and −1.7 % (a ray-cast textured
+/// scene, playbot-lod3's renders; CPU trainer: +5.2 % and −14.7 %), where [`WARMUP_FRACTION`]
+/// gives −16.4 % on lego and lost 11–22 % on the two others (CPU trainer, §20–§21): WD-R growing
+/// the scene paid on lego only.
+pub const ENCODE_WARMUP_FRACTION: f64 = 1.0;
 /// The paper's warm-up share (3k of 30k iterations), this crate's default before `--wd-warmup`
 /// (what results that record no share were trained with).
 pub const PAPER_WARMUP_FRACTION: f64 = 0.1;

@@ -199,7 +199,7 @@ impl Plan {
             "seeds": self.seeds,
             "retrain_iters": self.retrain_iters_applied(),
             "wd_sigma": self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA),
-            "wd_warmup": self.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION),
+            "wd_warmup": self.wd_warmup_applied(),
             "search_distortion": self.search_distortion,
             "max_gaussians": self.max_gaussians,
             "init": self.init_name(),
@@ -280,7 +280,16 @@ impl Plan {
     /// An unknown loss (exit 2); [`Plan::validate`] rules it out.
     pub fn loss_spec(&self, p: &Point) -> Result<LossSpec> {
         let kind = <LossKind as ValueEnum>::from_str(&p.loss, true).map_err(|e| Error::input(Path::new("--loss"), e))?;
-        Ok(LossSpec { kind, wd_sigma: self.wd_sigma, wd_warmup: self.wd_warmup, ..LossSpec::default() })
+        let spec = LossSpec { kind, wd_sigma: self.wd_sigma, wd_warmup: self.wd_warmup, ..LossSpec::default() };
+        Ok(spec.with_default_warmup(self.wd_warmup_applied()))
+    }
+
+    /// The warm-up share the `wd` / `wdr` points train with: `--wd-warmup`, else the encoder's
+    /// default for the input (a dataset trained from its images: WD-R only in retraining).
+    pub fn wd_warmup_applied(&self) -> f64 {
+        let trained_here = !is_ply(&self.input) && self.init.is_none();
+        let config = EncoderConfig::default().with_iters(self.iters).with_retrain_iters(self.retrain_iters);
+        self.wd_warmup.unwrap_or(if trained_here { config.dataset_wd_warmup() } else { crate::loss::wdr::WARMUP_FRACTION })
     }
 }
 
@@ -473,7 +482,16 @@ mod tests {
         assert_eq!(s2.settings()["wd_sigma"], 2.0);
         assert_eq!((s2.loss_spec(&pts[0]).unwrap().reported_sigma(), s2.loss_spec(&pts[3]).unwrap().reported_sigma()), (None, Some(2.0)));
         // --wd-warmup likewise
-        assert_eq!(plan.settings()["wd_warmup"], 0.3, "the default warm-up is recorded");
+        // the default share is the encoder's: WD-R only in retraining for a dataset that
+        // retrains, else 0.3 (no retraining, a .ply, a scene given with --init)
+        assert_eq!(plan.settings()["wd_warmup"], 1.0, "the default warm-up is recorded");
+        assert_eq!(plan.encoder_config(&pts[3]).unwrap().loss.wd_warmup, Some(1.0));
+        assert_eq!(plan.encoder_config(&pts[0]).unwrap().loss.reported_warmup(), None, "l1ssim has no warm-up");
+        let init = Plan { init: Some("scene.ply".into()), ..plan.clone() };
+        for other in [&rt, &ply, &init] {
+            assert_eq!(other.settings()["wd_warmup"], 0.3);
+            assert_eq!(other.loss_spec(&pts[3]).unwrap().reported_warmup(), Some(0.3));
+        }
         let w = Plan { wd_warmup: Some(0.25), ..plan.clone() };
         w.validate().unwrap();
         assert!(w.point_command(&pts[3]).join(" ").ends_with("--iters 300 --wd-warmup 0.25 --points-only --quiet"));
