@@ -228,13 +228,13 @@ impl EncoderConfig {
         self.iters.unwrap_or(if dataset { DEFAULT_DATASET_ITERS } else { 0 })
     }
 
-    /// The warm-up share a dataset's encode trains `wd` / `wdr` with when `--wd-warmup` is not
-    /// given: [`wdr::ENCODE_WARMUP_FRACTION`] (WD / WD-R only in retraining) when it retrains,
-    /// else [`wdr::WARMUP_FRACTION`].
-    pub fn dataset_wd_warmup(&self) -> f64 {
-        match self.retrain_iters_for(true) {
-            0 => wdr::WARMUP_FRACTION,
-            _ => wdr::ENCODE_WARMUP_FRACTION,
+    /// The warm-up share `wd` / `wdr` train with when `--wd-warmup` is not given:
+    /// [`wdr::ENCODE_WARMUP_FRACTION`] (WD / WD-R only in retraining) for a scene trained here
+    /// from a dataset's images that is then retrained, else [`wdr::WARMUP_FRACTION`].
+    pub fn default_wd_warmup(&self, from_images: bool) -> f64 {
+        match from_images && self.retrain_iters_for(true) > 0 {
+            true => wdr::ENCODE_WARMUP_FRACTION,
+            false => wdr::WARMUP_FRACTION,
         }
     }
 

@@ -263,12 +263,12 @@ impl Encoder {
     /// Trains a scene from a posed-image dataset under `D + λ·R` (the rate term from half way,
     /// after densification), then runs the RD search from the learned steps on the trained
     /// scene and codes it. `progress` sees every training iteration. `wd` / `wdr` with no
-    /// warm-up share given train only the retraining ([`EncoderConfig::dataset_wd_warmup`]).
+    /// warm-up share given train only the retraining ([`EncoderConfig::default_wd_warmup`]).
     ///
     /// # Errors
     /// As [`Encoder::encode_scene`], and [`InvalidConfig::DatasetWithoutTraining`] for `iters` 0.
     pub fn encode_dataset(&self, dataset: &Dataset, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
-        let loss = self.config.loss.clone().with_default_warmup(self.config.dataset_wd_warmup());
+        let loss = self.config.loss.clone().with_default_warmup(self.config.default_wd_warmup(true));
         Encoder { config: self.config.clone().with_loss(loss) }.train_and_code(dataset, progress)
     }
 

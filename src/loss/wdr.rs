@@ -50,6 +50,12 @@ pub fn warmup_iters(total_iters: usize, fraction: f64) -> usize {
     (total_iters as f64 * fraction).round() as usize
 }
 
+/// Whether iteration `iter` (1-based) of a run with the warm-up `warmup` ([`warmup_iters`])
+/// trains with `L_orig` alone; the CPU losses and the GPU WD stage both ask this.
+pub fn in_warmup(iter: usize, warmup: usize) -> bool {
+    iter <= warmup
+}
+
 /// d_WD of rendered images against targets in a feature space, with per-view caching.
 pub struct WdDistortion {
     space: Box<dyn FeatureSpace<f32>>,
@@ -197,7 +203,7 @@ impl WdLoss {
 
 impl ImageLoss for WdLoss {
     fn loss_and_grad(&mut self, rendered: &Image, target: &Image, view: usize, iter: usize) -> (f64, Vec<f32>) {
-        if iter <= self.warmup {
+        if in_warmup(iter, self.warmup) {
             return l_orig(rendered, target);
         }
         let (v, mut g) = self.distortion.value_and_grad(rendered, target, Some(view));
@@ -266,7 +272,7 @@ fn l2(v: &[f32]) -> f64 {
 impl ImageLoss for WdrLoss {
     fn loss_and_grad(&mut self, rendered: &Image, target: &Image, view: usize, iter: usize) -> (f64, Vec<f32>) {
         let (lo, go) = l_orig(rendered, target);
-        if iter <= self.warmup {
+        if in_warmup(iter, self.warmup) {
             return (lo, go);
         }
         let (v, gw) = self.distortion.value_and_grad(rendered, target, Some(view));

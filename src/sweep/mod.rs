@@ -280,16 +280,15 @@ impl Plan {
     /// An unknown loss (exit 2); [`Plan::validate`] rules it out.
     pub fn loss_spec(&self, p: &Point) -> Result<LossSpec> {
         let kind = <LossKind as ValueEnum>::from_str(&p.loss, true).map_err(|e| Error::input(Path::new("--loss"), e))?;
-        let spec = LossSpec { kind, wd_sigma: self.wd_sigma, wd_warmup: self.wd_warmup, ..LossSpec::default() };
-        Ok(spec.with_default_warmup(self.wd_warmup_applied()))
+        Ok(LossSpec { kind, wd_sigma: self.wd_sigma, ..LossSpec::default() }.with_default_warmup(self.wd_warmup_applied()))
     }
 
     /// The warm-up share the `wd` / `wdr` points train with: `--wd-warmup`, else the encoder's
     /// default for the input (a dataset trained from its images: WD-R only in retraining).
     pub fn wd_warmup_applied(&self) -> f64 {
-        let trained_here = !is_ply(&self.input) && self.init.is_none();
+        let from_images = !is_ply(&self.input) && self.init.is_none();
         let config = EncoderConfig::default().with_iters(self.iters).with_retrain_iters(self.retrain_iters);
-        self.wd_warmup.unwrap_or(if trained_here { config.dataset_wd_warmup() } else { crate::loss::wdr::WARMUP_FRACTION })
+        self.wd_warmup.unwrap_or_else(|| config.default_wd_warmup(from_images))
     }
 }
 

@@ -34,7 +34,7 @@ use super::densify::DensifyStats;
 use super::held_out;
 use super::{checkpoint, learning_rate, non_finite_error, Progress, ReportPoint, RunOptions, StageTimes, TrainConfig, TrainReport};
 use crate::io::{Dataset, Frame};
-use crate::loss::{FeatureSpec, LossKind};
+use crate::loss::{wdr, FeatureSpec, LossKind};
 use crate::optim::AdamRule;
 use crate::rate::group::Group;
 use crate::rate::term::{RateTerm, RdTerm};
@@ -182,7 +182,7 @@ pub fn training_loss_and_grad(
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     s.loss(&mut enc, &tgt, loss.ssim_weight);
     if let Some(st) = stage.as_mut() {
-        st.record(&s, &mut enc, 0, &tgt, iter > st.config.warmup)?;
+        st.record(&s, &mut enc, 0, &tgt, !wdr::in_warmup(iter, st.config.warmup))?;
     }
     gpu.queue.submit([enc.finish()]);
     let dl = s.read_dl()?;
@@ -402,7 +402,7 @@ pub fn train_with(
                     wd_stages.len() - 1
                 }
             };
-            wd_stages[k].record(&session, &mut enc, fi, target, it > wc.warmup)?;
+            wd_stages[k].record(&session, &mut enc, fi, target, !wdr::in_warmup(it, wc.warmup))?;
         }
         let stats_on = cfg.densify && it < sched.densify_until;
         session.backward(&mut enc, &frame.camera, stats_on);
