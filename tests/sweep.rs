@@ -233,6 +233,28 @@ fn emit_jobs_writes_slurm_and_parallel_lists() {
     assert_eq!(list.lines().count(), 6);
     assert!(list.lines().all(|l| l.contains(" sweep ") && l.contains("--points-only") && l.contains("--iters 100")));
     assert!(list.contains("--lambdas 0.001 --loss wdr"));
+
+    // A dataset trained from its images: l1ssim and wdr (WD-R only in retraining) share the
+    // training at each λ, so each λ is one job running both points; at share 0.3 they do not.
+    let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
+    let emit = |extra: &[&str]| {
+        let res = gscodec()
+            .arg("sweep")
+            .arg(&tiny)
+            .arg("-o")
+            .arg(tmp.path().join("sw"))
+            .args(["--lambdas", "0.1,0.01,0.001", "--loss", "l1ssim,wdr", "--iters", "100", "--emit-jobs"])
+            .arg(&file)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
+        std::fs::read_to_string(tmp.path().join("jobs.commands.txt")).unwrap()
+    };
+    let list = emit(&[]);
+    assert_eq!(list.lines().count(), 3, "{list}");
+    assert!(list.lines().all(|l| l.contains(" --loss l1ssim,wdr ")), "{list}");
+    assert_eq!(emit(&["--wd-warmup", "0.3"]).lines().count(), 6);
 }
 
 #[test]

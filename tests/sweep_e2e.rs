@@ -48,3 +48,36 @@ fn sweep_two_lambdas_on_the_tiny_sample() {
     assert_eq!(std::fs::read_to_string(out.join("rd.csv")).unwrap(), csv);
     assert_eq!(std::fs::metadata(out.join("points/l1ssim_lambda2/scene.gsc")).unwrap().modified().unwrap(), before);
 }
+
+/// A dataset sweep of `l1ssim` and `wdr` (WD-R only in retraining) trains each λ once: both
+/// points carry the same run from the images, to the wall-clock second, and differ after it.
+#[test]
+fn a_dataset_sweep_trains_once_for_both_losses() {
+    let tiny = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("sw");
+    let res = Command::new(env!("CARGO_BIN_EXE_gscodec"))
+        .arg("sweep")
+        .arg(&tiny)
+        .arg("-o")
+        .arg(&out)
+        .args(["--lambdas", "20", "--loss", "l1ssim,wdr", "--iters", "30", "--backend", "cpu", "--jobs", "2", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(res.status.success(), "{}", String::from_utf8_lossy(&res.stderr));
+    let report = |loss: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out.join(format!("points/{loss}_lambda20/report.json"))).unwrap()).unwrap()
+    };
+    let (l1, wdr) = (report("l1ssim"), report("wdr"));
+    let main_run = |r: &serde_json::Value| -> Vec<(u64, f64)> {
+        let s = r["series"].as_array().unwrap().iter().filter(|p| p["iteration"].as_u64().unwrap() <= 30 && p["trial"] == "train");
+        s.map(|p| (p["iteration"].as_u64().unwrap(), p["wall_s"].as_f64().unwrap())).collect()
+    };
+    assert!(main_run(&l1).len() >= 5, "{}", l1["series"]);
+    assert_eq!(main_run(&l1), main_run(&wdr), "one training, timed once");
+    assert_eq!((l1["loss"].as_str(), wdr["loss"].as_str(), wdr["wd_warmup"].as_f64()), (Some("l1ssim"), Some("wdr"), Some(1.0)));
+    assert_ne!(
+        std::fs::read(out.join("points/l1ssim_lambda20/scene.gsc")).unwrap(),
+        std::fs::read(out.join("points/wdr_lambda20/scene.gsc")).unwrap()
+    );
+}

@@ -777,3 +777,38 @@ fn a_dataset_encode_trains_wdr_only_in_retraining_by_default() {
     assert_eq!(a[..2], b[..2], "the warm-up (iterations 1 to 12) is L1-SSIM's");
     assert_ne!(a, b, "WD-R from iteration 13");
 }
+
+/// `l1ssim` and `wdr` with WD-R only in retraining train the same scene from the images, so a
+/// sweep trains it once: coding one trained scene with each encoder gives each encoder's own
+/// file, byte for byte, and an encoder that trains otherwise refuses it.
+#[test]
+fn encoders_that_train_alike_share_one_training() {
+    use gscodec::encoder::{Backend, Encoder, EncoderConfig, Lambda, LossSpec};
+    use gscodec::loss::LossKind;
+    let tiny = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
+    let ds = gscodec::io::load_dataset(&tiny, &Default::default()).unwrap();
+    let base = EncoderConfig::default().with_iters(Some(40)).with_lambda(Lambda::new(20.0).unwrap()).with_backend(Backend::Cpu);
+    let loss = |kind, wd_warmup| LossSpec { kind, wd_sigma: Some(2.0), wd_warmup, ..LossSpec::default() };
+    let encoder = |c: EncoderConfig| Encoder::new(c).unwrap();
+    let l1 = encoder(base.clone().with_loss(loss(LossKind::L1ssim, None)));
+    let wdr = encoder(base.clone().with_loss(loss(LossKind::Wdr, None)));
+    let wdr_longer = encoder(base.clone().with_loss(loss(LossKind::Wdr, None)).with_retrain_iters(Some(9)));
+    let wdr_03 = encoder(base.clone().with_loss(loss(LossKind::Wdr, Some(0.3))));
+    // without retraining the default share is 0.3: WD-R acts in the run from the images
+    let wdr_no_retrain = encoder(base.clone().with_loss(loss(LossKind::Wdr, None)).with_retrain_iters(Some(0)));
+    let other_seed = encoder(base.clone().with_loss(loss(LossKind::L1ssim, None)).with_seed(1));
+    assert!(l1.trains_like(&wdr) && wdr.trains_like(&l1) && wdr.trains_like(&wdr_longer));
+    assert!(l1.trains_like(&encoder(base.clone().with_loss(loss(LossKind::Wdr, Some(1.0))))));
+    assert!(!l1.trains_like(&wdr_03) && !wdr.trains_like(&wdr_no_retrain) && !l1.trains_like(&other_seed));
+
+    let trained = l1.train_dataset(&ds, &mut |_| {}).unwrap();
+    let shared = wdr.code_dataset(&ds, &trained, &mut |_| {}).unwrap();
+    let alone = wdr.encode_dataset(&ds, &mut |_| {}).unwrap();
+    assert_eq!(shared.bytes, alone.bytes, "WD-R's retraining of the shared scene is WD-R's own encode");
+    assert_eq!((shared.report.retrain_iters, shared.report.wd_warmup), (4, Some(1.0)));
+    assert!(shared.report.stages.total_s >= trained.elapsed().as_secs_f64(), "the shared training counts in its time");
+    let longer = wdr_longer.code_dataset(&ds, &trained, &mut |_| {}).unwrap();
+    assert_eq!(longer.report.retrain_iters, 9);
+    assert_ne!(longer.bytes, shared.bytes);
+    assert!(wdr_03.code_dataset(&ds, &trained, &mut |_| {}).is_err());
+}

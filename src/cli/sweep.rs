@@ -6,7 +6,7 @@ use std::sync::Mutex;
 
 use crate::encoder::{Backend, SearchDistortion};
 use crate::sweep::results::{bd_report, read_results, write_outputs};
-use crate::sweep::{jobs, run_point, Input, Plan, DEFAULT_LAMBDAS, DEFAULT_LOSSES};
+use crate::sweep::{jobs, run_group, Input, Plan, DEFAULT_LAMBDAS, DEFAULT_LOSSES};
 use crate::{Error, Result};
 
 /// Encode a scene at several λ and losses, decode, evaluate, and write RD tables and plots.
@@ -145,19 +145,24 @@ pub fn run(args: Args) -> Result<()> {
     }
     // Loaded once for every point, and only when a point is to run.
     let input = if pending.is_empty() { None } else { Some(Input::load(&plan.input, &args.dataset.load_options(), plan.init.as_deref())?) };
+    // Points that train alike from the images (l1ssim and wdr at a λ and seed, by default) are
+    // one job: trained once, coded once each.
+    let groups = plan.training_groups(&pending)?;
     let bar = super::progress::bar(pending.len() as u64, "sweep", args.quiet || pending.is_empty());
     let next = AtomicUsize::new(0);
     let failures = Mutex::new(Vec::new());
     std::thread::scope(|s| {
-        for _ in 0..args.jobs.min(pending.len()) {
+        for _ in 0..args.jobs.min(groups.len()) {
             s.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::SeqCst);
-                let Some(p) = pending.get(i) else { break };
+                let Some(group) = groups.get(i) else { break };
                 let input = input.as_ref().expect("loaded when points are pending");
-                if let Err(e) = run_point(input, &plan, p) {
-                    failures.lock().unwrap_or_else(|e| e.into_inner()).push(format!("{}: {e}", p.dir_name()));
+                for (p, r) in group.iter().zip(run_group(input, &plan, group)) {
+                    if let Err(e) = r {
+                        failures.lock().unwrap_or_else(|e| e.into_inner()).push(format!("{}: {e}", p.dir_name()));
+                    }
+                    bar.inc(1);
                 }
-                bar.inc(1);
             });
         }
     });
@@ -183,7 +188,7 @@ pub fn run(args: Args) -> Result<()> {
 
 fn emit_jobs(file: &Path, exe: &Path, plan: &Plan, args: &Args) -> Result<()> {
     use crate::io::atomic::write_bytes_atomic;
-    let lines = jobs::command_lines(exe, plan, &plan.points());
+    let lines = jobs::command_lines(exe, plan, &plan.training_groups(&plan.points())?);
     let collect =
         [exe.display().to_string(), "sweep".into(), plan.input.display().to_string(), "-o".into(), plan.out.display().to_string()]
             .into_iter()

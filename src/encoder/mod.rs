@@ -6,6 +6,7 @@
 //! | [`EncoderConfig`] | settings, `with_*` setters, `validate()` → [`InvalidConfig`] |
 //! | [`Lambda`] | the trade-off λ, its one unit and every conversion |
 //! | [`Encoder`] | RD search, training through a backend, coding, measuring |
+//! | [`TrainedScene`], [`Encoder::train_dataset`], [`Encoder::code_dataset`] | a dataset encode in two halves, the training shared by encoders that [`Encoder::trains_like`] |
 //! | [`Target`], [`Encoder::encode_scene_to`] | the smallest file at a PSNR, the best PSNR within a size |
 //! | [`EncodeReport`] | what an encode did, typed (`encode --report`, `sweep`) |
 //! | [`Backend`], [`TrainBackend`], [`TrainJob`], [`CpuBackend`] | the training-backend seam |
@@ -66,6 +67,35 @@ pub struct Encoded {
     /// The encoder's choices that [`Encoded::bytes`] codes with (the RD search's, with the
     /// steps fine-tuning learned).
     pub config: EncodeConfig,
+}
+
+/// A scene trained from a dataset's images, before the RD search ([`Encoder::train_dataset`]).
+/// A sweep's points that train alike share one: at a λ and seed, `l1ssim` and `wdr` with WD-R
+/// only in retraining differ only after it.
+#[derive(Debug, Clone)]
+pub struct TrainedScene {
+    scene: Splats,
+    /// The quantisation steps training learned, where the RD search starts.
+    steps: Steps,
+    report: TrainReport,
+    series: Vec<SeriesPoint>,
+    iters: usize,
+    /// Wall time of the training, counted into every encode that codes the scene.
+    elapsed: std::time::Duration,
+    /// The settings that shaped the training (`Encoder::training_settings`).
+    settings: EncoderConfig,
+}
+
+impl TrainedScene {
+    /// The trained scene.
+    pub fn scene(&self) -> &Splats {
+        &self.scene
+    }
+
+    /// Wall time of the training.
+    pub fn elapsed(&self) -> std::time::Duration {
+        self.elapsed
+    }
 }
 
 /// An encoder with validated settings.
@@ -268,28 +298,96 @@ impl Encoder {
     /// # Errors
     /// As [`Encoder::encode_scene`], and [`InvalidConfig::DatasetWithoutTraining`] for `iters` 0.
     pub fn encode_dataset(&self, dataset: &Dataset, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
-        let loss = self.config.loss.clone().with_default_warmup(self.config.default_wd_warmup(true));
-        Encoder { config: self.config.clone().with_loss(loss) }.train_and_code(dataset, progress)
+        let trained = self.train_dataset(dataset, progress)?;
+        self.code_dataset(dataset, &trained, progress)
     }
 
-    /// [`Encoder::encode_dataset`] with the warm-up share resolved.
-    fn train_and_code(&self, dataset: &Dataset, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
+    /// The first half of [`Encoder::encode_dataset`]: trains a scene from `dataset`'s images
+    /// under `D + λ·R`, with the rate term from half way, and stops before the RD search.
+    /// [`Encoder::code_dataset`] codes it, as often as wanted, with any encoder that
+    /// [`Encoder::trains_like`] this one.
+    ///
+    /// # Errors
+    /// As [`Encoder::encode_dataset`].
+    pub fn train_dataset(&self, dataset: &Dataset, progress: &mut dyn FnMut(&Progress)) -> Result<TrainedScene> {
         let start = Instant::now();
-        self.config.validate_for_dataset()?;
-        check_breakdown_views(&self.config, dataset)?;
-        let iters = self.config.iters_for(true);
+        let resolved = self.resolved();
+        resolved.config.validate_for_dataset()?;
+        check_breakdown_views(&resolved.config, dataset)?;
+        let run = Encoder { config: resolved.training_settings() };
+        let iters = run.config.iters_for(true);
+        if run.config.loss != resolved.config.loss {
+            // First built for retraining: one that cannot be (VGG weights unreadable) fails now.
+            resolved.config.loss.build(iters)?;
+        }
         let mut series = Vec::new();
         // Nothing to search before training: training starts from the fixed ladder for λ.
-        let ladder = EncodeConfig::for_lambda(self.config.lambda);
-        let mut cfg = TrainConfig { iters, seed: self.config.seed, eval_interval: (iters / 10).max(1), ..Default::default() };
-        cfg.max_gaussians = self.config.max_gaussians.unwrap_or(cfg.max_gaussians);
-        cfg.densify_grad_threshold = self.config.densify_grad_threshold.unwrap_or(cfg.densify_grad_threshold);
+        let ladder = EncodeConfig::for_lambda(run.config.lambda);
+        let mut cfg = TrainConfig { iters, seed: run.config.seed, eval_interval: (iters / 10).max(1), ..Default::default() };
+        cfg.max_gaussians = run.config.max_gaussians.unwrap_or(cfg.max_gaussians);
+        cfg.densify_grad_threshold = run.config.densify_grad_threshold.unwrap_or(cfg.densify_grad_threshold);
         // The rate term starts when densification ends (half way): with it from the start,
         // lego-200 at λ = 4 stalled at 23.7 dB held-out with 9k Gaussians; with the warm-up it
         // reaches 30.6 dB (docs/codec.md).
-        let (trained, r) = self.train(dataset, None, &cfg, &ladder, iters / 2, start, &mut series, progress)?;
-        let steps = learned_steps(ladder.steps, &r);
-        self.code_trained(dataset, &trained, steps, Some(r), iters, start, series, progress)
+        let (scene, report) = run.train(dataset, None, &cfg, &ladder, iters / 2, start, &mut series, progress)?;
+        let steps = learned_steps(ladder.steps, &report);
+        Ok(TrainedScene { scene, steps, report, series, iters, elapsed: start.elapsed(), settings: run.config })
+    }
+
+    /// The second half of [`Encoder::encode_dataset`]: the RD search, retraining, coding and
+    /// measuring of `trained`. The encode's times count `trained`'s training, as if it had
+    /// trained here.
+    ///
+    /// # Errors
+    /// As [`Encoder::encode_dataset`]; [`Error::Failure`] when `trained` was trained with other
+    /// settings than this encoder would train with ([`Encoder::trains_like`]).
+    pub fn code_dataset(&self, dataset: &Dataset, trained: &TrainedScene, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
+        let resolved = self.resolved();
+        resolved.config.validate_for_dataset()?;
+        check_breakdown_views(&resolved.config, dataset)?;
+        if resolved.training_settings() != trained.settings {
+            return Err(Error::Failure("code_dataset: the scene was trained with other settings than this encoder trains with".into()));
+        }
+        let start = Instant::now().checked_sub(trained.elapsed).unwrap_or_else(Instant::now);
+        let t = trained;
+        resolved.code_trained(dataset, &t.scene, t.steps, Some(t.report.clone()), t.iters, start, t.series.clone(), progress)
+    }
+
+    /// Whether `other` trains the same scene from a dataset's images as this encoder
+    /// ([`Encoder::train_dataset`]): the settings differ at most in what acts after that
+    /// training (retraining, the search's distortion, the file's options), and in the loss
+    /// only where both train the whole run from the images with L1-SSIM (`l1ssim`, or `wd` /
+    /// `wdr` whose warm-up is the whole run, the default of a dataset encode that retrains).
+    pub fn trains_like(&self, other: &Encoder) -> bool {
+        self.resolved().training_settings() == other.resolved().training_settings()
+    }
+
+    /// This encoder with the dataset default of the warm-up share applied.
+    fn resolved(&self) -> Encoder {
+        let loss = self.config.loss.clone().with_default_warmup(self.config.default_wd_warmup(true));
+        Encoder { config: self.config.clone().with_loss(loss) }
+    }
+
+    /// The settings that shape the training from the images (a resolved encoder's): λ, the
+    /// iterations, seed, budget, densification threshold, backend, step learning and the loss,
+    /// which is L1-SSIM's when WD never acts in the run. Everything else keeps its default.
+    fn training_settings(&self) -> EncoderConfig {
+        let c = &self.config;
+        let iters = c.iters_for(true);
+        let wd_acts = c.loss.kind != LossKind::L1ssim
+            && crate::loss::wdr::warmup_iters(iters, c.loss.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION)) < iters;
+        let loss = if wd_acts { c.loss.clone() } else { LossSpec { kind: LossKind::L1ssim, ..LossSpec::default() } };
+        EncoderConfig {
+            lambda: c.lambda,
+            iters: Some(iters),
+            learn_steps: c.learn_steps,
+            loss,
+            backend: c.backend,
+            seed: c.seed,
+            max_gaussians: c.max_gaussians,
+            densify_grad_threshold: c.densify_grad_threshold,
+            ..EncoderConfig::default()
+        }
     }
 
     /// Codes `scene`, a scene trained on `dataset` elsewhere (`encode DATASET --init SCENE`: by

@@ -17,12 +17,13 @@ pub fn shell_quote(word: &str) -> String {
     }
 }
 
-/// One shell command line per point: `exe sweep … --points-only --quiet`.
-pub fn command_lines(exe: &Path, plan: &Plan, points: &[Point]) -> Vec<String> {
-    points
+/// One shell command line per group of points that share their training
+/// ([`Plan::training_groups`]): `exe sweep … --points-only --quiet`.
+pub fn command_lines(exe: &Path, plan: &Plan, groups: &[Vec<Point>]) -> Vec<String> {
+    groups
         .iter()
-        .map(|p| {
-            std::iter::once(exe.display().to_string()).chain(plan.point_command(p)).map(|w| shell_quote(&w)).collect::<Vec<_>>().join(" ")
+        .map(|g| {
+            std::iter::once(exe.display().to_string()).chain(plan.group_command(g)).map(|w| shell_quote(&w)).collect::<Vec<_>>().join(" ")
         })
         .collect()
 }
@@ -90,7 +91,8 @@ mod tests {
             backend: crate::encoder::Backend::Auto,
             dataset_args: Vec::new(),
         };
-        let lines = command_lines(Path::new("/bin/gscodec"), &plan, &plan.points());
+        let groups = plan.training_groups(&plan.points()).unwrap();
+        let lines = command_lines(Path::new("/bin/gscodec"), &plan, &groups);
         assert_eq!(lines[1], "/bin/gscodec sweep '/d/lego 200' -o /o --lambdas 0.01 --loss wdr --points-only --quiet");
         let s = slurm_script(&lines, Path::new("/o"), "gscodec sweep X -o /o --collect /o");
         assert!(s.contains("#SBATCH --array=0-1\n"));

@@ -206,9 +206,37 @@ impl Plan {
         })
     }
 
-    /// Command line (after the executable) that runs just point `p` and records its result:
-    /// what `--emit-jobs` writes, one per job.
+    /// `points` in groups that share their training from the images: points whose encoders
+    /// [`Encoder::trains_like`] each other (at a λ and seed, `l1ssim` and `wdr` with WD-R only
+    /// in retraining, the default) form one group, at the place of its first point. A `.ply`
+    /// or `--init` trains nothing to share: one point a group.
+    ///
+    /// # Errors
+    /// A point's settings that make no encoder (exit 2); [`Plan::validate`] rules these out.
+    pub fn training_groups(&self, points: &[Point]) -> Result<Vec<Vec<Point>>> {
+        let from_images = !is_ply(&self.input) && self.init.is_none();
+        let mut groups: Vec<(Encoder, Vec<Point>)> = Vec::new();
+        for p in points {
+            let encoder = Encoder::new(self.encoder_config(p)?)?;
+            match groups.iter_mut().find(|(e, _)| from_images && e.trains_like(&encoder)) {
+                Some((_, g)) => g.push(p.clone()),
+                None => groups.push((encoder, vec![p.clone()])),
+            }
+        }
+        Ok(groups.into_iter().map(|(_, g)| g).collect())
+    }
+
+    /// Command line (after the executable) that runs just point `p` and records its result.
     pub fn point_command(&self, p: &Point) -> Vec<String> {
+        self.group_command(std::slice::from_ref(p))
+    }
+
+    /// Command line (after the executable) that runs one group of [`Plan::training_groups`]
+    /// (points of one λ and seed) and records their results: what `--emit-jobs` writes, one
+    /// per job.
+    pub fn group_command(&self, group: &[Point]) -> Vec<String> {
+        let p = &group[0];
+        let losses = group.iter().map(|q| q.loss.as_str()).collect::<Vec<_>>().join(",");
         let mut c = vec![
             "sweep".to_string(),
             self.input.display().to_string(),
@@ -217,7 +245,7 @@ impl Plan {
             "--lambdas".into(),
             p.lambda.to_string(),
             "--loss".into(),
-            p.loss.clone(),
+            losses,
         ];
         if let Some(n) = self.iters {
             c.extend(["--iters".into(), n.to_string()]);
@@ -350,20 +378,63 @@ impl Input {
 /// # Errors
 /// A failing encode (bad input: exit 2; training failure: exit 1) or an unwritable file.
 pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
-    let dir = plan.point_dir(p);
-    std::fs::create_dir_all(&dir).map_err(|e| Error::failure(&dir, e))?;
     let encoder = Encoder::new(plan.encoder_config(p)?)?;
     let t = Instant::now();
-    let mut out = match &input.source {
+    let out = match &input.source {
         Source::Scene(s) => encoder.encode_scene(s, &mut |_| {}),
         Source::Dataset(d) => encoder.encode_dataset(d, &mut |_| {}),
         Source::Trained(d, s) => encoder.encode_trained(d, s, &mut |_| {}),
+    };
+    record_point(input, plan, p, out.map_err(|e| named(plan, e))?, t.elapsed().as_secs_f64())
+}
+
+/// Runs one group of [`training_groups`]: a dataset's points train once and are each coded from
+/// that scene ([`Encoder::code_dataset`]), a single point as [`run_point`]. A point's encode time
+/// counts the shared training, as if it had trained alone. One result per point, in order.
+pub fn run_group(input: &Input, plan: &Plan, group: &[Point]) -> Vec<Result<PointResult>> {
+    let Source::Dataset(dataset) = &input.source else { return group.iter().map(|p| run_point(input, plan, p)).collect() };
+    if group.len() < 2 {
+        return group.iter().map(|p| run_point(input, plan, p)).collect();
     }
-    .map_err(|e| match e {
+    let encoders = group.iter().map(|p| Ok(Encoder::new(plan.encoder_config(p)?)?)).collect::<Result<Vec<_>>>();
+    let trained = encoders.and_then(|e| Ok((e[0].train_dataset(dataset, &mut |_| {}).map_err(|e| named(plan, e))?, e)));
+    let (trained, encoders) = match trained {
+        Ok(t) => t,
+        // Every point of the group fails as its training did.
+        Err(e) => return group.iter().map(|_| Err(same_error(&e))).collect(),
+    };
+    group
+        .iter()
+        .zip(&encoders)
+        .map(|(p, encoder)| {
+            let t = Instant::now();
+            let out = encoder.code_dataset(dataset, &trained, &mut |_| {}).map_err(|e| named(plan, e))?;
+            record_point(input, plan, p, out, (trained.elapsed() + t.elapsed()).as_secs_f64())
+        })
+        .collect()
+}
+
+/// An encoder's bad-input error named after the sweep's input.
+fn named(plan: &Plan, e: Error) -> Error {
+    match e {
         Error::Input(m) => Error::input(&plan.input, m),
         other => other,
-    })?;
-    let encode_s = t.elapsed().as_secs_f64();
+    }
+}
+
+/// `e` again, for another point that shares its cause.
+fn same_error(e: &Error) -> Error {
+    match e {
+        Error::Input(m) => Error::Input(m.clone()),
+        Error::Failure(m) => Error::Failure(m.clone()),
+    }
+}
+
+/// Writes point `p`'s file and report, decodes and measures the file, and writes its
+/// `result.json`; `encode_s` is the encode's wall time.
+fn record_point(input: &Input, plan: &Plan, p: &Point, mut out: crate::encoder::Encoded, encode_s: f64) -> Result<PointResult> {
+    let dir = plan.point_dir(p);
+    std::fs::create_dir_all(&dir).map_err(|e| Error::failure(&dir, e))?;
     out.report.input = plan.input.display().to_string();
     write_bytes_atomic(&dir.join("scene.gsc"), &out.bytes)?;
     let report = serde_json::to_string_pretty(&out.report).map_err(|e| Error::failure(&dir, e))?;
@@ -498,6 +569,18 @@ mod tests {
         assert_eq!(w.settings()["wd_warmup"], 0.25);
         assert_eq!((w.loss_spec(&pts[0]).unwrap().reported_warmup(), w.loss_spec(&pts[3]).unwrap().reported_warmup()), (None, Some(0.25)));
         Plan { wd_warmup: Some(1.0), ..plan.clone() }.validate().unwrap();
+        // l1ssim and wdr at a λ share the training from the images (one job each λ) unless
+        // WD-R acts in it, or nothing is trained from the images
+        let groups = plan.training_groups(&pts).unwrap();
+        assert_eq!(groups, vec![vec![pts[0].clone(), pts[2].clone()], vec![pts[1].clone(), pts[3].clone()]]);
+        assert_eq!(
+            plan.group_command(&groups[1]).join(" "),
+            "sweep data/lego -o sw --lambdas 0.01 --loss l1ssim,wdr --iters 300 --points-only --quiet"
+        );
+        assert_eq!(seeded.training_groups(&sp).unwrap().len(), 4, "one training per λ and seed");
+        for other in [&w, &rt, &ply, &init] {
+            assert!(other.training_groups(&pts).unwrap().iter().all(|g| g.len() == 1));
+        }
         let bad = Plan { wd_warmup: Some(1.5), ..plan.clone() };
         assert_eq!(bad.validate().unwrap_err().to_string(), "sweep: --wd-warmup 1.5: must be in [0, 1]");
         let bad = Plan { wd_sigma: Some(0.5), ..plan.clone() };
