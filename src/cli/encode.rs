@@ -49,7 +49,7 @@ pub struct Args {
     pub init: Option<PathBuf>,
     /// Dataset input: after the RD search has pruned the trained scene (and dropped SH bands),
     /// train the Gaussians it keeps N more iterations on the images under D + λ·R (no
-    /// densification; WD / WD-R without warm-up), then code them. Default: a tenth of --iters;
+    /// densification; WD / WD-R without warm-up), then code them. Default: a third of --iters;
     /// 0 codes the search's choice as it is.
     #[arg(long, value_name = "N")]
     pub retrain_iters: Option<usize>,

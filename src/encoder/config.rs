@@ -7,6 +7,10 @@ use crate::rate::Lambda;
 
 /// Training iterations when encoding a dataset without [`EncoderConfig::iters`].
 pub const DEFAULT_DATASET_ITERS: usize = 3000;
+/// Retraining iterations of a dataset encode without [`EncoderConfig::retrain_iters`]: the
+/// training iterations divided by this (a third since session 26; a tenth before, which left
+/// 20–30 % of the rate at equal ꟻLIP unused: docs/wd.md §25).
+pub const RETRAIN_DIVISOR: usize = 3;
 /// Largest number of training iterations accepted.
 pub const MAX_ITERS: usize = 10_000_000;
 
@@ -37,7 +41,7 @@ pub struct EncoderConfig {
     pub anchor_iters: Option<usize>,
     /// Dataset input: iterations that train the Gaussians the RD search keeps (after it prunes
     /// the trained scene and drops SH bands) on the images again, under `D + λ·R` with the
-    /// training loss (no warm-up) and no densification, before they are coded (`None`: a tenth
+    /// training loss (no warm-up) and no densification, before they are coded (`None`: a third
     /// of the training iterations, [`EncoderConfig::retrain_iters_for`]; 0: code the search's
     /// choice of the trained scene as it is).
     pub retrain_iters: Option<usize>,
@@ -193,7 +197,7 @@ impl EncoderConfig {
     }
 
     /// Sets the iterations that retrain what the RD search keeps of a trained dataset scene
-    /// (`None`: the default, a tenth of the training iterations).
+    /// (`None`: the default, a third of the training iterations, [`RETRAIN_DIVISOR`]).
     pub fn with_retrain_iters(mut self, iters: Option<usize>) -> Self {
         self.retrain_iters = iters;
         self
@@ -242,7 +246,7 @@ impl EncoderConfig {
     pub fn retrain_iters_for(&self, dataset: bool) -> usize {
         match dataset {
             false => 0,
-            true => self.retrain_iters.unwrap_or(self.iters_for(true) / 10),
+            true => self.retrain_iters.unwrap_or(self.iters_for(true) / RETRAIN_DIVISOR),
         }
     }
 
@@ -397,10 +401,10 @@ mod tests {
             let loss = LossSpec { wd_sigma: Some(s), ..LossSpec::default() };
             assert_eq!(EncoderConfig::default().with_loss(loss).validate(), Ok(()));
         }
-        // retraining: a tenth of the dataset's training iterations unless set; never for a scene
+        // retraining: a third of the dataset's training iterations unless set; never for a scene
         let c = EncoderConfig::default().with_iters(Some(5000));
-        assert_eq!((c.retrain_iters_for(true), c.retrain_iters_for(false)), (500, 0));
-        assert_eq!(EncoderConfig::default().retrain_iters_for(true), DEFAULT_DATASET_ITERS / 10);
+        assert_eq!((c.retrain_iters_for(true), c.retrain_iters_for(false)), (1666, 0));
+        assert_eq!(EncoderConfig::default().retrain_iters_for(true), 1000);
         assert_eq!(c.clone().with_retrain_iters(Some(7)).retrain_iters_for(true), 7);
         let e = c.with_retrain_iters(Some(MAX_ITERS + 1)).validate().unwrap_err();
         assert_eq!(e.to_string(), format!("--retrain-iters {}: at most {MAX_ITERS}", MAX_ITERS + 1));

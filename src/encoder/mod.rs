@@ -36,7 +36,10 @@ use gscodec_decoder::{RenderOptions, Splats};
 pub use crate::rate::Lambda;
 pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, TrainJob};
 pub use breakdown::CodingStage;
-pub use config::{check_densify_grad_threshold, EncoderConfig, InvalidConfig, Profile, SearchDistortion, DEFAULT_DATASET_ITERS, MAX_ITERS};
+pub use config::{
+    check_densify_grad_threshold, EncoderConfig, InvalidConfig, Profile, SearchDistortion, DEFAULT_DATASET_ITERS, MAX_ITERS,
+    RETRAIN_DIVISOR,
+};
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
 pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 
@@ -348,9 +351,9 @@ impl Encoder {
         if resolved.training_settings() != trained.settings {
             return Err(Error::Failure("code_dataset: the scene was trained with other settings than this encoder trains with".into()));
         }
-        let start = Instant::now().checked_sub(trained.elapsed).unwrap_or_else(Instant::now);
-        let t = trained;
-        resolved.code_trained(dataset, &t.scene, t.steps, Some(t.report.clone()), t.iters, start, t.series.clone(), progress)
+        let TrainedScene { scene, steps, report, series, iters, elapsed, .. } = trained;
+        let start = Instant::now().checked_sub(*elapsed).unwrap_or_else(Instant::now);
+        resolved.code_trained(dataset, scene, *steps, Some(report.clone()), *iters, start, series.clone(), progress)
     }
 
     /// Whether `other` trains the same scene from a dataset's images as this encoder
@@ -393,7 +396,7 @@ impl Encoder {
     /// Codes `scene`, a scene trained on `dataset` elsewhere (`encode DATASET --init SCENE`: by
     /// the reference 3DGS trainer, gsplat, Brush, or `gscodec train`), as [`Encoder::encode_dataset`]
     /// codes the scene it trains: the RD search measures on the dataset's training cameras,
-    /// retraining (`retrain_iters`, default a tenth of the default `iters`) fine-tunes the
+    /// retraining (`retrain_iters`, default a third of the default `iters`) fine-tunes the
     /// Gaussians it keeps to the training images under `D + λ·R`, and the report measures the
     /// held-out views. The scene must be in the dataset's world frame. `iters`, `max_gaussians`
     /// and `densify_grad_threshold`, which shape training from the images, are not used.

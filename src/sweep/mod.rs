@@ -530,7 +530,7 @@ mod tests {
         assert_eq!((rt.encoder_config(&pts[1]).unwrap().retrain_iters, rt.settings()["retrain_iters"].as_u64()), (Some(0), Some(0)));
         assert_eq!(
             (plan.encoder_config(&pts[1]).unwrap().retrain_iters_for(true), plan.settings()["retrain_iters"].as_u64()),
-            (30, Some(30))
+            (100, Some(100))
         );
         let cb = Plan { coding_breakdown: true, ..rt.clone() };
         assert!(cb.point_command(&pts[1]).join(" ").ends_with("--retrain-iters 0 --coding-breakdown --points-only --quiet"));
