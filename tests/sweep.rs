@@ -341,15 +341,15 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(w5.is_done(&l1_seed1) && w5.is_done(&l1));
     std::fs::copy(w5.point_dir(&l1_seed1).join("result.json"), w5.point_dir(&l1).join("result.json")).unwrap();
     assert!(!w5.is_done(&l1));
-    // the default retraining (a tenth of the iterations) redoes a point trained without it
+    // the default retraining (a third of the iterations) redoes a point trained without it
     let retrain = Plan { retrain_iters: None, ..w5.clone() };
     assert!(w5.is_done(&wdr) && !retrain.is_done(&wdr));
-    write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), retrain_iters: 300, ..fake("wdr", 2.0, 1.0) });
+    write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), retrain_iters: 1000, ..fake("wdr", 2.0, 1.0) });
     assert!(retrain.is_done(&wdr) && !w5.is_done(&wdr));
     // the search's distortion: a result from before the option was measured with the MSE
     let by_loss = Plan { search_distortion: SearchDistortion::Loss, ..retrain.clone() };
     assert!(!by_loss.is_done(&wdr));
-    let r = PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), retrain_iters: 300, ..fake("wdr", 2.0, 1.0) };
+    let r = PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), retrain_iters: 1000, ..fake("wdr", 2.0, 1.0) };
     write_point(tmp.path(), &PointResult { search_distortion: SearchDistortion::Loss, ..r });
     assert!(by_loss.is_done(&wdr) && !retrain.is_done(&wdr));
     assert!(by_loss.point_command(&wdr).join(" ").contains("--search-distortion loss"));
@@ -360,7 +360,7 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     let r = PointResult {
         wd_sigma: Some(2.0),
         wd_warmup: Some(0.5),
-        retrain_iters: 300,
+        retrain_iters: 1000,
         search_distortion: SearchDistortion::Loss,
         ..fake("wdr", 2.0, 1.0)
     };
@@ -388,7 +388,7 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     // with retraining and no share given, a dataset's wdr points train WD-R only in retraining
     // (share 1): a result at 0.3 (the default of sessions 21–24) is redone, one at 1 is done
     let by_default = Plan { wd_warmup: None, max_gaussians: None, search_distortion: SearchDistortion::Mse, ..retrain.clone() };
-    let r = PointResult { wd_sigma: Some(2.0), retrain_iters: 300, ..fake("wdr", 2.0, 1.0) };
+    let r = PointResult { wd_sigma: Some(2.0), retrain_iters: 1000, ..fake("wdr", 2.0, 1.0) };
     write_point(tmp.path(), &PointResult { wd_warmup: Some(0.3), ..r.clone() });
     assert!(!by_default.is_done(&wdr));
     write_point(tmp.path(), &PointResult { wd_warmup: Some(1.0), ..r });

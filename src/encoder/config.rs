@@ -9,7 +9,7 @@ use crate::rate::Lambda;
 pub const DEFAULT_DATASET_ITERS: usize = 3000;
 /// Retraining iterations of a dataset encode without [`EncoderConfig::retrain_iters`]: the
 /// training iterations divided by this (a third since session 26; a tenth before, which left
-/// 20–30 % of the rate at equal ꟻLIP unused: docs/wd.md §25).
+/// 7–35 % of the rate at equal ꟻLIP unused: docs/wd.md §25).
 pub const RETRAIN_DIVISOR: usize = 3;
 /// Largest number of training iterations accepted.
 pub const MAX_ITERS: usize = 10_000_000;
