@@ -44,7 +44,7 @@ pub use report::{EncodeReport, EncodeStages, SeriesPoint};
 pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 
 use crate::io::{Dataset, Split};
-use crate::loss::LossKind;
+use crate::loss::{wdr, LossKind};
 use crate::rate::group::Group;
 use crate::rate::rd::{RdDistortion, RdViews};
 use crate::rate::{self, EncodeConfig, Steps};
@@ -377,8 +377,8 @@ impl Encoder {
     fn training_settings(&self) -> EncoderConfig {
         let c = &self.config;
         let iters = c.iters_for(true);
-        let wd_acts = c.loss.kind != LossKind::L1ssim
-            && crate::loss::wdr::warmup_iters(iters, c.loss.wd_warmup.unwrap_or(crate::loss::wdr::WARMUP_FRACTION)) < iters;
+        // The last iteration decides: the warm-up is iterations 1 to its end.
+        let wd_acts = c.loss.reported_warmup().is_some_and(|share| !wdr::in_warmup(iters, wdr::warmup_iters(iters, share)));
         let loss = if wd_acts { c.loss.clone() } else { LossSpec { kind: LossKind::L1ssim, ..LossSpec::default() } };
         EncoderConfig {
             lambda: c.lambda,
@@ -513,7 +513,7 @@ impl Encoder {
             (SearchDistortion::Mse, _) => RdDistortion::Mse,
             (SearchDistortion::Loss, LossKind::L1ssim) => RdDistortion::Loss { wd_sigma: None, l_orig: 1.0 },
             (SearchDistortion::Loss, LossKind::Wd) => RdDistortion::Loss { wd_sigma: sigma, l_orig: 0.0 },
-            (SearchDistortion::Loss, LossKind::Wdr) => RdDistortion::Loss { wd_sigma: sigma, l_orig: crate::loss::wdr::BETA },
+            (SearchDistortion::Loss, LossKind::Wdr) => RdDistortion::Loss { wd_sigma: sigma, l_orig: wdr::BETA },
         }
     }
 

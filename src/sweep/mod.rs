@@ -392,13 +392,15 @@ pub fn run_point(input: &Input, plan: &Plan, p: &Point) -> Result<PointResult> {
 /// that scene ([`Encoder::code_dataset`]), a single point as [`run_point`]. A point's encode time
 /// counts the shared training, as if it had trained alone. One result per point, in order.
 pub fn run_group(input: &Input, plan: &Plan, group: &[Point]) -> Vec<Result<PointResult>> {
-    let Source::Dataset(dataset) = &input.source else { return group.iter().map(|p| run_point(input, plan, p)).collect() };
-    if group.len() < 2 {
-        return group.iter().map(|p| run_point(input, plan, p)).collect();
-    }
-    let encoders = group.iter().map(|p| Ok(Encoder::new(plan.encoder_config(p)?)?)).collect::<Result<Vec<_>>>();
-    let trained = encoders.and_then(|e| Ok((e[0].train_dataset(dataset, &mut |_| {}).map_err(|e| named(plan, e))?, e)));
-    let (trained, encoders) = match trained {
+    let dataset = match &input.source {
+        Source::Dataset(d) if group.len() > 1 => d,
+        _ => return group.iter().map(|p| run_point(input, plan, p)).collect(),
+    };
+    let shared = || -> Result<(crate::encoder::TrainedScene, Vec<Encoder>)> {
+        let encoders = group.iter().map(|p| Ok(Encoder::new(plan.encoder_config(p)?)?)).collect::<Result<Vec<_>>>()?;
+        Ok((encoders[0].train_dataset(dataset, &mut |_| {}).map_err(|e| named(plan, e))?, encoders))
+    };
+    let (trained, encoders) = match shared() {
         Ok(t) => t,
         // Every point of the group fails as its training did.
         Err(e) => return group.iter().map(|_| Err(same_error(&e))).collect(),
