@@ -177,8 +177,10 @@ pub fn pruned(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32
 }
 
 /// What `config` codes of `splats`, before quantisation: [`pruned`], SH bands dropped
-/// ([`quantise::drop_sh_bands`]) and the degree cut. `significance` is that of `splats`
-/// ([`importance::significance`]; computed here when `config` needs it and it is `None`).
+/// ([`quantise::drop_sh_bands`]), the degree cut and every Gaussian's axes relabelled for the
+/// cheapest rotation ([`quantise::canonical_axes`]: the same Gaussians). `significance` is that
+/// of `splats` ([`importance::significance`]; computed here when `config` needs it and it is
+/// `None`).
 pub fn prepared(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> Splats {
     prepared_with_significance(splats, config, significance).0
 }
@@ -200,6 +202,7 @@ fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, significan
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);
     }
+    quantise::canonical_axes(&mut s);
     (s, sig)
 }
 

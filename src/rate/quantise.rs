@@ -344,6 +344,74 @@ pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: 
     }
 }
 
+/// The 24 rotations that map the coordinate axes onto themselves (the octahedral group), as
+/// unit quaternions `(w, x, y, z)` (one of each ± pair), each with the axis permutation it
+/// makes: column `k` of its matrix is `±e[perm[k]]`. The identity comes first.
+fn axis_symmetries() -> Vec<([f64; 4], [usize; 3])> {
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let mut quats: Vec<[f64; 4]> = vec![[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+    for s in 0..8u8 {
+        let sign = |bit: u8| if s >> bit & 1 == 1 { -0.5 } else { 0.5 };
+        quats.push([0.5, sign(0), sign(1), sign(2)]);
+    }
+    for a in 0..4 {
+        for b in a + 1..4 {
+            for sb in [h, -h] {
+                let mut q = [0.0; 4];
+                (q[a], q[b]) = (h, sb);
+                quats.push(q);
+            }
+        }
+    }
+    quats
+        .into_iter()
+        .map(|[w, x, y, z]| {
+            let m = [
+                [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+                [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+                [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+            ];
+            let perm = std::array::from_fn(|k| (0..3).max_by(|&r, &t| m[r][k].abs().total_cmp(&m[t][k].abs())).expect("three rows"));
+            ([w, x, y, z], perm)
+        })
+        .collect()
+}
+
+/// Relabels every Gaussian's axes so that its rotation is the smallest of the 24 that draw the
+/// same ellipsoid: a Gaussian is unchanged by permuting its axes (scales with them) and flipping
+/// their signs, so `q` and `q ⊗ p`, with the scales permuted as `p` permutes the axes, are the
+/// same Gaussian for every `p` of [`axis_symmetries`]. Of these the one with the largest `|w|`
+/// is kept (`|w| ≥ cos 31.4°` ≈ 0.853 for every rotation), so the smallest-three index is
+/// almost always `w` and the other three components are small: a cheaper rotation group. The
+/// identity wins ties, so a Gaussian already in this form keeps its exact values, and the
+/// function is idempotent. Encoder-side only: the file format is unchanged.
+pub fn canonical_axes(splats: &mut Splats) {
+    let symmetries = axis_symmetries();
+    for (r, s) in splats.rotations.iter_mut().zip(splats.log_scales.iter_mut()) {
+        let q = r.map(f64::from);
+        let w_of = |p: &[f64; 4]| (q[0] * p[0] - q[1] * p[1] - q[2] * p[2] - q[3] * p[3]).abs();
+        let mut best = 0;
+        for (k, (p, _)) in symmetries.iter().enumerate().skip(1) {
+            if w_of(p) > w_of(&symmetries[best].0) {
+                best = k;
+            }
+        }
+        if best == 0 {
+            continue;
+        }
+        let ([pw, px, py, pz], perm) = symmetries[best];
+        let [w, x, y, z] = q;
+        let product = [
+            w * pw - x * px - y * py - z * pz,
+            w * px + x * pw + y * pz - z * py,
+            w * py - x * pz + y * pw + z * px,
+            w * pz + x * py - y * px + z * pw,
+        ];
+        *r = product.map(|v| v as f32);
+        *s = perm.map(|k| s[k]);
+    }
+}
+
 /// Normalises, makes the largest component positive and quantises the other three.
 pub fn smallest_three(r: [f32; 4], step: f32) -> (usize, [i32; 3]) {
     let norm = r.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
@@ -433,6 +501,69 @@ pub fn dequantise(q: &Quantised) -> Splats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The 24 axis symmetries are distinct rotations, each permuting the axes.
+    #[test]
+    fn axis_symmetries_are_the_octahedral_group() {
+        let g = axis_symmetries();
+        assert_eq!(g.len(), 24);
+        for (i, (p, perm)) in g.iter().enumerate() {
+            assert!((p.iter().map(|v| v * v).sum::<f64>() - 1.0).abs() < 1e-12, "unit quaternion");
+            let mut sorted = *perm;
+            sorted.sort_unstable();
+            assert_eq!(sorted, [0, 1, 2], "a permutation");
+            for (r, _) in &g[..i] {
+                let dot: f64 = p.iter().zip(r).map(|(a, b)| a * b).sum();
+                assert!(dot.abs() < 1.0 - 1e-9, "{p:?} and {r:?} are the same rotation");
+            }
+        }
+        assert_eq!(g[0], ([1.0, 0.0, 0.0, 0.0], [0, 1, 2]), "the identity first");
+    }
+
+    /// Relabelling the axes keeps every Gaussian's covariance (to f32 rounding), leaves `w` the
+    /// largest component with `|w| ≥ cos 31.4°` of the norm, keeps Gaussians already in that
+    /// form bit for bit (rotations near the identity, the extreme scene) and is idempotent.
+    #[test]
+    fn canonical_axes_keeps_every_gaussian_and_makes_w_largest() {
+        use gscodec_decoder::math::covariance_3d;
+        let mut s = gscodec_decoder::testkit::random_splats(2000, 1, 7);
+        // Scales of very different sizes per axis, so a wrong permutation shows.
+        s.log_scales.iter_mut().enumerate().for_each(|(i, l)| *l = [-3.0, -1.0, 0.5].map(|v| v + 0.001 * (i % 97) as f32));
+        s.rotations.iter_mut().enumerate().for_each(|(i, r)| *r = r.map(|v| v * (0.5 + (i % 5) as f32)));
+        let mut c = s.clone();
+        canonical_axes(&mut c);
+        let mut moved = 0;
+        for i in 0..s.len() {
+            let (a, b) = (covariance_3d(s.log_scales[i], s.rotations[i]), covariance_3d(c.log_scales[i], c.rotations[i]));
+            let scale = a.to_cols_array().iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            let err = (a - b).to_cols_array().iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            assert!(err <= 1e-5 * scale, "Gaussian {i}: covariance moved by {err} of {scale}");
+            let r = c.rotations[i];
+            let norm = r.iter().map(|v| v * v).sum::<f32>().sqrt();
+            assert!(r.iter().all(|v| v.abs() <= r[0].abs()), "Gaussian {i}: w is not the largest in {r:?}");
+            assert!(r[0].abs() >= 0.853 * norm, "Gaussian {i}: |w| = {} of {norm}", r[0].abs());
+            moved += usize::from(r != s.rotations[i]);
+        }
+        assert!(moved > s.len() / 2, "uniform rotations mostly change: {moved}");
+        let mut again = c.clone();
+        canonical_axes(&mut again);
+        assert_eq!(again, c, "idempotent");
+        let mut near_identity = s.clone();
+        near_identity.rotations.iter_mut().enumerate().for_each(|(i, r)| *r = [1.0, 0.01 * (i % 7) as f32, -0.02, 0.005]);
+        let mut n = near_identity.clone();
+        canonical_axes(&mut n);
+        assert_eq!(n, near_identity, "rotations near the identity stay bit for bit");
+        // DESIGN §8's extreme Gaussians: those whose w is already the largest keep their values
+        // (the nearly zero-norm quaternion included), the needle's axes are relabelled.
+        let extreme = gscodec_decoder::testkit::extreme_splats(2);
+        let mut e = extreme.clone();
+        canonical_axes(&mut e);
+        for i in 0..e.len() {
+            let r = extreme.rotations[i];
+            let kept = (e.rotations[i], e.log_scales[i]) == (r, extreme.log_scales[i]);
+            assert_eq!(kept, r.iter().all(|v| v.abs() <= r[0].abs()), "extreme Gaussian {i}");
+        }
+    }
 
     /// A band's codebook is computed from the rows in the scene's order: a file order changed by
     /// levels gives every Gaussian the same decoded row, and a memo hands the second call the
