@@ -386,8 +386,10 @@ fn axis_symmetries() -> Vec<([f64; 4], [usize; 3])> {
 /// identity wins ties, so a Gaussian already in this form keeps its exact values, and the
 /// function is idempotent. Encoder-side only: the file format is unchanged.
 pub fn canonical_axes(splats: &mut Splats) {
-    let symmetries = axis_symmetries();
-    for (r, s) in splats.rotations.iter_mut().zip(splats.log_scales.iter_mut()) {
+    use rayon::prelude::*;
+    static SYMMETRIES: std::sync::LazyLock<Vec<([f64; 4], [usize; 3])>> = std::sync::LazyLock::new(axis_symmetries);
+    let symmetries = &*SYMMETRIES;
+    splats.rotations.par_iter_mut().zip(splats.log_scales.par_iter_mut()).for_each(|(r, s)| {
         let q = r.map(f64::from);
         let w_of = |p: &[f64; 4]| (q[0] * p[0] - q[1] * p[1] - q[2] * p[2] - q[3] * p[3]).abs();
         let mut best = 0;
@@ -397,7 +399,7 @@ pub fn canonical_axes(splats: &mut Splats) {
             }
         }
         if best == 0 {
-            continue;
+            return;
         }
         let ([pw, px, py, pz], perm) = symmetries[best];
         let [w, x, y, z] = q;
@@ -409,7 +411,7 @@ pub fn canonical_axes(splats: &mut Splats) {
         ];
         *r = product.map(|v| v as f32);
         *s = perm.map(|k| s[k]);
-    }
+    });
 }
 
 /// Normalises, makes the largest component positive and quantises the other three.
