@@ -387,15 +387,26 @@ fn axis_symmetries() -> Vec<([f64; 4], [usize; 3])> {
 /// function is idempotent. Encoder-side only: the file format is unchanged.
 pub fn canonical_axes(splats: &mut Splats) {
     use rayon::prelude::*;
+    use std::f64::consts::FRAC_1_SQRT_2;
     static SYMMETRIES: std::sync::LazyLock<Vec<([f64; 4], [usize; 3])>> = std::sync::LazyLock::new(axis_symmetries);
     let symmetries = &*SYMMETRIES;
     splats.rotations.par_iter_mut().zip(splats.log_scales.par_iter_mut()).for_each(|(r, s)| {
         let q = r.map(f64::from);
+        // The largest |w| among the others, from the sorted magnitudes (every sign combination
+        // of each kind of symmetry is in the group): clearly below |w|, the identity wins
+        // without trying them (the common case, and every call after the first).
+        let (w, mut m) = (q[0].abs(), [q[1].abs(), q[2].abs(), q[3].abs()]);
+        m.sort_unstable_by(|a, b| b.total_cmp(a));
+        let others = m[0].max((w + m[0]) * FRAC_1_SQRT_2).max((m[0] + m[1]) * FRAC_1_SQRT_2).max(0.5 * (w + m[0] + m[1] + m[2]));
+        if w > others * (1.0 + 1e-9) {
+            return;
+        }
         let w_of = |p: &[f64; 4]| (q[0] * p[0] - q[1] * p[1] - q[2] * p[2] - q[3] * p[3]).abs();
-        let mut best = 0;
+        let (mut best, mut best_w) = (0, w_of(&symmetries[0].0));
         for (k, (p, _)) in symmetries.iter().enumerate().skip(1) {
-            if w_of(p) > w_of(&symmetries[best].0) {
-                best = k;
+            let v = w_of(p);
+            if v > best_w {
+                (best, best_w) = (k, v);
             }
         }
         if best == 0 {
