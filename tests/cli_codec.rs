@@ -217,6 +217,72 @@ fn target_psnr_is_reached_as_eval_measures_it() {
     assert_eq!(o.status.code(), Some(2), "a target and a λ conflict");
 }
 
+/// A dataset's target reads its held-out views, as `gscodec eval OUT DATASET` measures them:
+/// `--target-psnr` gives the smallest probe that reaches the PSNR there, `--target-bytes` the best
+/// PSNR there within the size; an unreachable target is bad input and writes nothing. (`--init`
+/// the dataset's own truth and no retraining, so that each probe is one RD search.)
+#[test]
+fn a_dataset_target_is_met_on_its_held_out_views() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let (data, init) = (root.join("samples/tiny"), root.join("samples/tiny/truth.ply"));
+    let (data, init) = (data.to_str().unwrap(), init.to_str().unwrap());
+    let gsc = dir.path().join("t.gsc");
+    let report = dir.path().join("r.json");
+    let (out, rep) = (gsc.to_str().unwrap(), report.to_str().unwrap());
+    let heldout_psnr = || {
+        let o = gscodec(&["eval", out, data, "--json", "--quiet"]);
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["psnr"].as_f64().unwrap()
+    };
+    for (flag, value) in [("--target-psnr", "40"), ("--target-bytes", "6000")] {
+        let o = gscodec(&["encode", data, "--init", init, "--retrain-iters", "0", "-o", out, flag, value, "--report", rep, "--quiet"]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let (psnr, bytes) = (heldout_psnr(), std::fs::metadata(&gsc).unwrap().len());
+        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+        let probes = r["target"]["probes"].as_array().unwrap();
+        assert!(probes.len() > 2, "{flag}: {probes:?}");
+        let of = |p: &serde_json::Value| (p["bytes"].as_u64().unwrap(), p["psnr"].as_f64().unwrap());
+        let chosen = probes.iter().map(of).find(|p| p.0 == bytes).expect("the file is one of the probes");
+        assert!((chosen.1 - psnr).abs() < 0.01, "{flag}: probe {} dB, eval {psnr} dB", chosen.1);
+        if flag == "--target-psnr" {
+            assert!(psnr >= 40.0 - 0.01, "{psnr}");
+            assert!(probes.iter().map(of).filter(|p| p.1 >= 40.0).all(|p| p.0 >= bytes), "the smallest that reaches 40 dB");
+        } else {
+            assert!(bytes <= 6000, "{bytes}");
+            assert!(probes.iter().map(of).filter(|p| p.0 <= 6000).all(|p| p.1 <= psnr), "the best within 6000 bytes");
+        }
+    }
+    // Trained from the images once (20 iterations here), then coded at each probe's λ.
+    let o = gscodec(&[
+        "encode",
+        data,
+        "--iters",
+        "20",
+        "--retrain-iters",
+        "0",
+        "-o",
+        out,
+        "--target-bytes",
+        "6000",
+        "--report",
+        rep,
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert!(
+        std::fs::metadata(&gsc).unwrap().len() <= 6000 && r["iters"] == 20 && r["target"]["probes"].as_array().unwrap().len() > 2,
+        "{r}"
+    );
+    std::fs::remove_file(&gsc).unwrap();
+    let o = gscodec(&["encode", data, "--init", init, "--retrain-iters", "0", "-o", out, "--target-psnr", "100", "--quiet"]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.starts_with("error: ") && err.contains("not reachable") && err.lines().count() == 1, "{err}");
+    assert!(!gsc.exists(), "no output for a target not met");
+}
+
 /// `encode --profile anchor` writes a 7.0 file (SPEC §12) that decodes, that `info` describes and
 /// whose report's PSNR is what `eval` measures; `--profile auto` writes, byte for byte, one of
 /// the two profiles' files.

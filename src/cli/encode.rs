@@ -25,11 +25,14 @@ pub struct Args {
     pub lambda: Lambda,
     /// Instead of a λ: the smallest file whose PSNR reaches DB, found by a bracketing search on
     /// λ (regula falsi; at most ten encodes). The PSNR is measured as `gscodec eval OUTPUT --reference INPUT --orbit 8`
-    /// measures it (8 orbit views at 256×256, up −y, black background). A scene input only (not a dataset).
+    /// measures it (8 orbit views at 256×256, up −y, black background). For a dataset: the
+    /// held-out (test) views' PSNR as `gscodec eval OUTPUT DATASET` measures it; the scene is
+    /// trained from the images once, at the default λ (or is --init), and each probe runs the
+    /// RD search, the retraining and the coding at its λ.
     #[arg(long, value_name = "DB", conflicts_with_all = ["lambda", "target_bytes"])]
     pub target_psnr: Option<f64>,
     /// Instead of a λ: the best PSNR (measured as for --target-psnr) among files of at most N
-    /// bytes, found by the same search on λ. A scene input only (not a dataset).
+    /// bytes, found by the same search on λ (a dataset: as for --target-psnr).
     #[arg(long, value_name = "N", conflicts_with = "lambda")]
     pub target_bytes: Option<u64>,
     /// Training distortion and its options.
@@ -167,10 +170,21 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
     let out = if let Some(target) = args.target() {
         target.validate()?;
         if dataset {
-            return Err(Error::input(&args.input, "--target-psnr / --target-bytes need a scene input (a dataset is encoded at one λ)"));
+            let init: Option<Splats> = args.init.as_ref().map(|p| crate::io::read_scene(p)).transpose()?;
+            if init.is_some() {
+                encoder.config().validate().map_err(|e| name(e.into()))?;
+            } else {
+                encoder.config().validate_for_dataset().map_err(|e| name(e.into()))?;
+            }
+            let ds = crate::io::load_dataset(&args.input, &args.dataset.load_options())?;
+            encoder.encode_dataset_to(&ds, init.as_ref(), target, &mut progress).map(|mut e| {
+                e.report.init = args.init.as_ref().map(|p| p.display().to_string());
+                e
+            })
+        } else {
+            let scene: Splats = crate::io::read_scene(&args.input)?;
+            encoder.encode_scene_to(&scene, target, &mut progress)
         }
-        let scene: Splats = crate::io::read_scene(&args.input)?;
-        encoder.encode_scene_to(&scene, target, &mut progress)
     } else if let Some(init) = &args.init {
         encoder.config().validate().map_err(|e| name(e.into()))?;
         let scene: Splats = crate::io::read_scene(init)?;
@@ -213,7 +227,10 @@ pub fn run(args: Args) -> crate::Result<()> {
             r.file_bytes,
         );
         if let Some(t) = &r.target {
-            eprintln!("λ = {} (orbit PSNR {:.2} dB), chosen among {} encodes", r.lambda, r.orbit_psnr, t.probes.len());
+            // A dataset's target reads the held-out views, a scene's the orbit views.
+            let heldout = t.probes.iter().find(|p| p.lambda == r.lambda && p.bytes == r.file_bytes).filter(|_| args.input.is_dir());
+            let (psnr, measure) = heldout.map_or((r.orbit_psnr, "orbit"), |p| (p.psnr, "held-out"));
+            eprintln!("λ = {} ({measure} PSNR {psnr:.2} dB), chosen among {} encodes", r.lambda, t.probes.len());
         }
         super::warn_truncated(r.train.as_ref().map_or(0, |t| t.truncated_frames));
     }

@@ -10,6 +10,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::{EncodeStages, Encoded, Encoder, InvalidConfig, Lambda, Orbit};
+use crate::io::{Dataset, Split};
 use crate::rate::{self, rd, rd::Trials, EncodeConfig};
 use crate::train::Progress;
 use crate::Result;
@@ -131,13 +132,67 @@ fn empty_file_bytes() -> u64 {
     rate::encode(&Splats::new(0), &EncodeConfig::default()).map_or(0, |(b, _, _)| b.len() as u64)
 }
 
+/// The probes of a search on λ ([`search_lambda`]): every encode tried, the best that met the
+/// target with its `t = ln(1+λ)` and PSNR, and the configurations and `t` of those that missed.
+struct Searched {
+    probes: Vec<Probe>,
+    best: Option<(f64, Encoded, f64)>,
+    missed: Vec<(f64, EncodeConfig)>,
+}
+
+/// Brackets λ for `target` ([`bracket`]: regula falsi, Illinois) in `t = ln(1+λ)` over
+/// [0, [`MAX_LAMBDA`]]: the PSNR falls and the size shrinks as λ grows, so the search keeps the
+/// boundary between λs that meet the target and λs that do not. `encode(λ)` makes one probe
+/// and returns it with the PSNR the target reads.
+fn search_lambda(target: Target, mut encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
+    let mut found = Searched { probes: Vec::new(), best: None, missed: Vec::new() };
+    let mut probe = |t: f64| -> Result<f64> {
+        let lambda = Lambda::new(t.exp_m1().max(0.0)).unwrap_or(Lambda::ZERO);
+        let (e, psnr) = encode(lambda)?;
+        let outcome = (e.bytes.len(), psnr);
+        found.probes.push(Probe { lambda, bytes: outcome.0, psnr });
+        let met = target.met(outcome);
+        let margin = target.margin(outcome);
+        if !met {
+            found.missed.push((t, e.config));
+        } else if found.best.as_ref().is_none_or(|b| target.better(outcome, (b.1.bytes.len(), b.2))) {
+            found.best = Some((t, e, psnr));
+        }
+        // `met` decides the side even where the margin rounds to 0.
+        Ok(if met { margin.max(0.0) } else { margin.min(-f64::MIN_POSITIVE) })
+    };
+    // Ends: t = 0 (finest) and t = ln(1 + MAX_LAMBDA) (coarsest).
+    let ends = [0.0f64, MAX_LAMBDA.ln_1p()];
+    let (m0, m1) = (probe(ends[0])?, probe(ends[1])?);
+    if (m0 >= 0.0) != (m1 >= 0.0) {
+        bracket(ends[0], m0, ends[1], m1, target.close(), probe)?;
+    }
+    Ok(found)
+}
+
+/// The error of a target no probe met.
+fn unreachable(target: Target, probes: &[Probe]) -> crate::Error {
+    crate::Error::Input(match target {
+        Target::Psnr(p) => {
+            format!(
+                "--target-psnr {p}: not reachable, the finest setting (λ = 0) gives {:.2} dB",
+                probes.first().map_or(f64::NAN, |f| f.psnr)
+            )
+        }
+        Target::Bytes(b) => {
+            format!(
+                "--target-bytes {b}: not reachable, the smallest file found has {} bytes",
+                probes.iter().map(|p| p.bytes).min().unwrap_or(0)
+            )
+        }
+    })
+}
+
 impl Encoder {
-    /// Encodes `scene` to `target` by a bracketing search ([`bracket`]: regula falsi, Illinois)
-    /// on λ in `ln(1+λ)` over [0, [`MAX_LAMBDA`]]: the PSNR falls and the size shrinks as λ
-    /// grows, so the search keeps the boundary between λs that meet the target and λs that do
-    /// not, and returns the best encode that met it (the
-    /// smallest file for a PSNR, the best PSNR for a size); its report's `target` lists every
-    /// encode tried. Each probe is a full [`Encoder::encode_scene`] with this encoder's settings.
+    /// Encodes `scene` to `target` by a search on λ ([`search_lambda`]) and returns the best
+    /// encode that met it (the smallest file for a PSNR, the best PSNR for a size); its report's
+    /// `target` lists every encode tried. Each probe is a full [`Encoder::encode_scene`] with
+    /// this encoder's settings, and the PSNR is the report's `orbit_psnr`.
     ///
     /// # Errors
     /// An invalid target, a PSNR that even λ = 0 does not reach, or an encode's error.
@@ -147,60 +202,68 @@ impl Encoder {
         // depend on λ, so each is coded and rendered once for all probes.
         let mut trials = Trials::new(scene).map_err(|e| crate::Error::Input(e.to_string()))?;
         let orbit = Orbit::new(scene);
-        let mut probes = Vec::new();
-        let mut best: Option<Encoded> = None;
-        // The configuration and `t` of every probe that missed the target.
-        let mut missed: Vec<(f64, EncodeConfig)> = Vec::new();
-        let mut best_t = 0.0;
-        let mut probe = |t: f64, best: &mut Option<Encoded>| -> Result<f64> {
-            let lambda = Lambda::new(t.exp_m1().max(0.0)).unwrap_or(Lambda::ZERO);
-            let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
-            let e = enc.encode_scene_with(&mut trials, &orbit, progress)?;
-            let outcome = (e.bytes.len(), e.report.orbit_psnr);
-            probes.push(Probe { lambda, bytes: outcome.0, psnr: outcome.1 });
-            let met = target.met(outcome);
-            let margin = target.margin(outcome);
-            if !met {
-                missed.push((t, e.config));
-            } else if best.as_ref().is_none_or(|b| target.better(outcome, (b.bytes.len(), b.report.orbit_psnr))) {
-                *best = Some(e);
-                best_t = t;
-            }
-            // `met` decides the side even where the margin rounds to 0.
-            Ok(if met { margin.max(0.0) } else { margin.min(-f64::MIN_POSITIVE) })
-        };
-        // Ends: t = 0 (finest) and t = ln(1 + MAX_LAMBDA) (coarsest).
-        let ends = [0.0f64, MAX_LAMBDA.ln_1p()];
-        let (m0, m1) = (probe(ends[0], &mut best)?, probe(ends[1], &mut best)?);
-        if (m0 >= 0.0) != (m1 >= 0.0) {
-            bracket(ends[0], m0, ends[1], m1, target.close(), |t| probe(t, &mut best))?;
-        }
+        let Searched { probes, best, missed } = search_lambda(target, |lambda| {
+            let e = Encoder { config: self.config.clone().with_lambda(lambda) }.encode_scene_with(&mut trials, &orbit, progress)?;
+            let psnr = e.report.orbit_psnr;
+            Ok((e, psnr))
+        })?;
+        let Some((best_t, mut best, _)) = best else { return Err(unreachable(target, &probes)) };
         // The RD curve has steps (the search's choices are discrete): between the best probe
         // and the nearest that missed, try configurations mixing their choices.
         let mut between = Vec::new();
         let nearest_miss = missed.iter().min_by(|a, b| (a.0 - best_t).abs().total_cmp(&(b.0 - best_t).abs()));
-        if let (Some(e), Some((_, bad)), 0) = (&best, nearest_miss, self.config.iters_for(false)) {
-            if let Some(filled) = self.fill(&trials, &orbit, target, e, bad, &mut between)? {
-                best = Some(filled);
+        if let (Some((_, bad)), 0) = (nearest_miss, self.config.iters_for(false)) {
+            if let Some(filled) = self.fill(&trials, &orbit, target, &best, bad, &mut between)? {
+                best = filled;
             }
         }
-        let search = TargetSearch { target, probes, between };
-        match best {
-            Some(mut e) => {
-                e.report.target = Some(search);
-                Ok(e)
-            }
-            None => {
-                let finest = search.probes[0];
-                Err(crate::Error::Input(match target {
-                    Target::Psnr(p) => format!("--target-psnr {p}: not reachable, the finest setting (λ = 0) gives {:.2} dB", finest.psnr),
-                    Target::Bytes(b) => format!(
-                        "--target-bytes {b}: not reachable, the smallest file found has {} bytes",
-                        search.probes.iter().map(|p| p.bytes).min().unwrap_or(0)
-                    ),
-                }))
-            }
+        best.report.target = Some(TargetSearch { target, probes, between });
+        Ok(best)
+    }
+
+    /// Encodes a dataset to `target`, its PSNR the held-out views' (`gscodec eval OUTPUT
+    /// DATASET`): the scene is trained from the images once, at this encoder's λ, or is `init`
+    /// (`--init`); then each probe of the search on λ ([`search_lambda`]) runs the RD search,
+    /// the retraining and the coding at its λ ([`Encoder::code_dataset`], [`Encoder::encode_trained`]).
+    /// The report's `target` lists every probe; there is no search between probes.
+    ///
+    /// # Errors
+    /// As [`Encoder::encode_scene_to`], and a dataset without held-out views.
+    pub fn encode_dataset_to(
+        &self,
+        dataset: &Dataset,
+        init: Option<&Splats>,
+        target: Target,
+        progress: &mut dyn FnMut(&Progress),
+    ) -> Result<Encoded> {
+        target.validate()?;
+        let heldout = dataset.split(Split::Test);
+        if heldout.is_empty() {
+            return Err(crate::Error::Input(
+                "--target-psnr / --target-bytes: the dataset has no held-out (test) views to measure the PSNR on".into(),
+            ));
         }
+        let trained = match init {
+            Some(_) => None,
+            None => Some(self.train_dataset(dataset, progress)?),
+        };
+        let Searched { probes, best, .. } = search_lambda(target, |lambda| {
+            let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
+            let e = match (&trained, init) {
+                (Some(t), _) => {
+                    let start = Instant::now().checked_sub(t.elapsed).unwrap_or_else(Instant::now);
+                    let resolved = enc.resolved();
+                    resolved.code_trained(dataset, &t.scene, t.steps, Some(t.report.clone()), t.iters, start, t.series.clone(), progress)?
+                }
+                (None, Some(scene)) => enc.encode_trained(dataset, scene, progress)?,
+                (None, None) => unreachable!("a scene is trained or given"),
+            };
+            let psnr = crate::metrics::view::mean_psnr_ssim(&e.decoded, &heldout, dataset.background)?.map_or(f64::NAN, |m| m.0);
+            Ok((e, psnr))
+        })?;
+        let Some((_, mut best, _)) = best else { return Err(unreachable(target, &probes)) };
+        best.report.target = Some(TargetSearch { target, probes, between: Vec::new() });
+        Ok(best)
     }
 
     /// Between `good` (the best encode meeting `target`, from an RD search alone) and `bad`
