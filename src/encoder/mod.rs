@@ -351,9 +351,16 @@ impl Encoder {
         if resolved.training_settings() != trained.settings {
             return Err(Error::Failure("code_dataset: the scene was trained with other settings than this encoder trains with".into()));
         }
+        resolved.code_trained_scene(dataset, trained, progress)
+    }
+
+    /// [`Encoder::code_trained`] of a [`TrainedScene`], whose training time counts into the
+    /// encode's, by this (resolved) encoder whatever λ it has: [`Encoder::code_dataset`] after
+    /// its check, and each probe of a dataset's target ([`Encoder::encode_dataset_to`]).
+    fn code_trained_scene(&self, dataset: &Dataset, trained: &TrainedScene, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
         let TrainedScene { scene, steps, report, series, iters, elapsed, .. } = trained;
         let start = Instant::now().checked_sub(*elapsed).unwrap_or_else(Instant::now);
-        resolved.code_trained(dataset, scene, *steps, Some(report.clone()), *iters, start, series.clone(), progress)
+        self.code_trained(dataset, scene, *steps, Some(report.clone()), *iters, start, series.clone(), progress)
     }
 
     /// Whether `other` trains the same scene from a dataset's images as this encoder

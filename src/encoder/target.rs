@@ -243,20 +243,24 @@ impl Encoder {
                 "--target-psnr / --target-bytes: the dataset has no held-out (test) views to measure the PSNR on".into(),
             ));
         }
-        let trained = match init {
-            Some(_) => None,
-            None => Some(self.train_dataset(dataset, progress)?),
+        /// What every probe codes: the scene trained here, or the given one.
+        enum Scene<'a> {
+            Trained(&'a super::TrainedScene),
+            Given(&'a Splats),
+        }
+        let trained;
+        let scene = match init {
+            Some(s) => Scene::Given(s),
+            None => {
+                trained = self.train_dataset(dataset, progress)?;
+                Scene::Trained(&trained)
+            }
         };
         let Searched { probes, best, .. } = search_lambda(target, |lambda| {
             let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
-            let e = match (&trained, init) {
-                (Some(t), _) => {
-                    let start = Instant::now().checked_sub(t.elapsed).unwrap_or_else(Instant::now);
-                    let resolved = enc.resolved();
-                    resolved.code_trained(dataset, &t.scene, t.steps, Some(t.report.clone()), t.iters, start, t.series.clone(), progress)?
-                }
-                (None, Some(scene)) => enc.encode_trained(dataset, scene, progress)?,
-                (None, None) => unreachable!("a scene is trained or given"),
+            let e = match &scene {
+                Scene::Trained(t) => enc.resolved().code_trained_scene(dataset, t, progress)?,
+                Scene::Given(s) => enc.encode_trained(dataset, s, progress)?,
             };
             let psnr = crate::metrics::view::mean_psnr_ssim(&e.decoded, &heldout, dataset.background)?.map_or(f64::NAN, |m| m.0);
             Ok((e, psnr))
