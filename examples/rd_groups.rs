@@ -44,10 +44,10 @@ fn main() {
     println!("{}: λ {lambda}, {} → {} Gaussians, SH degree {}", args[1], scene.len(), r.gaussians, r.sh_degree);
     println!("chosen: {all_bytes} B, {all_psnr:.2} dB; fine start: {fine_bytes} B, {fine_psnr:.2} dB");
     println!(
-        "chosen steps: {:?}, min_opacity {}/255, min_significance {:e}, sh_drop {:?}",
+        "chosen steps: {:?}, min_opacity {}/255, min_removal_error {:e}, sh_drop {:?}",
         chosen.steps,
         chosen.min_opacity * 255.0,
-        chosen.min_significance,
+        chosen.min_removal_error,
         chosen.sh_drop
     );
     let spz = args.get(3).map(|p| spz_streams(p)).unwrap_or_default();
@@ -74,7 +74,7 @@ fn main() {
         };
         println!("| {} | {:.1} | {spz_col} | {:.2} |", g.name(), ours(g.name()), psnr_of(&c).1);
     }
-    let prune = EncodeConfig { min_opacity: chosen.min_opacity, min_significance: chosen.min_significance, ..fine };
+    let prune = EncodeConfig { min_opacity: chosen.min_opacity, min_removal_error: chosen.min_removal_error, ..fine };
     println!("| pruning ({} kept) | | | {:.2} |", r.gaussians, psnr_of(&prune).1);
     let (b, p) = psnr_of(&EncodeConfig { sh_drop: [0.0; 3], ..chosen });
     println!("| chosen without SH band dropping: {b} B | | | {p:.2} |");

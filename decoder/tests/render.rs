@@ -3,7 +3,7 @@
 
 use glam::{Mat3, Vec3};
 use gscodec_decoder::math::SH_C0;
-use gscodec_decoder::render::{contributions, reference::render_f64, render};
+use gscodec_decoder::render::{contributions, reference::render_f64, removal_errors, render};
 use gscodec_decoder::testkit::{random_splats_in, SceneRanges};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
 
@@ -213,4 +213,42 @@ fn contributions_are_deterministic_across_thread_counts() {
     let a = one.install(|| contributions(&s, &cam, &RenderOptions::default()));
     let b = four.install(|| contributions(&s, &cam, &RenderOptions::default()));
     assert_eq!(a, b);
+}
+
+/// `removal_errors` is, per Gaussian, what removing it alone changes in the render: the sum over
+/// the pixels of the squared colour difference (the background included in what shows through).
+#[test]
+fn removal_errors_are_what_removing_each_gaussian_changes() {
+    let s = random_splats_in(40, 1, 3, &SCENE);
+    let cam = front_camera(48, 40);
+    let opts = RenderOptions { background: [0.2, 0.5, 0.8], max_sh_degree: 1 };
+    let img = render(&s, &cam, &opts);
+    let err = removal_errors(&s, &cam, &opts);
+    assert_eq!(err.len(), s.len());
+    let mut seen = 0;
+    for i in 0..s.len() {
+        let mut without = s.clone();
+        without.retain_indices(|j| j != i);
+        let other = render(&without, &cam, &opts);
+        let want: f64 = img.data.iter().zip(&other.data).map(|(a, b)| ((a - b) as f64).powi(2)).sum();
+        let got = err[i] as f64;
+        assert!((got - want).abs() <= 1e-4 + 2e-3 * want, "Gaussian {i}: {got} against {want} re-rendered");
+        seen += usize::from(want > 1e-2);
+    }
+    assert!(seen > 10, "only {seen} Gaussians change the image: the test sees too little");
+}
+
+/// A Gaussian in front of its own colour covers pixels but costs nothing to remove: coverage
+/// (`contributions`) and removal error rank it differently.
+#[test]
+fn removal_costs_nothing_where_a_gaussian_matches_what_is_behind_it() {
+    let mut s = Splats::new(0);
+    let grey = (0.5 - 0.5) / SH_C0; // colour 0.5 after the +0.5 offset
+    s.push([0.0; 3], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 2.0, [grey; 3], &[]);
+    let cam = axis_camera(64, 64);
+    let on_grey = RenderOptions { background: [0.5; 3], max_sh_degree: 0 };
+    assert!(contributions(&s, &cam, &on_grey)[0] > 1.0);
+    assert!(removal_errors(&s, &cam, &on_grey)[0] < 1e-9);
+    let on_black = RenderOptions { background: [0.0; 3], max_sh_degree: 0 };
+    assert!(removal_errors(&s, &cam, &on_black)[0] > 0.1);
 }

@@ -11,7 +11,7 @@ use gscodec_decoder::Splats;
 use crate::io::{Dataset, Split};
 use crate::rate::group::Group;
 use crate::rate::term::LEARNED_GROUPS;
-use crate::rate::{self, CoarseTail, EncodeConfig, Steps};
+use crate::rate::{self, CoarseTail, EncodeConfig, Importance, Steps};
 use crate::{Error, Result};
 
 /// One row of the breakdown.
@@ -35,7 +35,7 @@ const UNQUANTISED: f32 = 1e-3;
 ///
 /// # Errors
 /// A dataset without held-out views, or a scene the coder refuses.
-pub fn coding_breakdown(scene: &Splats, significance: &[f32], config: &EncodeConfig, dataset: &Dataset) -> Result<Vec<CodingStage>> {
+pub fn coding_breakdown(scene: &Splats, significance: &Importance, config: &EncodeConfig, dataset: &Dataset) -> Result<Vec<CodingStage>> {
     let test = dataset.split(Split::Test);
     let psnr = |s: &Splats| -> Result<f64> {
         let m = crate::metrics::view::mean_psnr_ssim(s, &test, dataset.background)?;
@@ -46,8 +46,8 @@ pub fn coding_breakdown(scene: &Splats, significance: &[f32], config: &EncodeCon
         Ok(CodingStage { stage, bytes: Some(bytes.len()), heldout_psnr: psnr(&rate::quantise::dequantise(&q))? })
     };
     // Opacity below 1/255 never draws: that pruning is in every row.
-    let quantised = EncodeConfig { min_significance: 0.0, sh_drop: [0.0; 3], sh_vq: [0; 3], tail: CoarseTail::OFF, ..*config };
-    let pruned = EncodeConfig { min_significance: config.min_significance, ..quantised };
+    let quantised = EncodeConfig { min_removal_error: 0.0, sh_drop: [0.0; 3], sh_vq: [0; 3], tail: CoarseTail::OFF, ..*config };
+    let pruned = EncodeConfig { min_removal_error: config.min_removal_error, ..quantised };
     let dropped = EncodeConfig { sh_drop: config.sh_drop, ..pruned };
     let codebooks = EncodeConfig { sh_vq: config.sh_vq, ..dropped };
     // Only the groups training quantises (`trained`) or only the others (position, rotation) at

@@ -47,7 +47,7 @@ use crate::io::{Dataset, Split};
 use crate::loss::{wdr, LossKind};
 use crate::rate::group::Group;
 use crate::rate::rd::{RdDistortion, RdViews};
-use crate::rate::{self, EncodeConfig, Steps};
+use crate::rate::{self, EncodeConfig, Importance, Steps};
 use crate::train::{Progress, RunOptions, TrainConfig, TrainReport};
 use crate::views::{orbit_cameras, training_cameras, UpAxis};
 use crate::{Error, Result};
@@ -166,7 +166,7 @@ impl Encoder {
         scene: &Splats,
         orbit: &Orbit,
         dataset: Option<&Dataset>,
-        significance: Option<(&RdViews, &[f32])>,
+        significance: Option<(&RdViews, &Importance)>,
     ) -> Result<Encoded> {
         let start = Instant::now();
         let prepared = rate::prepared(scene, &e.config, significance.map(|s| s.1));
@@ -444,7 +444,7 @@ impl Encoder {
             rate::rd::search_with(&mut trials, self.config.lambda, steps, |_| {}).map_err(|e| Error::Input(e.to_string()))?;
         // Pruning and the importance classes take the Gaussians in the order of their
         // significance from the dataset's training cameras, in the search and in the file.
-        let trained_significance = trials.significance().to_vec();
+        let trained_significance = trials.importance().clone();
         drop(trials); // its reference renders and coded groups, before retraining
         stages.rd_search_s = t.elapsed().as_secs_f64();
         let orbit = Orbit::new(trained);
@@ -473,7 +473,7 @@ impl Encoder {
             None
         };
         let (coded, significance) = retrained.as_ref().map_or((trained, &trained_significance), |(s, sig)| (s, sig));
-        let heldout = Some((dataset, &significance[..]));
+        let heldout = Some((dataset, significance));
         // The report's run: the training from the images, else (a given scene) the retraining.
         let r = r.or(retrain_report);
         let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, r, heldout)?;
@@ -504,12 +504,12 @@ impl Encoder {
         views: RdViews,
         config: EncodeConfig,
         stages: &mut EncodeStages,
-    ) -> Result<(EncodeConfig, Vec<f32>)> {
+    ) -> Result<(EncodeConfig, Importance)> {
         let t = Instant::now();
         let mut trials = rate::rd::Trials::with_views(trained, views).map_err(|e| Error::Input(e.to_string()))?;
         let config = rate::rd::retune_tail(&mut trials, self.config.lambda, config).map_err(|e| Error::Input(e.to_string()))?;
         stages.rd_search_s += t.elapsed().as_secs_f64();
-        Ok((config, trials.significance().to_vec()))
+        Ok((config, trials.importance().clone()))
     }
 
     /// What the RD search of a trained dataset scene measures `D` with
@@ -593,8 +593,8 @@ impl Encoder {
 
     /// Codes `coded` with `config`, measures the result against `reference`'s orbit views and
     /// builds the report. For a dataset input, `heldout` is the dataset (the coded scene is
-    /// measured on its held-out views) and the significance `coded` is pruned with
-    /// ([`RdViews::significance`]); else `coded`'s own.
+    /// measured on its held-out views) and the importance `coded` is pruned with
+    /// ([`RdViews::importance`]); else `coded`'s own.
     #[allow(clippy::too_many_arguments)]
     fn finish(
         &self,
@@ -606,7 +606,7 @@ impl Encoder {
         mut stages: EncodeStages,
         mut series: Vec<SeriesPoint>,
         train: Option<TrainReport>,
-        heldout: Option<(&Dataset, &[f32])>,
+        heldout: Option<(&Dataset, &Importance)>,
     ) -> Result<Encoded> {
         let t = Instant::now();
         let config = &self.file_config(config);
@@ -651,7 +651,7 @@ impl Encoder {
             steps: config.steps.map(),
             rest_deadzone: config.steps.rest_deadzone,
             min_opacity: config.min_opacity,
-            min_significance: config.min_significance,
+            min_removal_error: config.min_removal_error,
             tail: config.tail,
             orbit_psnr,
             stages,

@@ -90,7 +90,7 @@ pub struct EncodeReport {
     pub rest_deadzone: f32,
     /// Pruning thresholds of the file: opacity, and significance (0: none).
     pub min_opacity: f32,
-    pub min_significance: f32,
+    pub min_removal_error: f32,
     /// Importance classes of the file (format 6.0): the least significant `share` of the
     /// Gaussians with every step × `factor` (share 0: none).
     pub tail: crate::rate::CoarseTail,

@@ -20,6 +20,7 @@ pub mod term;
 pub mod vq;
 
 use gscodec_decoder::{SceneError, Splats};
+pub use importance::Importance;
 
 pub use encode::{EncodeReport, GroupReport};
 pub use lambda::Lambda;
@@ -31,10 +32,10 @@ pub struct EncodeConfig {
     pub steps: Steps,
     /// Gaussians with opacity below this are pruned (1/255 is lossless: they never draw).
     pub min_opacity: f32,
-    /// Gaussians whose significance (how much of the standard views they cover after
-    /// occlusion, [`importance::significance`] of the input scene) is below this are pruned too
-    /// (0 = off; the RD search sets it).
-    pub min_significance: f32,
+    /// Gaussians whose removal error (the squared colour error that dropping each alone causes
+    /// in the standard views, [`importance::Importance::removal`] of the input scene) is below
+    /// this are pruned too (0 = off; the RD search sets it).
+    pub min_removal_error: f32,
     /// Per SH band 1..=3: Gaussians whose band contribution ([`quantise::band_contribution`],
     /// weighted by their significance) is below this have that band's coefficients zeroed
     /// (0 = keep all; the RD search sets it).
@@ -126,7 +127,7 @@ impl Default for EncodeConfig {
         EncodeConfig {
             steps: Steps::default(),
             min_opacity: 1.0 / 255.0,
-            min_significance: 0.0,
+            min_removal_error: 0.0,
             sh_drop: [0.0; 3],
             sh_vq: [0; 3],
             max_sh_degree: 3,
@@ -150,52 +151,52 @@ impl EncodeConfig {
         }
     }
 
-    /// Whether coding with this config needs the input's significance (significance pruning, SH
-    /// band dropping, or SH vector quantisation, whose k-means weighs rows by it).
-    pub fn needs_significance(&self) -> bool {
-        self.min_significance > 0.0 || self.sh_drop.iter().any(|&t| t > 0.0) || self.sh_vq.iter().any(|&k| k > 0) || !self.tail.is_off()
+    /// Whether coding with this config needs the input's [`importance::Importance`] (pruning by
+    /// removal error, SH band dropping, or SH vector quantisation, whose k-means weighs rows by
+    /// significance).
+    pub fn needs_importance(&self) -> bool {
+        self.min_removal_error > 0.0 || self.sh_drop.iter().any(|&t| t > 0.0) || self.sh_vq.iter().any(|&k| k > 0) || !self.tail.is_off()
     }
 }
 
-/// The Gaussians of `splats` that `config`'s pruning keeps (opacity, then significance: each a
-/// per-Gaussian test on the input), and their significance when it is given. Without
-/// `significance` the significance test is skipped ([`encode`] computes it when needed).
+/// The Gaussians of `splats` that `config`'s pruning keeps (opacity, then removal error: each a
+/// per-Gaussian test on the input), and their significance when `importance` is given. Without
+/// `importance` the removal-error test is skipped ([`encode`] computes it when needed).
 ///
 /// # Panics
-/// If `significance` is not one value per Gaussian of `splats`.
-pub fn pruned(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> (Splats, Option<Vec<f32>>) {
-    assert!(significance.is_none_or(|s| s.len() == splats.len()), "one significance per Gaussian");
+/// If `importance` does not measure every Gaussian of `splats`.
+pub fn pruned(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> (Splats, Option<Vec<f32>>) {
+    assert!(importance.is_none_or(|m| m.len() == splats.len() && m.removal.len() == splats.len()), "one measure per Gaussian");
     let keep: Vec<bool> = (0..splats.len())
         .map(|i| {
             gscodec_decoder::math::sigmoid(splats.opacity_logits[i]) >= config.min_opacity
-                && (config.min_significance <= 0.0 || significance.is_none_or(|s| s[i] >= config.min_significance))
+                && (config.min_removal_error <= 0.0 || importance.is_none_or(|m| m.removal[i] >= config.min_removal_error))
         })
         .collect();
     let mut out = splats.clone();
     out.retain_indices(|i| keep[i]);
-    (out, significance.map(|s| s.iter().zip(&keep).filter(|x| *x.1).map(|x| *x.0).collect()))
+    (out, importance.map(|m| m.significance.iter().zip(&keep).filter(|x| *x.1).map(|x| *x.0).collect()))
 }
 
 /// What `config` codes of `splats`, before quantisation: [`pruned`], SH bands dropped
 /// ([`quantise::drop_sh_bands`]), the degree cut and every Gaussian's axes relabelled for the
-/// cheapest rotation ([`quantise::canonical_axes`]: the same Gaussians). `significance` is that
-/// of `splats` ([`importance::significance`]; computed here when `config` needs it and it is
-/// `None`).
-pub fn prepared(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> Splats {
-    prepared_with_significance(splats, config, significance).0
+/// cheapest rotation ([`quantise::canonical_axes`]: the same Gaussians). `importance` is that
+/// of `splats` ([`Importance::of`]; computed here when `config` needs it and it is `None`).
+pub fn prepared(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> Splats {
+    prepared_with_significance(splats, config, importance).0
 }
 
 /// [`prepared`], and the significance of the Gaussians it keeps when there is one.
-fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, significance: Option<&[f32]>) -> (Splats, Option<Vec<f32>>) {
+fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> (Splats, Option<Vec<f32>>) {
     let own;
-    let significance = match significance {
-        None if config.needs_significance() => {
-            own = importance::significance(splats);
-            Some(&own[..])
+    let importance = match importance {
+        None if config.needs_importance() => {
+            own = Importance::of(splats);
+            Some(&own)
         }
-        s => s,
+        m => m,
     };
-    let (mut s, sig) = pruned(splats, config, significance);
+    let (mut s, sig) = pruned(splats, config, importance);
     if let Some(w) = sig.as_ref().filter(|_| config.sh_drop.iter().any(|&t| t > 0.0)) {
         quantise::drop_sh_bands(&mut s, w, config.sh_drop);
     }
@@ -211,14 +212,14 @@ pub fn encode(splats: &Splats, config: &EncodeConfig) -> Result<(Vec<u8>, Encode
     encode_with(splats, config, None)
 }
 
-/// [`encode`] with the input's significance already computed ([`importance::significance`] of
-/// `splats`; computed here when `config` needs it and it is `None`).
+/// [`encode`] with the input's importance already measured ([`Importance::of`] `splats`;
+/// computed here when `config` needs it and it is `None`).
 pub fn encode_with(
     splats: &Splats,
     config: &EncodeConfig,
-    significance: Option<&[f32]>,
+    importance: Option<&Importance>,
 ) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
-    encode_cached(splats, config, significance, None)
+    encode_cached(splats, config, importance, None)
 }
 
 /// [`encode_with`], taking the coded groups `cache` holds from it and adding the others
@@ -226,12 +227,12 @@ pub fn encode_with(
 pub fn encode_cached(
     splats: &Splats,
     config: &EncodeConfig,
-    significance: Option<&[f32]>,
+    importance: Option<&Importance>,
     cache: Option<&encode::GroupCache>,
 ) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let (s, sig) = prepared_with_significance(splats, config, significance);
+    let (s, sig) = prepared_with_significance(splats, config, importance);
     let level = match &sig {
         _ if config.progressive => importance::levels(&importance::significance(&s)),
         Some(sig) => config.tail.levels(sig),
@@ -259,27 +260,30 @@ pub fn encode_cached(
 mod tests {
     use super::*;
 
-    /// Significance pruning keeps exactly the Gaussians at or above the threshold: it never
-    /// drops a Gaussian more significant than one it keeps.
+    /// Pruning keeps exactly the Gaussians whose removal error is at or above the threshold: it
+    /// never drops a Gaussian whose removal costs more than one it keeps; the significance it
+    /// returns is that of the Gaussians it keeps.
     #[test]
-    fn significance_pruning_keeps_the_most_significant() {
+    fn pruning_keeps_the_gaussians_whose_removal_costs_most() {
         let s = crate::sample::scene(400, 7);
-        let sig = importance::significance(&s);
-        let mut sorted = sig.clone();
+        let m = Importance::of(&s);
+        let err = &m.removal;
+        let mut sorted = err.clone();
         sorted.sort_by(f32::total_cmp);
         let t = sorted[sorted.len() / 3];
-        let config = EncodeConfig { min_opacity: 0.0, min_significance: t, ..EncodeConfig::default() };
-        let (kept, kept_sig) = pruned(&s, &config, Some(&sig));
+        let config = EncodeConfig { min_opacity: 0.0, min_removal_error: t, ..EncodeConfig::default() };
+        let (kept, kept_sig) = pruned(&s, &config, Some(&m));
         let kept_sig = kept_sig.unwrap();
-        assert_eq!(kept.len(), sig.iter().filter(|&&v| v >= t).count());
+        assert_eq!(kept.len(), err.iter().filter(|&&v| v >= t).count());
         assert!(kept.len() < s.len() && !kept.is_empty());
-        let dropped_max = sig.iter().filter(|&&v| v < t).fold(f32::NEG_INFINITY, |a, &b| a.max(b));
-        let kept_min = kept_sig.iter().fold(f32::INFINITY, |a, &b| a.min(b));
+        let order: Vec<usize> = (0..s.len()).filter(|&i| err[i] >= t).collect();
+        let dropped_max = (0..s.len()).filter(|&i| err[i] < t).fold(f32::NEG_INFINITY, |a, i| a.max(err[i]));
+        let kept_min = order.iter().fold(f32::INFINITY, |a, &i| a.min(err[i]));
         assert!(dropped_max < kept_min, "dropped {dropped_max} ≥ kept {kept_min}");
-        // The kept significances are those of the kept Gaussians, in order.
-        let order: Vec<usize> = (0..s.len()).filter(|&i| sig[i] >= t).collect();
         assert_eq!(kept.positions, order.iter().map(|&i| s.positions[i]).collect::<Vec<_>>());
-        assert_eq!(kept_sig, order.iter().map(|&i| sig[i]).collect::<Vec<_>>());
+        assert_eq!(kept_sig, order.iter().map(|&i| m.significance[i]).collect::<Vec<_>>());
+        // The two measures rank differently: coverage is not what pruning goes by.
+        assert!((0..s.len()).any(|i| (0..s.len()).any(|j| m.significance[i] > m.significance[j] && err[i] < err[j])));
     }
 
     /// The tail is exactly the ⌊share·n⌋ least significant Gaussians (ties: later ones first), and
@@ -303,15 +307,15 @@ mod tests {
         assert_eq!(CoarseTail::OFF.level_factors(&levels), None);
     }
 
-    /// `encode` computes the significance a config needs; given precomputed, the same bytes.
+    /// `encode` measures the importance a config needs; given precomputed, the same bytes.
     #[test]
-    fn encode_computes_the_significance_it_needs() {
+    fn encode_measures_the_importance_it_needs() {
         let s = crate::sample::scene(300, 8);
-        let sig = importance::significance(&s);
-        let config = EncodeConfig { min_significance: 0.5, sh_drop: [0.1, 0.1, 0.1], ..EncodeConfig::default() };
-        assert!(config.needs_significance() && !EncodeConfig::default().needs_significance());
+        let m = Importance::of(&s);
+        let config = EncodeConfig { min_removal_error: 0.5, sh_drop: [0.1, 0.1, 0.1], ..EncodeConfig::default() };
+        assert!(config.needs_importance() && !EncodeConfig::default().needs_importance());
         let (a, ra, _) = encode(&s, &config).unwrap();
-        let (b, _, _) = encode_with(&s, &config, Some(&sig)).unwrap();
+        let (b, _, _) = encode_with(&s, &config, Some(&m)).unwrap();
         assert_eq!(a, b);
         assert!(ra.gaussians < encode(&s, &EncodeConfig::default()).unwrap().1.gaussians);
     }

@@ -18,12 +18,13 @@ use super::encode::GroupCache;
 use super::group::Group;
 use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
-use super::{encode_cached, pruned, CoarseTail, EncodeConfig};
+use super::{encode_cached, pruned, CoarseTail, EncodeConfig, Importance};
 use crate::loss::features::{pyramid::Pyramid, FeatureSpace};
 use crate::loss::tensor::Tensor;
 use crate::loss::wd::{self, Reference, Sigma};
 use crate::loss::L1Ssim;
 use crate::views::{orbit_cameras, UpAxis};
+use gscodec_decoder::math::sigmoid;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -95,6 +96,15 @@ impl RdViews {
         }
     }
 
+    /// [`RdViews::significance`] and the removal errors (what pruning ranks by) from the same
+    /// cameras, rendered on the views' background.
+    pub fn importance(&self, scene: &Splats) -> Importance {
+        match &self.significance_cams {
+            Some(cams) => Importance::on(scene, cams, self.background),
+            None => Importance::on(scene, &super::importance::views(scene), self.background),
+        }
+    }
+
     /// [`VIEWS`] of `dataset`'s training cameras, evenly spread through its training frames
     /// (never a held-out one), over its background, each at its own size or scaled down to at
     /// most [`MAX_CAMERA_SIDE`] pixels on its longer side: the views a scene trained from the
@@ -138,8 +148,8 @@ pub struct Evaluator<'a> {
     opts: RenderOptions,
     /// `D` as a loss measures it ([`RdDistortion::Loss`]); `None` for the squared error.
     loss: Option<LossD>,
-    /// The scene's significance from the views' cameras ([`RdViews::significance`]), computed once.
-    significance: Vec<f32>,
+    /// The scene's importance from the views' cameras ([`RdViews::importance`]), measured once.
+    importance: Importance,
     /// CPU time spent encoding and rendering trials (nanoseconds, summed over threads), for
     /// [`Clock`].
     encode_ns: AtomicU64,
@@ -187,10 +197,10 @@ impl<'a> Evaluator<'a> {
     }
 
     /// `D` on `views`, pruning and the importance classes taking the Gaussians in the order of
-    /// their [`RdViews::significance`].
+    /// their [`RdViews::importance`] (removal error and significance).
     pub fn with_views(scene: &'a Splats, views: RdViews) -> Self {
         let t = Instant::now();
-        let significance = views.significance(scene);
+        let importance = views.importance(scene);
         let sig_s = t.elapsed().as_secs_f64();
         let sig_views = match (timing(), &views.significance_cams) {
             (false, _) => 0,
@@ -217,7 +227,7 @@ impl<'a> Evaluator<'a> {
         };
         if timing() {
             eprintln!(
-                "timing: significance ({} views) {sig_s:.3} s wall; reference renders {:.3} s wall",
+                "timing: significance and removal errors ({} views) {sig_s:.3} s wall; reference renders {:.3} s wall",
                 sig_views,
                 t.elapsed().as_secs_f64() - sig_s
             );
@@ -228,7 +238,7 @@ impl<'a> Evaluator<'a> {
             refs,
             opts,
             loss,
-            significance,
+            importance,
             encode_ns: AtomicU64::new(0),
             render_ns: AtomicU64::new(0),
             base: None,
@@ -257,7 +267,7 @@ impl<'a> Evaluator<'a> {
     /// (bytes, encoder report, decoded scene) of `config`, its encode time counted for [`Clock`].
     fn code(&self, config: &EncodeConfig) -> Result<(usize, super::EncodeReport, Splats), SceneError> {
         let t = Instant::now();
-        let (bytes, report, q) = encode_cached(self.scene, config, Some(&self.significance), Some(&self.cache))?;
+        let (bytes, report, q) = encode_cached(self.scene, config, Some(&self.importance), Some(&self.cache))?;
         let dec = dequantise(&q);
         self.encode_ns.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
         Ok((bytes.len(), report, dec))
@@ -444,9 +454,9 @@ impl<'a> Trials<'a> {
         self.ev.scene
     }
 
-    /// The scene's significance ([`super::importance::significance`]).
-    pub fn significance(&self) -> &[f32] {
-        &self.ev.significance
+    /// The scene's importance from the search's views ([`RdViews::importance`]).
+    pub fn importance(&self) -> &Importance {
+        &self.ev.importance
     }
 
     /// Configurations evaluated so far.
@@ -552,18 +562,18 @@ impl<F: FnMut(&Trial)> Log<'_, F> {
     }
 }
 
-/// Significance pruning candidates from `from`: none, those no view sees, the
-/// [`PRUNE_QUANTILES`] of `sig` (sorted significances of the Gaussians above the opacity
+/// Pruning candidates from `from`: none, those whose removal changes no view, the
+/// [`PRUNE_QUANTILES`] of `errs` (sorted removal errors of the Gaussians above the opacity
 /// threshold), and everything (an empty file).
-fn prune_candidates(sig: &[f32], from: &EncodeConfig) -> Vec<(String, EncodeConfig)> {
-    let with = |t: f32| EncodeConfig { min_significance: t, ..*from };
-    let mut cands = vec![("prune none".to_string(), with(0.0)), ("prune unseen".to_string(), with(f32::MIN_POSITIVE))];
+fn prune_candidates(errs: &[f32], from: &EncodeConfig) -> Vec<(String, EncodeConfig)> {
+    let with = |t: f32| EncodeConfig { min_removal_error: t, ..*from };
+    let mut cands = vec![("prune none".to_string(), with(0.0)), ("prune no-change".to_string(), with(f32::MIN_POSITIVE))];
     let mut last = f32::MIN_POSITIVE;
     for &f in &PRUNE_QUANTILES {
-        let t = sig.get((sig.len() as f64 * f64::from(f)) as usize).copied().unwrap_or(f32::INFINITY);
+        let t = errs.get((errs.len() as f64 * f64::from(f)) as usize).copied().unwrap_or(f32::INFINITY);
         if t > last {
             last = t;
-            cands.push((format!("prune significance<q{f}"), with(t)));
+            cands.push((format!("prune removal error<q{f}"), with(t)));
         }
     }
     cands.push(("prune all".to_string(), with(f32::INFINITY)));
@@ -703,12 +713,13 @@ pub fn search_with(
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
     trials.calibrate(&fine)?;
-    // 1. Pruning by significance (at fine steps): what the views see of a Gaussian after
-    //    occlusion. It subsumes opacity and footprint thresholds, which it beat on every scene
-    //    measured (docs/codec.md). Candidates: none, those no view sees, quantiles of the rest,
-    //    and everything (an empty file).
-    let sig = sorted(pruned(scene, &fine, Some(&trials.ev.significance)).1.expect("given"));
-    let cands = prune_candidates(&sig, &fine);
+    // 1. Pruning by removal error (at fine steps): the colour error that dropping the Gaussian
+    //    alone causes in the views. It subsumes opacity, footprint and coverage thresholds,
+    //    which it beat on every scene measured (docs/codec.md). Candidates: none, those whose
+    //    removal changes nothing, quantiles of the rest, and everything (an empty file).
+    let m = &trials.ev.importance;
+    let errs = sorted((0..scene.len()).filter(|&i| sigmoid(scene.opacity_logits[i]) >= fine.min_opacity).map(|i| m.removal[i]).collect());
+    let cands = prune_candidates(&errs, &fine);
     let base = log.stage(trials, (f64::INFINITY, fine), cands)?.1;
     let b0 = trials.base(&base)?.bytes;
     clock.lap(trials, "pruning");
@@ -724,7 +735,7 @@ pub fn search_with(
     //    band by band: thresholds at quantiles of the kept Gaussians' band contributions
     //    weighted by significance.
     if base.max_sh_degree > 0 && scene.sh_degree > 0 {
-        let (kept, weights) = pruned(scene, &base, Some(&trials.ev.significance));
+        let (kept, weights) = pruned(scene, &base, Some(&trials.ev.importance));
         let weights = weights.expect("given");
         for b in 1..=base.max_sh_degree.min(kept.sh_degree) {
             let c = sorted((0..kept.len()).map(|i| super::quantise::band_contribution(&kept, i, b, weights[i])).collect());
@@ -787,10 +798,10 @@ pub fn between(from: &EncodeConfig, to: &EncodeConfig) -> Vec<(String, EncodeCon
             out.push((name, c));
         }
     };
-    push("pruning".into(), EncodeConfig { min_opacity: to.min_opacity, min_significance: to.min_significance, ..*from });
-    let (a, b) = (from.min_significance, to.min_significance);
+    push("pruning".into(), EncodeConfig { min_opacity: to.min_opacity, min_removal_error: to.min_removal_error, ..*from });
+    let (a, b) = (from.min_removal_error, to.min_removal_error);
     if a > 0.0 && b > 0.0 && a.is_finite() && b.is_finite() {
-        push("pruning midway".into(), EncodeConfig { min_significance: (a * b).sqrt(), ..*from });
+        push("pruning midway".into(), EncodeConfig { min_removal_error: (a * b).sqrt(), ..*from });
     }
     push("SH degree".into(), EncodeConfig { max_sh_degree: to.max_sh_degree, ..*from });
     let mut c = *from;
@@ -828,7 +839,7 @@ const PRUNE_OPACITIES: [f32; 11] = [2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 3
 /// A trial's encode (none for a scene [`Trials::new`] took).
 pub fn pruning_opacity(trials: &mut Trials, lambda: Lambda, config: &EncodeConfig) -> Result<f32, SceneError> {
     let mut log = Log { path: Vec::new(), on_step: &mut |_: &Trial| {}, lambda };
-    let base = EncodeConfig { min_significance: 0.0, min_opacity: 1.0 / 255.0, learned_tables: false, ..*config };
+    let base = EncodeConfig { min_removal_error: 0.0, min_opacity: 1.0 / 255.0, learned_tables: false, ..*config };
     let Outcome { bytes: b, d, .. } = trials.one(&base)?;
     let cands =
         PRUNE_OPACITIES.iter().map(|&m| (format!("prune opacity<{m}/255"), EncodeConfig { min_opacity: m / 255.0, ..base })).collect();
@@ -990,16 +1001,16 @@ mod tests {
         for (knob, c) in &configs {
             let before = cached.cache.len();
             let (b, d, r) = cached.eval_report(c).unwrap();
-            let (bytes, r0, _) = super::super::encode_with(&scene, c, Some(&cached.significance)).unwrap();
+            let (bytes, r0, _) = super::super::encode_with(&scene, c, Some(&cached.importance)).unwrap();
             assert_eq!(b, bytes.len(), "{c:?}");
             assert_eq!(format!("{r:?}"), format!("{r0:?}"));
             assert_eq!(d.to_bits(), fresh.eval(c).unwrap().1.to_bits(), "{c:?}");
-            let (again, ..) = super::super::encode_cached(&scene, c, Some(&cached.significance), Some(&cached.cache)).unwrap();
+            let (again, ..) = super::super::encode_cached(&scene, c, Some(&cached.importance), Some(&cached.cache)).unwrap();
             assert_eq!(again, bytes);
             if knob.is_some_and(|g| g != Group::Position) {
                 assert_eq!(cached.cache.len(), before + 1, "{knob:?} codes only its own group");
             }
-            let dec = dequantise(&super::super::encode_with(&scene, c, Some(&cached.significance)).unwrap().2);
+            let dec = dequantise(&super::super::encode_with(&scene, c, Some(&cached.importance)).unwrap().2);
             replayed += usize::from(same_geometry(&cached.base.as_ref().unwrap().0, &dec));
         }
         assert!(replayed >= 7, "{replayed} trials replayed"); // SH DC, 3 bands, degree, dead zone, 2 codebooks
@@ -1122,7 +1133,7 @@ mod tests {
             if l == 1e6 {
                 assert!(m > 1.0 / 255.0, "{m}");
             }
-            let (bytes, _) = ev.eval(&EncodeConfig { min_significance: 0.0, min_opacity: m, learned_tables: false, ..config }).unwrap();
+            let (bytes, _) = ev.eval(&EncodeConfig { min_removal_error: 0.0, min_opacity: m, learned_tables: false, ..config }).unwrap();
             assert!(bytes <= last, "λ {l}: {bytes} bytes after {last}");
             last = bytes;
         }
@@ -1152,8 +1163,8 @@ mod tests {
 
     #[test]
     fn between_changes_one_knob_at_a_time_towards_the_other_choice() {
-        let from = EncodeConfig { min_significance: 0.5, ..EncodeConfig::default() };
-        let mut to = EncodeConfig { min_significance: 2.0, max_sh_degree: 2, ..from };
+        let from = EncodeConfig { min_removal_error: 0.5, ..EncodeConfig::default() };
+        let mut to = EncodeConfig { min_removal_error: 2.0, max_sh_degree: 2, ..from };
         to.steps.opacity *= 2.0;
         to.steps.sh_rest[1] *= 0.5;
         to.sh_vq[1] = 256;
@@ -1161,8 +1172,8 @@ mod tests {
         let names: Vec<&str> = cands.iter().map(|c| c.0.as_str()).collect();
         assert_eq!(names, ["pruning", "pruning midway", "SH degree", "opacity step", "SH band 2"]);
         let get = |n: &str| cands.iter().find(|c| c.0 == n).unwrap().1;
-        assert_eq!(get("pruning"), EncodeConfig { min_significance: 2.0, ..from });
-        assert_eq!(get("pruning midway").min_significance, 1.0);
+        assert_eq!(get("pruning"), EncodeConfig { min_removal_error: 2.0, ..from });
+        assert_eq!(get("pruning midway").min_removal_error, 1.0);
         assert_eq!(get("SH degree"), EncodeConfig { max_sh_degree: 2, ..from });
         assert_eq!(get("opacity step").steps.opacity, to.steps.opacity);
         let band = get("SH band 2");

@@ -314,7 +314,7 @@ pub fn composite_with(list: &[TileGaussian], px: f32, py: f32, mut blend: impl F
 pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Image {
     let proj = preprocess(splats, cam, opts.max_sh_degree);
     let bins = bin_tiles(&proj, cam.width, cam.height);
-    shade::<false>(&proj, &bins, cam, opts, &mut [])
+    shade::<NO_RECORD>(&proj, &bins, cam, opts, &mut [])
 }
 
 /// For every Gaussian of `splats`, the sum over the pixels of the frame [`render`] draws from
@@ -323,10 +323,26 @@ pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Image {
 /// summed over the Gaussians it equals `Σ_pixels (1 − T_final)` up to rounding. Deterministic:
 /// weights are summed per tile-list entry, then per Gaussian in tile-list order (in f64).
 pub fn contributions(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Vec<f32> {
+    per_gaussian::<RECORD_WEIGHT>(splats, cam, opts)
+}
+
+/// For every Gaussian of `splats`, the squared colour error that removing it alone would cause in
+/// the frame [`render`] draws from `cam`: `Σ_pixels ‖T·α·(B − c)‖²`, with `T` the transmittance in
+/// front of it, `α` its alpha and `c` its colour at the pixel, and `B` the colour behind it (what
+/// is composited after it, the background included), which is exactly how much the pixel changes
+/// without it (up to what the early stop hides). The same culling, skip and early stop as the
+/// render; deterministic like [`contributions`].
+pub fn removal_errors(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Vec<f32> {
+    per_gaussian::<RECORD_REMOVAL>(splats, cam, opts)
+}
+
+/// What [`shade`] records in mode `MODE` for each tile-list entry, summed per Gaussian in
+/// tile-list order (in f64).
+fn per_gaussian<const MODE: u8>(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Vec<f32> {
     let proj = preprocess(splats, cam, opts.max_sh_degree);
     let bins = bin_tiles(&proj, cam.width, cam.height);
     let mut weights = vec![0.0f32; bins.ids.len()];
-    shade::<true>(&proj, &bins, cam, opts, &mut weights);
+    shade::<MODE>(&proj, &bins, cam, opts, &mut weights);
     let mut sum = vec![0.0f64; splats.len()];
     for (&g, &w) in bins.ids.iter().zip(&weights) {
         sum[g as usize] += w as f64;
@@ -334,10 +350,17 @@ pub fn contributions(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Vec
     sum.into_iter().map(|v| v as f32).collect()
 }
 
-/// Composites every pixel, one task per row of tiles. With `RECORD`, also adds each blended
-/// entry's weight `α·T` into `weights[k]`, `k` indexing `bins.ids` (one slot per tile-list entry;
-/// `weights` is then `bins.ids.len()` long, otherwise empty).
-fn shade<const RECORD: bool>(proj: &[Projected], bins: &TileBins, cam: &Camera, opts: &RenderOptions, weights: &mut [f32]) -> Image {
+/// What [`shade`] records per tile-list entry: nothing (a plain render), the blending weight
+/// `α·T` ([`contributions`]) or the squared colour error of removing the entry
+/// ([`removal_errors`]).
+const NO_RECORD: u8 = 0;
+const RECORD_WEIGHT: u8 = 1;
+const RECORD_REMOVAL: u8 = 2;
+
+/// Composites every pixel, one task per row of tiles. In a recording `MODE`, also adds what it
+/// records of each blended entry into `weights[k]`, `k` indexing `bins.ids` (one slot per
+/// tile-list entry; `weights` is then `bins.ids.len()` long, otherwise empty).
+fn shade<const MODE: u8>(proj: &[Projected], bins: &TileBins, cam: &Camera, opts: &RenderOptions, weights: &mut [f32]) -> Image {
     let w = cam.width;
     let cull = cull_thresholds(proj);
     let mut img = Image::filled(w, cam.height, [0.0; 3]);
@@ -347,7 +370,7 @@ fn shade<const RECORD: bool>(proj: &[Projected], bins: &TileBins, cam: &Camera, 
     let mut rest = weights;
     for ty in 0..bins.tiles_y {
         let row = |ty: u32| bins.ranges[(ty * bins.tiles_x) as usize] as usize;
-        let len = if RECORD { row(ty + 1) - row(ty) } else { 0 };
+        let len = if MODE != NO_RECORD { row(ty + 1) - row(ty) } else { 0 };
         let (head, tail) = std::mem::take(&mut rest).split_at_mut(len);
         bands.push(head);
         rest = tail;
@@ -369,10 +392,26 @@ fn shade<const RECORD: bool>(proj: &[Projected], bins: &TileBins, cam: &Camera, 
                 for x in tx * TILE..x1 {
                     let (list, index) = blocks.at(x - tx * TILE, ly as u32);
                     let (c, t, _) = composite_with(list, x as f32, py, |j, a, t| {
-                        if RECORD {
+                        if MODE == RECORD_WEIGHT {
                             band_w[offset + index[j] as usize] += a * t;
                         }
                     });
+                    if MODE == RECORD_REMOVAL {
+                        // ΔC of removing entry j: T·α·(B − c), B the colour behind it, from
+                        // T·(1 − α)·B = C_final − (C in front of j, j included).
+                        let fin: [f32; 3] = std::array::from_fn(|k| c[k] + t * opts.background[k]);
+                        let mut front = [0.0f32; 3];
+                        composite_with(list, x as f32, py, |j, a, t| {
+                            let col = list[j].color;
+                            let mut e = 0.0;
+                            for k in 0..3 {
+                                front[k] += col[k] * a * t;
+                                let d = a / (1.0 - a) * (fin[k] - front[k]) - t * a * col[k];
+                                e += d * d;
+                            }
+                            band_w[offset + index[j] as usize] += e;
+                        });
+                    }
                     for k in 0..3 {
                         row[x as usize * 3 + k] = c[k] + t * opts.background[k];
                     }
