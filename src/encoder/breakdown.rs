@@ -30,19 +30,19 @@ pub struct CodingStage {
 /// Steps this much finer than the chosen ones stand for "not quantised" in the partial rows.
 const UNQUANTISED: f32 = 1e-3;
 
-/// The breakdown of coding `scene` with `config` (the file's settings) and the `significance`
+/// The breakdown of coding `scene` with `config` (the file's settings) and the `importance`
 /// the file prunes with, measured on `dataset`'s held-out views.
 ///
 /// # Errors
 /// A dataset without held-out views, or a scene the coder refuses.
-pub fn coding_breakdown(scene: &Splats, significance: &Importance, config: &EncodeConfig, dataset: &Dataset) -> Result<Vec<CodingStage>> {
+pub fn coding_breakdown(scene: &Splats, importance: &Importance, config: &EncodeConfig, dataset: &Dataset) -> Result<Vec<CodingStage>> {
     let test = dataset.split(Split::Test);
     let psnr = |s: &Splats| -> Result<f64> {
         let m = crate::metrics::view::mean_psnr_ssim(s, &test, dataset.background)?;
         Ok(m.ok_or_else(|| Error::Input("--coding-breakdown: the dataset has no held-out views".into()))?.0)
     };
     let coded = |stage: &'static str, c: EncodeConfig| -> Result<CodingStage> {
-        let (bytes, _, q) = rate::encode_with(scene, &c, Some(significance)).map_err(|e| Error::Input(e.to_string()))?;
+        let (bytes, _, q) = rate::encode_with(scene, &c, Some(importance)).map_err(|e| Error::Input(e.to_string()))?;
         Ok(CodingStage { stage, bytes: Some(bytes.len()), heldout_psnr: psnr(&rate::quantise::dequantise(&q))? })
     };
     // Opacity below 1/255 never draws: that pruning is in every row.

@@ -158,22 +158,22 @@ impl Encoder {
     /// asks for it: always for [`Profile::Anchor`], when its `J` is lower for [`Profile::Auto`].
     /// The anchors are fine-tuned to `dataset`'s training images, whose held-out views then
     /// measure the file (the series' `coded` point), else to renders of `scene`. For a dataset,
-    /// `significance` holds the RD search's views and `scene`'s significance from them
-    /// ([`RdViews::significance`]), which prunes; else the scene's own.
+    /// `importance` holds the RD search's views and `scene`'s importance from them
+    /// ([`RdViews::importance`]), which prunes; else the scene's own.
     fn with_anchors(
         &self,
         e: Encoded,
         scene: &Splats,
         orbit: &Orbit,
         dataset: Option<&Dataset>,
-        significance: Option<(&RdViews, &Importance)>,
+        importance: Option<(&RdViews, &Importance)>,
     ) -> Result<Encoded> {
         let start = Instant::now();
-        let prepared = rate::prepared(scene, &e.config, significance.map(|s| s.1));
+        let prepared = rate::prepared(scene, &e.config, importance.map(|s| s.1));
         if prepared.is_empty() {
             return Ok(e);
         }
-        let sig = significance.map_or_else(|| rate::importance::significance(&prepared), |(v, _)| v.significance(&prepared));
+        let sig = importance.map_or_else(|| rate::importance::significance(&prepared), |(v, _)| v.significance(&prepared));
         let d = crate::anchor::AnchorConfig::default();
         let cfg = crate::anchor::AnchorConfig {
             position_bits: Some(e.report.position_bits),
@@ -250,7 +250,7 @@ impl Encoder {
         // Fine-tune what the search chose to code (pruned, SH bands dropped), so that the
         // Gaussians left learn to cover for those pruned. The rate term charges the Gaussians
         // above the opacity where pruning pays at this λ, and coding the result prunes at it
-        // (and again by significance), so training decides which low-opacity Gaussians earn
+        // (and again by removal error), so training decides which low-opacity Gaussians earn
         // their bits.
         let init = if iters > 0 { rate::prepared(scene, &config, None) } else { Splats::default() };
         if !init.is_empty() {
@@ -442,16 +442,17 @@ impl Encoder {
         let mut trials = rate::rd::Trials::with_views(trained, views.clone()).map_err(|e| Error::Input(e.to_string()))?;
         let (mut config, _) =
             rate::rd::search_with(&mut trials, self.config.lambda, steps, |_| {}).map_err(|e| Error::Input(e.to_string()))?;
-        // Pruning and the importance classes take the Gaussians in the order of their
-        // significance from the dataset's training cameras, in the search and in the file.
-        let trained_significance = trials.importance().clone();
+        // Pruning and the importance classes take the Gaussians in the order of their removal
+        // error and significance from the dataset's training cameras, in the search and in the
+        // file.
+        let trained_importance = trials.importance().clone();
         drop(trials); // its reference renders and coded groups, before retraining
         stages.rd_search_s = t.elapsed().as_secs_f64();
         let orbit = Orbit::new(trained);
         // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against
         // the images (the .ply path's fine-tuning, with the images as targets).
         let retrain = self.config.retrain_iters_for(true);
-        let init = (retrain > 0).then(|| rate::prepared(trained, &config, Some(&trained_significance))).filter(|s| !s.is_empty());
+        let init = (retrain > 0).then(|| rate::prepared(trained, &config, Some(&trained_importance))).filter(|s| !s.is_empty());
         let mut retrain_report = None;
         let retrained = if let Some(init) = init {
             let cfg = self.fine_tune_config(retrain, &init);
@@ -472,14 +473,14 @@ impl Encoder {
         } else {
             None
         };
-        let (coded, significance) = retrained.as_ref().map_or((trained, &trained_significance), |(s, sig)| (s, sig));
-        let heldout = Some((dataset, significance));
+        let (coded, importance) = retrained.as_ref().map_or((trained, &trained_importance), |(s, m)| (s, m));
+        let heldout = Some((dataset, importance));
         // The report's run: the training from the images, else (a given scene) the retraining.
         let r = r.or(retrain_report);
         let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, r, heldout)?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
         if self.config.coding_breakdown {
-            e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, significance, &self.file_config(&config), dataset)?);
+            e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, importance, &self.file_config(&config), dataset)?);
         }
         match self.config.profile {
             Profile::Explicit => Ok(e),
@@ -489,15 +490,15 @@ impl Encoder {
                 trained,
                 &orbit,
                 Some(dataset),
-                Some((&views, &trained_significance)),
+                Some((&views, &trained_importance)),
             ),
         }
     }
 
     /// `config` with its importance classes chosen again on `trained`, the scene retraining or
     /// fine-tuning made of what the search chose: the least significant Gaussians are no longer
-    /// those the search coarsened (docs/codec.md, "Retraining"); and `trained`'s significance
-    /// from `views` ([`RdViews::significance`]). Its time counts as search time.
+    /// those the search coarsened (docs/codec.md, "Retraining"); and `trained`'s importance
+    /// from `views` ([`RdViews::importance`]). Its time counts as search time.
     fn retune_tail(
         &self,
         trained: &Splats,

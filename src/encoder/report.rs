@@ -88,7 +88,7 @@ pub struct EncodeReport {
     /// Dead zone of the SH rest quantiser, in steps (0: plain rounding; an encoder-only choice
     /// the RD search makes, not in the file).
     pub rest_deadzone: f32,
-    /// Pruning thresholds of the file: opacity, and significance (0: none).
+    /// Pruning thresholds of the file: opacity, and removal error (0: none).
     pub min_opacity: f32,
     pub min_removal_error: f32,
     /// Importance classes of the file (format 6.0): the least significant `share` of the
