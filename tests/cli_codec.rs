@@ -78,7 +78,8 @@ fn progressive_encode_writes_levels_that_info_shows() {
     // codebook; 6.0 when it chose importance classes (parameters per level); 8.0 when a channel
     // has a neighbour-context table.
     let codebooks = |v: &serde_json::Value| v["sh_bands"].as_array().unwrap().iter().any(|b| b["mode"] == "codebook");
-    let classes = |v: &serde_json::Value| !v["level_step_factors"].as_array().unwrap().is_empty();
+    // A 6.0 or 8.0 file lists a step factor per level (one level: [1.0]); classes are two.
+    let classes = |v: &serde_json::Value| v["level_step_factors"].as_array().unwrap().len() > 1;
     let neighbours = |v: &serde_json::Value| !v["neighbour_channels"].as_array().unwrap().is_empty();
     let version = |v: &serde_json::Value, plain: &str| {
         if neighbours(v) {
