@@ -90,19 +90,18 @@ impl RdViews {
     /// views ([`super::importance::significance`]). An encode prunes with the significance of
     /// the views its search measured on, so that the search's trials and the file agree.
     pub fn significance(&self, scene: &Splats) -> Vec<f32> {
-        match &self.significance_cams {
-            Some(cams) => super::importance::significance_on(scene, cams),
-            None => super::importance::significance(scene),
-        }
+        super::importance::significance_on(scene, &self.importance_cams(scene))
     }
 
     /// [`RdViews::significance`] and the removal errors (what pruning ranks by) from the same
     /// cameras, rendered on the views' background.
     pub fn importance(&self, scene: &Splats) -> Importance {
-        match &self.significance_cams {
-            Some(cams) => Importance::on(scene, cams, self.background),
-            None => Importance::on(scene, &super::importance::views(scene), self.background),
-        }
+        Importance::on(scene, &self.importance_cams(scene), self.background)
+    }
+
+    /// The cameras [`RdViews::significance`] and [`RdViews::importance`] sum over.
+    fn importance_cams(&self, scene: &Splats) -> Vec<gscodec_decoder::Camera> {
+        self.significance_cams.clone().unwrap_or_else(|| super::importance::views(scene))
     }
 
     /// [`VIEWS`] of `dataset`'s training cameras, evenly spread through its training frames
