@@ -124,3 +124,24 @@ fn gpu_frames_from_one_upload_equal_one_shot_renders() {
     assert!(t.project > 0.0 && t.sort > 0.0 && t.rasterize > 0.0, "{t:?}");
     assert_eq!(t.gpu_timestamps, r.has_timestamps());
 }
+
+#[test]
+fn gpu_renders_from_many_threads_at_once() {
+    // Every render ends with a read-back; threads that poll one device at once run each other's
+    // map callbacks (`render::gpu::map_wait`). Each thread's frames must still arrive, and equal a
+    // frame rendered alone.
+    let Some(r) = gpu_renderer() else { return };
+    let s = random_splats_in(400, 1, 11, &SCENE);
+    let cam = camera(48, 40);
+    let opts = RenderOptions::default();
+    let alone = r.render(&s, &cam, &opts).unwrap();
+    std::thread::scope(|scope| {
+        for _ in 0..6 {
+            scope.spawn(|| {
+                for _ in 0..15 {
+                    assert_eq!(r.render(&s, &cam, &opts).unwrap(), alone);
+                }
+            });
+        }
+    });
+}

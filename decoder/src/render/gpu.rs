@@ -62,12 +62,13 @@ pub struct GpuRenderer {
     rasterize: wgpu::ComputePipeline,
 }
 
-/// Floats per input record before the SH rest coefficients.
-/// Waits on the device before a buffer read-back is given up ("did not complete"): the map
-/// callback normally runs within the first; it can be late when another thread polls the same
-/// device at once.
-pub const MAP_POLLS: usize = 1000;
+/// How long [`map_read`] waits for a read-back's map callback once the device is idle before it
+/// gives up ("did not complete"). The callback normally runs inside the first wait; it is late
+/// when another thread that polls the same device took it and has not run it yet, for as long
+/// as that thread is descheduled (seen with ten trainings sharing one GPU's 16 cores).
+pub const MAP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(60);
 
+/// Floats per input record before the SH rest coefficients.
 const RECORD_BASE: usize = 14;
 const PROJECTED_BYTES: u64 = 48;
 const SCAN_BLOCK: u32 = 1024;
@@ -95,6 +96,35 @@ pub fn block_on<F: Future>(fut: F) -> F::Output {
             Poll::Pending => std::thread::park(),
         }
     }
+}
+
+/// Maps `staging` (a `MAP_READ` buffer whose copy has been submitted) for reading and waits until
+/// it is mapped: polls the device until idle, then sleeps on the map callback (another thread
+/// polling the same device may be the one to run it), for at most [`MAP_TIMEOUT`] past the
+/// polls. The error is a message for the caller's error type.
+pub fn map_wait(device: &wgpu::Device, staging: &wgpu::Buffer) -> Result<(), String> {
+    use std::sync::Condvar;
+    let done = Arc::new((Mutex::new(None), Condvar::new()));
+    let slot = done.clone();
+    staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+        *slot.0.lock().unwrap_or_else(|p| p.into_inner()) = Some(r);
+        slot.1.notify_all();
+    });
+    let deadline = std::time::Instant::now() + MAP_TIMEOUT;
+    let outcome = loop {
+        device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| format!("poll failed: {e}"))?;
+        let (lock, ready) = &*done;
+        let guard = lock.lock().unwrap_or_else(|p| p.into_inner());
+        let wait = std::time::Duration::from_millis(10);
+        let (mut guard, _) = ready.wait_timeout_while(guard, wait, |o| o.is_none()).unwrap_or_else(|p| p.into_inner());
+        if let Some(outcome) = guard.take() {
+            break outcome;
+        }
+        if std::time::Instant::now() > deadline {
+            return Err("readback did not complete".into());
+        }
+    };
+    outcome.map_err(|e| format!("readback failed: {e}"))
 }
 
 #[repr(C)]
@@ -393,26 +423,9 @@ impl GpuRenderer {
         let mut enc = self.device.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(src, offset, &staging, 0, bytes);
         self.queue.submit([enc.finish()]);
-        let result: Arc<Mutex<Option<Result<(), wgpu::BufferAsyncError>>>> = Arc::new(Mutex::new(None));
-        let slot = result.clone();
-        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| *slot.lock().unwrap() = Some(r));
-        // The callback may run on another thread that polls the same device, just after this
-        // thread's wait returns: wait again until it has run.
-        let mut outcome = None;
-        for _ in 0..MAP_POLLS {
-            self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Backend(e.to_string()))?;
-            outcome = result.lock().unwrap().take();
-            if outcome.is_some() {
-                break;
-            }
-            std::thread::yield_now();
-        }
+        let mapped = map_wait(&self.device, &staging);
         self.check()?;
-        match outcome {
-            Some(Ok(())) => {}
-            Some(Err(e)) => return Err(GpuError::Backend(format!("readback failed: {e}"))),
-            None => return Err(GpuError::Backend("readback did not complete".into())),
-        }
+        mapped.map_err(GpuError::Backend)?;
         let bytes = staging.slice(..).get_mapped_range().map_err(|e| GpuError::Backend(e.to_string()))?.to_vec();
         staging.unmap();
         Ok(bytes)

@@ -7,7 +7,7 @@
 
 use crate::{Error, Result};
 use gscodec_decoder::math::TILE;
-use gscodec_decoder::render::gpu::{block_on, GpuRenderer, MAP_POLLS};
+use gscodec_decoder::render::gpu::{block_on, map_wait, GpuRenderer};
 use gscodec_decoder::Camera;
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
@@ -378,26 +378,9 @@ impl Gpu {
     /// Maps a MAP_READ buffer (after its copy was submitted) and returns its bytes.
     pub fn map_wait(&self, staging: &wgpu::Buffer) -> Result<Vec<u8>> {
         self.readbacks.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let result: Arc<Mutex<Option<std::result::Result<(), wgpu::BufferAsyncError>>>> = Arc::new(Mutex::new(None));
-        let slot = result.clone();
-        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| *slot.lock().unwrap() = Some(r));
-        // The callback may run on another thread that polls the same device, just after this
-        // thread's wait returns: wait again until it has run.
-        let mut outcome = None;
-        for _ in 0..MAP_POLLS {
-            self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| Error::Failure(format!("GPU error: {e}")))?;
-            outcome = result.lock().unwrap().take();
-            if outcome.is_some() {
-                break;
-            }
-            std::thread::yield_now();
-        }
+        let mapped = map_wait(&self.device, staging);
         self.check()?;
-        match outcome {
-            Some(Ok(())) => {}
-            Some(Err(e)) => return Err(Error::Failure(format!("GPU readback failed: {e}"))),
-            None => return Err(Error::Failure("GPU readback did not complete".into())),
-        }
+        mapped.map_err(|e| Error::Failure(format!("GPU {e}")))?;
         let bytes = staging.slice(..).get_mapped_range().map_err(|e| Error::Failure(format!("GPU error: {e}")))?.to_vec();
         staging.unmap();
         Ok(bytes)
