@@ -3,7 +3,7 @@
 
 use glam::{Mat3, Vec3};
 use gscodec_decoder::math::SH_C0;
-use gscodec_decoder::render::{contributions, reference::render_f64, removal_errors, render};
+use gscodec_decoder::render::{contributions, contributions_and_removal_errors, reference::render_f64, removal_errors, render};
 use gscodec_decoder::testkit::{random_splats_in, SceneRanges};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
 
@@ -251,4 +251,19 @@ fn removal_costs_nothing_where_a_gaussian_matches_what_is_behind_it() {
     assert!(removal_errors(&s, &cam, &on_grey)[0] < 1e-9);
     let on_black = RenderOptions { background: [0.0; 3], max_sh_degree: 0 };
     assert!(removal_errors(&s, &cam, &on_black)[0] > 0.1);
+}
+
+/// The one-pass measure gives both values exactly: its weights are `contributions` (with or
+/// without the SH bands: weights do not depend on colour) and its errors `removal_errors`.
+#[test]
+fn one_pass_gives_the_contributions_and_the_removal_errors() {
+    let s = random_splats_in(300, 2, 9, &SCENE);
+    let cam = front_camera(70, 52);
+    let opts = RenderOptions { background: [0.1, 0.6, 0.3], max_sh_degree: 2 };
+    let (weights, errors) = contributions_and_removal_errors(&s, &cam, &opts);
+    assert_eq!(weights, contributions(&s, &cam, &opts));
+    assert_eq!(weights, contributions(&s, &cam, &RenderOptions { max_sh_degree: 0, ..opts }));
+    assert_eq!(errors, removal_errors(&s, &cam, &opts));
+    assert!(weights.iter().filter(|&&w| w > 0.0).count() > 100);
+    assert!(errors.iter().filter(|&&e| e > 0.0).count() > 100);
 }

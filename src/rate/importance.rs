@@ -15,7 +15,7 @@
 //! [`significance_on`] its [`dataset_views`] (every training camera, at most [`SIZE`] pixels on
 //! its longer side), which the encoder uses for such a scene (`rd::RdViews::significance`).
 //!
-//! What pruning ranks by is another sum over the same views, [`removal_errors_on`]: the squared
+//! What pruning ranks by is another sum over the same views, [`Importance::removal`]: the squared
 //! colour error that removing the Gaussian alone would cause, `Σ ‖T·α·(B − c)‖²` over the
 //! pixels (`B` the colour behind it, the background included). A Gaussian in front of its own
 //! colour covers much and costs nothing to drop; coverage alone would keep it. [`Importance`]
@@ -24,7 +24,7 @@
 //! [`levels`] cuts the Gaussians, most significant first, into the importance levels of a
 //! progressive file (SPEC §3.1): sizes doubling, 1/16, 1/16, 1/8, 1/4, 1/2 of them.
 
-use gscodec_decoder::render::{contributions, removal_errors};
+use gscodec_decoder::render::{contributions, contributions_and_removal_errors};
 use gscodec_decoder::{RenderOptions, Splats};
 use rayon::prelude::*;
 
@@ -56,27 +56,27 @@ pub fn significance(scene: &Splats) -> Vec<f32> {
 pub fn significance_on(scene: &Splats, cams: &[gscodec_decoder::Camera]) -> Vec<f32> {
     // The weights do not depend on colour: skip the SH bands.
     let opts = RenderOptions { max_sh_degree: 0, ..RenderOptions::default() };
-    sum_over(scene.len(), cams, |cam| contributions(scene, cam, &opts))
+    let [significance] = sum_over(scene.len(), cams, |cam| [contributions(scene, cam, &opts)]);
+    significance
 }
 
-/// Per Gaussian, the sum over the cameras `cams` (rendered on `background`) of the squared colour
-/// error its removal alone causes ([`removal_errors`]; see the module docs). Deterministic.
-pub fn removal_errors_on(scene: &Splats, cams: &[gscodec_decoder::Camera], background: [f32; 3]) -> Vec<f32> {
-    let opts = RenderOptions { background, ..RenderOptions::default() };
-    sum_over(scene.len(), cams, |cam| removal_errors(scene, cam, &opts))
-}
-
-/// `per_view` (one value per each of `n` Gaussians) of every camera, summed per Gaussian: rendered
-/// in parallel, then summed in order in f64 (the same sum on any number of threads).
-fn sum_over(n: usize, cams: &[gscodec_decoder::Camera], per_view: impl Fn(&gscodec_decoder::Camera) -> Vec<f32> + Sync + Send) -> Vec<f32> {
-    let views: Vec<Vec<f32>> = cams.par_iter().map(&per_view).collect();
-    let mut sum = vec![0.0f64; n];
-    for view in views {
-        for (s, c) in sum.iter_mut().zip(view) {
-            *s += c as f64;
+/// `per_view` (`K` values per each of `n` Gaussians) of every camera, summed per Gaussian:
+/// rendered in parallel, then summed in order in f64 (the same sums on any number of threads).
+fn sum_over<const K: usize>(
+    n: usize,
+    cams: &[gscodec_decoder::Camera],
+    per_view: impl Fn(&gscodec_decoder::Camera) -> [Vec<f32>; K] + Sync + Send,
+) -> [Vec<f32>; K] {
+    let views: Vec<[Vec<f32>; K]> = cams.par_iter().map(&per_view).collect();
+    std::array::from_fn(|k| {
+        let mut sum = vec![0.0f64; n];
+        for view in &views {
+            for (s, &c) in sum.iter_mut().zip(&view[k]) {
+                *s += c as f64;
+            }
         }
-    }
-    sum.into_iter().map(|v| v as f32).collect()
+        sum.into_iter().map(|v| v as f32).collect()
+    })
 }
 
 /// Both measures of a scene's Gaussians from one set of views: `significance` (coverage, which
@@ -86,7 +86,8 @@ fn sum_over(n: usize, cams: &[gscodec_decoder::Camera], per_view: impl Fn(&gscod
 pub struct Importance {
     /// [`significance_on`].
     pub significance: Vec<f32>,
-    /// [`removal_errors_on`].
+    /// Per Gaussian, the sum over the views of the squared colour error its removal alone causes
+    /// ([`gscodec_decoder::render::removal_errors`]).
     pub removal: Vec<f32>,
 }
 
@@ -96,9 +97,15 @@ impl Importance {
         Self::on(scene, &views(scene), [0.0; 3])
     }
 
-    /// From the cameras `cams`, rendered on `background`.
+    /// From the cameras `cams`, rendered on `background`: both measures from one pass over each
+    /// view's pixels ([`contributions_and_removal_errors`]).
     pub fn on(scene: &Splats, cams: &[gscodec_decoder::Camera], background: [f32; 3]) -> Self {
-        Importance { significance: significance_on(scene, cams), removal: removal_errors_on(scene, cams, background) }
+        let opts = RenderOptions { background, ..RenderOptions::default() };
+        let [significance, removal] = sum_over(scene.len(), cams, |cam| {
+            let (weights, errors) = contributions_and_removal_errors(scene, cam, &opts);
+            [weights, errors]
+        });
+        Importance { significance, removal }
     }
 
     /// Gaussians measured.

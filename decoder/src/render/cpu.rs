@@ -323,7 +323,8 @@ pub fn render(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Image {
 /// summed over the Gaussians it equals `Σ_pixels (1 − T_final)` up to rounding. Deterministic:
 /// weights are summed per tile-list entry, then per Gaussian in tile-list order (in f64).
 pub fn contributions(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Vec<f32> {
-    per_gaussian::<RECORD_WEIGHT>(splats, cam, opts)
+    let [weights] = per_gaussian::<RECORD_WEIGHT, 1>(splats, cam, opts);
+    weights
 }
 
 /// For every Gaussian of `splats`, the squared colour error that removing it alone would cause in
@@ -333,44 +334,65 @@ pub fn contributions(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Vec
 /// without it (up to what the early stop hides). The same culling, skip and early stop as the
 /// render; deterministic like [`contributions`].
 pub fn removal_errors(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Vec<f32> {
-    per_gaussian::<RECORD_REMOVAL>(splats, cam, opts)
+    contributions_and_removal_errors(splats, cam, opts).1
 }
 
-/// What [`shade`] records in mode `MODE` for each tile-list entry, summed per Gaussian in
-/// tile-list order (in f64).
-fn per_gaussian<const MODE: u8>(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> Vec<f32> {
+/// [`contributions`] and [`removal_errors`] from one pass over the pixels (the same values as
+/// the two calls: the weights do not depend on colour).
+pub fn contributions_and_removal_errors(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Vec<f32>, Vec<f32>) {
+    let [weights, errors] = per_gaussian::<RECORD_REMOVAL, 2>(splats, cam, opts);
+    (weights, errors)
+}
+
+/// What [`shade`] records in mode `MODE` for each tile-list entry (`SLOTS` values each), summed
+/// per Gaussian in tile-list order (in f64): one vector per slot.
+fn per_gaussian<const MODE: u8, const SLOTS: usize>(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> [Vec<f32>; SLOTS] {
     let proj = preprocess(splats, cam, opts.max_sh_degree);
     let bins = bin_tiles(&proj, cam.width, cam.height);
-    let mut weights = vec![0.0f32; bins.ids.len()];
-    shade::<MODE>(&proj, &bins, cam, opts, &mut weights);
-    let mut sum = vec![0.0f64; splats.len()];
-    for (&g, &w) in bins.ids.iter().zip(&weights) {
-        sum[g as usize] += w as f64;
-    }
-    sum.into_iter().map(|v| v as f32).collect()
+    const { assert!(SLOTS == slots(MODE)) };
+    let mut records = vec![0.0f32; SLOTS * bins.ids.len()];
+    shade::<MODE>(&proj, &bins, cam, opts, &mut records);
+    std::array::from_fn(|slot| {
+        let mut sum = vec![0.0f64; splats.len()];
+        for (&g, r) in bins.ids.iter().zip(records.chunks_exact(SLOTS)) {
+            sum[g as usize] += r[slot] as f64;
+        }
+        sum.into_iter().map(|v| v as f32).collect()
+    })
 }
 
 /// What [`shade`] records per tile-list entry: nothing (a plain render), the blending weight
-/// `α·T` ([`contributions`]) or the squared colour error of removing the entry
-/// ([`removal_errors`]).
+/// `α·T` ([`contributions`]), or that weight and the squared colour error of removing the entry
+/// ([`contributions_and_removal_errors`]).
 const NO_RECORD: u8 = 0;
 const RECORD_WEIGHT: u8 = 1;
 const RECORD_REMOVAL: u8 = 2;
 
+/// Values [`shade`] records per tile-list entry in mode `mode`.
+const fn slots(mode: u8) -> usize {
+    match mode {
+        NO_RECORD => 0,
+        RECORD_WEIGHT => 1,
+        _ => 2,
+    }
+}
+
 /// Composites every pixel, one task per row of tiles. In a recording `MODE`, also adds what it
-/// records of each blended entry into `weights[k]`, `k` indexing `bins.ids` (one slot per
-/// tile-list entry; `weights` is then `bins.ids.len()` long, otherwise empty).
-fn shade<const MODE: u8>(proj: &[Projected], bins: &TileBins, cam: &Camera, opts: &RenderOptions, weights: &mut [f32]) -> Image {
+/// records of each blended entry into `records[slots(MODE)·k ..]`, `k` indexing `bins.ids`
+/// (`records` is then `slots(MODE) · bins.ids.len()` long, otherwise empty): its weight, then
+/// (in `RECORD_REMOVAL`) its removal error.
+fn shade<const MODE: u8>(proj: &[Projected], bins: &TileBins, cam: &Camera, opts: &RenderOptions, records: &mut [f32]) -> Image {
     let w = cam.width;
     let cull = cull_thresholds(proj);
     let mut img = Image::filled(w, cam.height, [0.0; 3]);
     let row_len = (w * 3) as usize;
-    // The tile-list entries of each row of tiles: disjoint slices of `weights`.
+    let slots = slots(MODE);
+    // The tile-list entries of each row of tiles: disjoint slices of `records`.
     let mut bands: Vec<&mut [f32]> = Vec::with_capacity(bins.tiles_y as usize);
-    let mut rest = weights;
+    let mut rest = records;
     for ty in 0..bins.tiles_y {
         let row = |ty: u32| bins.ranges[(ty * bins.tiles_x) as usize] as usize;
-        let len = if MODE != NO_RECORD { row(ty + 1) - row(ty) } else { 0 };
+        let len = slots * (row(ty + 1) - row(ty));
         let (head, tail) = std::mem::take(&mut rest).split_at_mut(len);
         bands.push(head);
         rest = tail;
@@ -392,8 +414,8 @@ fn shade<const MODE: u8>(proj: &[Projected], bins: &TileBins, cam: &Camera, opts
                 for x in tx * TILE..x1 {
                     let (list, index) = blocks.at(x - tx * TILE, ly as u32);
                     let (c, t, _) = composite_with(list, x as f32, py, |j, a, t| {
-                        if MODE == RECORD_WEIGHT {
-                            band_w[offset + index[j] as usize] += a * t;
+                        if MODE != NO_RECORD {
+                            band_w[slots * (offset + index[j] as usize)] += a * t;
                         }
                     });
                     if MODE == RECORD_REMOVAL {
@@ -409,7 +431,7 @@ fn shade<const MODE: u8>(proj: &[Projected], bins: &TileBins, cam: &Camera, opts
                                 let d = a / (1.0 - a) * (fin[k] - front[k]) - t * a * col[k];
                                 e += d * d;
                             }
-                            band_w[offset + index[j] as usize] += e;
+                            band_w[slots * (offset + index[j] as usize) + 1] += e;
                         });
                     }
                     for k in 0..3 {
