@@ -62,10 +62,11 @@ pub struct GpuRenderer {
     rasterize: wgpu::ComputePipeline,
 }
 
-/// How long [`map_read`] waits for a read-back's map callback once the device is idle before it
-/// gives up ("did not complete"). The callback normally runs inside the first wait; it is late
-/// when another thread that polls the same device took it and has not run it yet, for as long
-/// as that thread is descheduled (seen with ten trainings sharing one GPU's 16 cores).
+/// How long [`map_wait`] waits for a read-back's map callback once the device is idle before it
+/// gives up ("did not complete"). The callback normally runs inside the first wait; it can be
+/// late when another thread that polls the same device took it and has not run it yet. (The
+/// earlier bound, 1000 polls, ran out once in a lego-200 sweep of ten trainings sharing one
+/// H200 and its 16 cores; the cause was not reproduced.)
 pub const MAP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(60);
 
 /// Floats per input record before the SH rest coefficients.
