@@ -169,13 +169,18 @@ pub fn pruned(splats: &Splats, config: &EncodeConfig, importance: Option<&Import
     assert!(importance.is_none_or(|m| m.len() == splats.len() && m.removal.len() == splats.len()), "one measure per Gaussian");
     let keep: Vec<bool> = (0..splats.len())
         .map(|i| {
-            gscodec_decoder::math::sigmoid(splats.opacity_logits[i]) >= config.min_opacity
+            opaque_enough(splats, i, config)
                 && (config.min_removal_error <= 0.0 || importance.is_none_or(|m| m.removal[i] >= config.min_removal_error))
         })
         .collect();
     let mut out = splats.clone();
     out.retain_indices(|i| keep[i]);
     (out, importance.map(|m| m.significance.iter().zip(&keep).filter(|x| *x.1).map(|x| *x.0).collect()))
+}
+
+/// Whether Gaussian `i` of `splats` passes `config`'s opacity threshold, [`pruned`]'s first test.
+fn opaque_enough(splats: &Splats, i: usize, config: &EncodeConfig) -> bool {
+    gscodec_decoder::math::sigmoid(splats.opacity_logits[i]) >= config.min_opacity
 }
 
 /// What `config` codes of `splats`, before quantisation: [`pruned`], SH bands dropped

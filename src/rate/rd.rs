@@ -18,13 +18,12 @@ use super::encode::GroupCache;
 use super::group::Group;
 use super::lambda::Lambda;
 use super::quantise::{dequantise, Steps};
-use super::{encode_cached, pruned, CoarseTail, EncodeConfig, Importance};
+use super::{encode_cached, opaque_enough, pruned, CoarseTail, EncodeConfig, Importance};
 use crate::loss::features::{pyramid::Pyramid, FeatureSpace};
 use crate::loss::tensor::Tensor;
 use crate::loss::wd::{self, Reference, Sigma};
 use crate::loss::L1Ssim;
 use crate::views::{orbit_cameras, UpAxis};
-use gscodec_decoder::math::sigmoid;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -717,7 +716,7 @@ pub fn search_with(
     //    which it beat on every scene measured (docs/codec.md). Candidates: none, those whose
     //    removal changes nothing, quantiles of the rest, and everything (an empty file).
     let m = &trials.ev.importance;
-    let errs = sorted((0..scene.len()).filter(|&i| sigmoid(scene.opacity_logits[i]) >= fine.min_opacity).map(|i| m.removal[i]).collect());
+    let errs = sorted((0..scene.len()).filter(|&i| opaque_enough(scene, i, &fine)).map(|i| m.removal[i]).collect());
     let cands = prune_candidates(&errs, &fine);
     let base = log.stage(trials, (f64::INFINITY, fine), cands)?.1;
     let b0 = trials.base(&base)?.bytes;
