@@ -94,8 +94,8 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
         }
     }
     // The base groups decode straight into the scene's arrays (each job its chunk's run of
-    // rows); an SH job decodes its channels into a buffer of its own, scattered into the rows
-    // afterwards. The scene is new and replaces `out` only when every job succeeded.
+    // rows); an SH job decodes its channels (a codebook band: its row indices) into a buffer of
+    // its own, scattered into the rows afterwards. The scene is new and replaces `out` only when every job succeeded.
     let mut s = Splats::new(degree);
     s.positions = vec![[0.0; 3]; n];
     s.log_scales = vec![[0.0; 3]; n];
@@ -126,8 +126,9 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
             match dst {
                 Some(dst) => decode_data_section(*g, p, &mut r, channels.clone(), dst).map(|()| None),
                 None => {
-                    // SH: a codebook band's one job asks for all its channels.
-                    let mut buf = vec![0.0; ranges[*ch].len() * channels.len()];
+                    // SH: a codebook band's one job (all its channels) decodes one row index per Gaussian.
+                    let width = if p.codebook.is_some() { 1 } else { channels.len() };
+                    let mut buf = vec![0.0; ranges[*ch].len() * width];
                     decode_data_section(*g, p, &mut r, channels.clone(), &mut buf).map(|()| Some(buf))
                 }
             }
@@ -137,8 +138,9 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
         .iter()
         .zip(&buffers)
         .filter_map(|((gi, ch, channels), buf)| {
-            let group = params.of_level(level_of[*ch])[*gi].0;
-            Some(Piece { group, first: ranges[*ch].start, columns: channels.clone(), values: buf.as_deref()? })
+            let (group, p) = &params.of_level(level_of[*ch])[*gi];
+            let codebook = p.codebook.as_deref().map(|cb| &cb.values[..]);
+            Some(Piece { group: *group, first: ranges[*ch].start, columns: channels.clone(), values: buf.as_deref()?, codebook })
         })
         .collect();
     scatter_sh(n, degree, &pieces, sh_rest);

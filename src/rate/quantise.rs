@@ -501,10 +501,10 @@ pub fn dequantise(q: &Quantised) -> Splats {
             values.push((*g, r.start, v));
         }
     }
-    let mut pieces = vec![Piece { group: Group::Position, first: 0, columns: 0..3, values: &positions }];
+    let mut pieces = vec![Piece { group: Group::Position, first: 0, columns: 0..3, values: &positions, codebook: None }];
     pieces.extend(values.iter().map(|(g, first, v)| {
         let columns = if *g == Group::Rotation { 0..4 } else { 0..g.channels() };
-        Piece { group: *g, first: *first, columns, values: v }
+        Piece { group: *g, first: *first, columns, values: v, codebook: None }
     }));
     let mut s = Splats::new(q.sh_degree);
     assemble(q.len(), q.sh_degree, &pieces, &mut s);

@@ -80,13 +80,19 @@ pub struct Piece<'a> {
     pub first: usize,
     /// Columns of the group's row (SH bands: channel `3·m + c` of band b).
     pub columns: Range<usize>,
-    /// `count × columns.len()` values.
+    /// `count × columns.len()` values, or with `codebook` one row index per Gaussian.
     pub values: &'a [f32],
+    /// An SH band coded by a codebook (SPEC §3.2): its rows, `columns.len()` values each;
+    /// `values` are indices into them (exact in f32, already checked to be in range).
+    pub codebook: Option<&'a [f32]>,
 }
 
 impl Piece<'_> {
     fn count(&self) -> usize {
-        self.values.len() / self.columns.len().max(1)
+        match self.codebook {
+            Some(_) => self.values.len(),
+            None => self.values.len() / self.columns.len().max(1),
+        }
     }
 }
 
@@ -161,17 +167,16 @@ pub fn scatter_sh(n: usize, degree: u8, pieces: &[Piece<'_>], sh_rest: &mut Vec<
     }
     blocks.into_par_iter().for_each(|(start, rows)| {
         let count = rows.len() / row;
-        let mine: Vec<(usize, usize, &[f32])> = sh
-            .iter()
-            .filter(|(_, p)| p.first <= start && p.first + p.count() >= start + count)
-            .map(|&(col, p)| {
-                let w = p.columns.len();
-                (col, w, &p.values[(start - p.first) * w..(start - p.first + count) * w])
-            })
-            .collect();
+        let mine: Vec<(usize, &Piece)> =
+            sh.iter().filter(|(_, p)| p.first <= start && p.first + p.count() >= start + count).copied().collect();
         rows.par_chunks_mut(row).enumerate().with_min_len(1024).for_each(|(i, dst)| {
-            for &(col, w, vals) in &mine {
-                dst[col..col + w].copy_from_slice(&vals[i * w..(i + 1) * w]);
+            for &(col, p) in &mine {
+                let (w, at) = (p.columns.len(), start - p.first + i);
+                let src = match p.codebook {
+                    Some(rows) => &rows[p.values[at] as usize * w..][..w],
+                    None => &p.values[at * w..][..w],
+                };
+                dst[col..col + w].copy_from_slice(src);
             }
         });
     });
@@ -197,16 +202,17 @@ mod tests {
         let b1: Vec<f32> = (0..18).map(|v| v as f32).collect();
         let b2a: Vec<f32> = (0..16).map(|v| 100.0 + v as f32).collect();
         let b2b: Vec<f32> = (0..14).map(|v| 200.0 + v as f32).collect();
-        let base = |group, w| Piece { group, first: 0, columns: 0..w, values: Box::leak(vec![1.0; 2 * w].into_boxed_slice()) };
+        let base =
+            |group, w| Piece { group, first: 0, columns: 0..w, values: Box::leak(vec![1.0; 2 * w].into_boxed_slice()), codebook: None };
         let pieces = [
             base(Group::Position, 3),
             base(Group::Scale, 3),
             base(Group::Rotation, 4),
             base(Group::Opacity, 1),
             base(Group::ShDc, 3),
-            Piece { group: Group::Sh1, first: 0, columns: 0..9, values: &b1 },
-            Piece { group: Group::Sh2, first: 0, columns: 0..8, values: &b2a },
-            Piece { group: Group::Sh2, first: 0, columns: 8..15, values: &b2b },
+            Piece { group: Group::Sh1, first: 0, columns: 0..9, values: &b1, codebook: None },
+            Piece { group: Group::Sh2, first: 0, columns: 0..8, values: &b2a, codebook: None },
+            Piece { group: Group::Sh2, first: 0, columns: 8..15, values: &b2b, codebook: None },
         ];
         let mut s = Splats::new(0);
         assemble(2, 2, &pieces, &mut s);

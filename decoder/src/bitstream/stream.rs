@@ -204,8 +204,9 @@ pub(crate) fn decode_channels(
 }
 
 /// Decodes channels `channels` of one data section, dequantised, into `out`, Gaussian-major:
-/// position 3 coordinates, rotation 4 quaternion components, an SH band with a codebook all its
-/// channels (its one job asks for them all), other groups the channels asked for.
+/// position 3 coordinates, rotation 4 quaternion components, an SH band with a codebook each
+/// Gaussian's row index (exact in f32, checked against the codebook's rows), other groups the
+/// channels asked for.
 pub(crate) fn decode_data_section(
     g: Group,
     p: &GroupParams,
@@ -221,17 +222,13 @@ pub(crate) fn decode_data_section(
             rotations_in_place(out).map_err(|what| r.corrupt(what))?;
         }
         _ => match &p.codebook {
-            // Vector-quantised SH band (SPEC §3.2): one index channel, each row looked up.
+            // Vector-quantised SH band (SPEC §3.2): one index channel, checked; the assembler
+            // looks the rows up.
             Some(cb) => {
-                let w = g.channels();
-                let mut index = vec![0f32; out.len() / w];
-                decode_channels(p, r, &[1.0], 0..1, &mut index)?;
-                for (&i, row) in index.iter().zip(out.chunks_exact_mut(w)) {
-                    // f32(v) < K exactly when v < K, for K ≤ 2^16 (exact in f32; rounding is monotonic).
-                    if !(i >= 0.0 && i < cb.rows as f32) {
-                        return Err(r.corrupt("codebook index out of range"));
-                    }
-                    row.copy_from_slice(&cb.values[i as usize * w..][..w]);
+                decode_channels(p, r, &[1.0], 0..1, out)?;
+                // f32(v) < K exactly when v < K, for K ≤ 2^16 (exact in f32; rounding is monotonic).
+                if !out.iter().fold(true, |ok, &i| ok & (i >= 0.0 && i < cb.rows as f32)) {
+                    return Err(r.corrupt("codebook index out of range"));
                 }
             }
             None => decode_channels(p, r, &p.steps, channels, out)?,
