@@ -239,3 +239,30 @@ pub(crate) fn decode_data_section(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use super::*;
+    use crate::bitstream::params::Codebook;
+    use crate::entropy::FreqTable;
+
+    #[test]
+    fn codebook_bands_decode_to_checked_row_indices() {
+        // A codebook of two rows; the index channel's table covers 0..4, so 2 and 3 are codable.
+        let codebook = Some(Arc::new(Codebook { rows: 2, values: vec![0.5; 2 * 9] }));
+        let table = ChannelTable::Coded { lo: 0, table: FreqTable::from_weights(&[1, 1, 1, 1, 1]) };
+        let p = GroupParams { steps: vec![1.0], tables: vec![table], grid: None, codebook };
+        for (indices, ok) in [([0, 1, 1], true), ([0, 2, 1], false), ([3, 0, 0], false), ([1, 0, -1], false)] {
+            let bytes = write_channel_streams(&[&p.tables[0]], &[&indices]);
+            let mut out = vec![9.0; 3];
+            let result = decode_data_section(Group::Sh1, &p, &mut ByteReader::new(&bytes), 0..9, &mut out);
+            match &result {
+                Ok(()) => assert_eq!(out, indices.map(|i| i as f32), "{indices:?}"),
+                Err(e) => assert!(e.to_string().contains("codebook index out of range"), "{indices:?}: {e}"),
+            }
+            assert_eq!(result.is_ok(), ok, "{indices:?}");
+        }
+    }
+}
