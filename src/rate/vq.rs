@@ -87,22 +87,90 @@ fn dist2(a: &[f32], b: &[f32]) -> f32 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
 }
 
-/// Index of the nearest of `centroids` (`K × c`, row-major) to `row` (the first of equals).
-fn nearest(row: &[f32], centroids: &[f32], c: usize) -> u32 {
-    let mut best = (f32::INFINITY, 0u32);
-    for (k, cen) in centroids.chunks_exact(c).enumerate() {
-        let mut d = 0.0f32;
-        for (x, y) in row.iter().zip(cen) {
-            d += (x - y) * (x - y);
-            if d >= best.0 {
+/// `dist2(a, b)` when it is below `bound`, else some value ≥ `bound`: the sum stops as soon as
+/// it reaches the bound (its terms are not negative, so it can only grow).
+fn dist2_below(a: &[f32], b: &[f32], bound: f32) -> f32 {
+    let mut d = 0.0f32;
+    for (x, y) in a.iter().zip(b) {
+        d += (x - y) * (x - y);
+        if d >= bound {
+            break;
+        }
+    }
+    d
+}
+
+/// Centres (`K × c`, row-major) ordered along one coordinate, the axis, for [`Centres::nearest`].
+struct Centres<'a> {
+    cen: &'a [f32],
+    c: usize,
+    axis: usize,
+    /// Centre indices by their axis value (ties by index), and those values.
+    order: Vec<u32>,
+    keys: Vec<f32>,
+}
+
+impl<'a> Centres<'a> {
+    fn new(cen: &'a [f32], c: usize, axis: usize) -> Centres<'a> {
+        let mut order: Vec<u32> = (0..(cen.len() / c) as u32).collect();
+        order.sort_by(|&a, &b| cen[a as usize * c + axis].total_cmp(&cen[b as usize * c + axis]).then(a.cmp(&b)));
+        let keys = order.iter().map(|&k| cen[k as usize * c + axis]).collect();
+        Centres { cen, c, axis, order, keys }
+    }
+
+    fn centre(&self, k: u32) -> &[f32] {
+        &self.cen[k as usize * self.c..][..self.c]
+    }
+
+    /// Index of the centre nearest to `row`, the first of equals. `hint` (any index) is measured
+    /// first, so that its distance bounds the others' sums from the start; the centres are
+    /// visited outwards from `row`'s axis value, and a direction ends where the axis term alone
+    /// exceeds the best distance (a sum of squares is at least each of its terms, in `f32` too:
+    /// rounding is monotone). The answer does not depend on the hint or the axis, only the time.
+    fn nearest(&self, row: &[f32], hint: u32) -> u32 {
+        let x = row[self.axis];
+        let mut best = (dist2(row, self.centre(hint)), hint);
+        let visit = |pos: usize, best: &mut (f32, u32)| {
+            let t = (x - self.keys[pos]) * (x - self.keys[pos]);
+            if t > best.0 {
+                return false;
+            }
+            let k = self.order[pos];
+            // An index below the best one also wins a tie.
+            let bound = if k < best.1 { f32::from_bits(best.0.to_bits() + 1) } else { best.0 };
+            let d = dist2_below(row, self.centre(k), bound);
+            if k != best.1 && (d < best.0 || (d == best.0 && k < best.1)) {
+                *best = (d, k);
+            }
+            true
+        };
+        let start = self.keys.partition_point(|&k| k < x);
+        for pos in start..self.keys.len() {
+            if !visit(pos, &mut best) {
                 break;
             }
         }
-        if d < best.0 {
-            best = (d, k as u32);
+        for pos in (0..start).rev() {
+            if !visit(pos, &mut best) {
+                break;
+            }
         }
+        best.1
     }
-    best.1
+}
+
+/// The channel along which `rows` (`c` values each) vary most: the axis of [`Centres`].
+fn widest_channel(rows: &[f32], c: usize, which: &[usize]) -> usize {
+    let spread = |j: usize| {
+        let (mut s, mut s2) = (0.0f64, 0.0f64);
+        for &i in which {
+            let x = f64::from(rows[i * c + j]);
+            s += x;
+            s2 += x * x;
+        }
+        s2 - s * s / which.len().max(1) as f64
+    };
+    (0..c).map(|j| (spread(j), j)).fold((f64::NEG_INFINITY, 0), |b, (v, j)| if v > b.0 { (v, j) } else { b }).1
 }
 
 /// A codebook of at most `k` rows for the band rows `chans[channel][row]`, each row weighted by
@@ -152,6 +220,8 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     let first = pick(&mut rng, &w);
     centroids.extend_from_slice(row(train[first]));
     let mut d2: Vec<f32> = train.par_iter().map(|&i| dist2(row(i), &centroids[..c])).collect();
+    // Each training row's nearest centre so far (the hint of the first assignment).
+    let mut assign = vec![0u32; train.len()];
     while centroids.len() < k * c {
         let p: Vec<f64> = d2.iter().zip(&w).map(|(&d, &wt)| f64::from(d) * wt).collect();
         if p.iter().all(|&x| x <= 0.0) {
@@ -160,13 +230,20 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
         let j = pick(&mut rng, &p);
         let start = centroids.len();
         centroids.extend_from_slice(row(train[j]));
-        let cen = &centroids[start..];
-        d2.par_iter_mut().zip(&train).for_each(|(d, &i)| *d = d.min(dist2(row(i), cen)));
+        let (cen, at) = (&centroids[start..], (start / c) as u32);
+        d2.par_iter_mut().zip(&mut assign).zip(&train).for_each(|((d, a), &i)| {
+            let new = dist2_below(row(i), cen, *d);
+            if new < *d {
+                (*d, *a) = (new, at);
+            }
+        });
     }
     let kk = centroids.len() / c;
+    let axis = widest_channel(&rows, c, &train);
     // Lloyd iterations on the training rows; sums in row order (f64).
     for _ in 0..ITERATIONS {
-        let assign: Vec<u32> = train.par_iter().map(|&i| nearest(row(i), &centroids, c)).collect();
+        let centres = Centres::new(&centroids, c, axis);
+        assign = train.par_iter().zip(&assign).map(|(&i, &hint)| centres.nearest(row(i), hint)).collect();
         let mut sum = vec![0.0f64; kk * c];
         let mut mass = vec![0.0f64; kk];
         for ((&i, &a), &wt) in train.iter().zip(&assign).zip(&w) {
@@ -187,7 +264,11 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     // Integer codebook, then every row to its nearest integer centroid.
     let int_rows: Vec<i32> = centroids.iter().map(|&x| x.round() as i32).collect();
     let cen: Vec<f32> = int_rows.iter().map(|&x| x as f32).collect();
-    let index: Vec<u32> = (0..n).into_par_iter().map(|i| nearest(row(i), &cen, c)).collect();
+    // A training row's last assignment is its hint (the rounded centres moved little).
+    let mut hints = vec![0u32; n];
+    train.iter().zip(&assign).for_each(|(&i, &a)| hints[i] = a);
+    let centres = Centres::new(&cen, c, axis);
+    let index: Vec<u32> = (0..n).into_par_iter().map(|i| centres.nearest(row(i), hints[i])).collect();
     compact(Codebook { channels: c, rows: int_rows, index })
 }
 
@@ -280,8 +361,24 @@ mod tests {
         let cen: Vec<f32> = cb.rows.iter().map(|&x| x as f32).collect();
         for i in 0..2000 {
             let r = &rows[i * 9..][..9];
-            let best = nearest(r, &cen, 9) as usize;
+            let best = Centres::new(&cen, 9, 0).nearest(r, 0) as usize;
             assert_eq!(dist2(r, &cen[cb.index[i] as usize * 9..][..9]), dist2(r, &cen[best * 9..][..9]), "row {i}");
+        }
+    }
+
+    #[test]
+    fn nearest_is_the_first_of_equals_whatever_the_hint_and_axis() {
+        // Small integer rows: many centres at equal distance.
+        let mut rng = Rng::new(3);
+        let mut small = || (rng.uniform_f64() * 4.0).floor() as f32;
+        let cen: Vec<f32> = (0..40 * 3).map(|_| small()).collect();
+        for _ in 0..300 {
+            let r = [small(), small(), small()];
+            let d: Vec<f32> = cen.chunks_exact(3).map(|c| dist2(&r, c)).collect();
+            let first = d.iter().enumerate().fold(0, |b, (k, &x)| if x < d[b] { k } else { b });
+            for (axis, hint) in (0..3).flat_map(|a| (0..40).map(move |h| (a, h))) {
+                assert_eq!(Centres::new(&cen, 3, axis).nearest(&r, hint) as usize, first, "row {r:?} axis {axis} hint {hint}");
+            }
         }
     }
 
