@@ -95,7 +95,8 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
     }
     // The base groups decode straight into the scene's arrays (each job its chunk's run of
     // rows); an SH job decodes its channels (a codebook band: its row indices) into a buffer of
-    // its own, scattered into the rows afterwards. The scene is new and replaces `out` only when every job succeeded.
+    // its own, scattered into the rows afterwards. The scene is new and replaces `out` only when
+    // every job succeeded.
     let mut s = Splats::new(degree);
     s.positions = vec![[0.0; 3]; n];
     s.log_scales = vec![[0.0; 3]; n];
