@@ -83,8 +83,9 @@ pub fn palette(chans: &[Vec<i32>]) -> Codebook {
     Codebook { channels: c, rows, index }
 }
 
+/// The squared distance of `a` and `b`, summed in order ([`dist2_below`] with no bound).
 fn dist2(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+    dist2_below(a, b, f32::INFINITY)
 }
 
 /// `dist2(a, b)` when it is below `bound`, else some value ≥ `bound`: the sum stops as soon as
