@@ -10,7 +10,7 @@ use crate::bitstream::anchors::{expand, read_anchors, ANCHORS_KIND};
 use crate::bitstream::assemble::{assemble, scatter_sh, Piece};
 use crate::bitstream::layout::Group;
 use crate::bitstream::levels::Layout;
-use crate::bitstream::params::read_all_params;
+use crate::bitstream::params::{read_group_params, GroupParams};
 use crate::bitstream::stream::decode_data_section;
 use crate::bitstream::Container;
 use crate::error::{DecodeError, SectionId};
@@ -73,6 +73,10 @@ fn decode_anchors(c: &Container<'_>, degree: u8, out: &mut Splats) -> Result<(),
 /// Decodes the first `chunks` chunks of `layout` (the Gaussians they hold, in file order) with
 /// the groups up to SH degree `degree` into `out` (unchanged on error). Chunk indices fit the
 /// table's `u16` (at most 65,536 chunks, SPEC §3, §3.1).
+///
+/// One parallel job per group reads the group's parameter sections (and codebook) and then
+/// decodes its data sections in nested jobs, so that a small scene pays for one hand-over to the
+/// pool rather than one per phase, and one group's streams decode while another's tables are read.
 pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, degree: u8, out: &mut Splats) -> Result<(), DecodeError> {
     let ranges = &layout.chunk_ranges()[..chunks];
     let n = ranges.last().map_or(0, |r| r.end);
@@ -80,23 +84,15 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
         assemble(0, degree, &[], out);
         return Ok(());
     }
-    // The level of each chunk: its data sections use that level's parameters (SPEC §4).
-    let level_of: Vec<usize> = layout.level_ranges().iter().enumerate().flat_map(|(l, r)| r.clone().map(move |_| l)).take(chunks).collect();
-    let params = read_all_params(c, degree, level_of.last().map_or(0, |l| l + 1))?;
-    // One job per (group, chunk); SH bands are split further into channel ranges of about
-    // JOB_CHANNELS so that the work balances over the threads even for a one-chunk scene.
-    let mut jobs: Vec<(usize, usize, Range<usize>)> = Vec::new();
-    for ch in 0..chunks {
-        for (gi, (g, p)) in params.of_level(level_of[ch]).iter().enumerate() {
-            let c = g.channels();
-            let pieces = if g.sh_band() > 0 && p.codebook.is_none() { c.div_ceil(JOB_CHANNELS) } else { 1 };
-            jobs.extend((0..pieces).map(|i| (gi, ch, i * c / pieces..(i + 1) * c / pieces)));
-        }
-    }
-    // The base groups decode straight into the scene's arrays (each job its chunk's run of
-    // rows); an SH job decodes its channels (a codebook band: its row indices) into a buffer of
-    // its own, scattered into the rows afterwards. The scene is new and replaces `out` only when
-    // every job succeeded.
+    // Each chunk's parameter chunk: its level's (SPEC §4).
+    let levels = layout.level_ranges();
+    let level_of = levels.iter().enumerate().flat_map(|(l, r)| r.clone().map(move |_| l));
+    let params_of: Vec<usize> = level_of.take(chunks).map(|l| c.header.params_chunk(l)).collect();
+    let params_chunks = params_of.last().map_or(0, |&p| p + 1);
+    // The base groups decode straight into the scene's arrays (each chunk its run of rows); an SH
+    // job decodes its channels (a codebook band: its row indices) into a buffer of its own,
+    // scattered into the rows afterwards. The scene is new and replaces `out` only when every job
+    // succeeded.
     let mut s = Splats::new(degree);
     s.positions = vec![[0.0; 3]; n];
     s.log_scales = vec![[0.0; 3]; n];
@@ -111,37 +107,53 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
         (Group::Opacity, by_chunk(opacity_logits, ranges, 1)),
         (Group::ShDc, by_chunk(sh_dc.as_flattened_mut(), ranges, 3)),
     ];
-    let outputs: Vec<Option<&mut [f32]>> = jobs
-        .iter()
-        .map(|&(gi, ch, _)| {
-            let g = params.of_level(level_of[ch])[gi].0;
-            base.iter_mut().find(|(b, _)| *b == g).and_then(|(_, runs)| runs[ch].take())
-        })
-        .collect();
-    let buffers: Vec<Option<Vec<f32>>> = jobs
-        .par_iter()
-        .zip(outputs)
-        .map(|((gi, ch, channels), dst)| {
-            let (g, p) = &params.of_level(level_of[*ch])[*gi];
-            let mut r = c.reader(g.data_kind(), *ch as u16);
-            match dst {
-                Some(dst) => decode_data_section(*g, p, &mut r, channels.clone(), dst).map(|()| None),
-                None => {
-                    // SH: a codebook band's one job (all its channels) decodes one row index per Gaussian.
-                    let width = if p.codebook.is_some() { 1 } else { channels.len() };
-                    let mut buf = vec![0.0; ranges[*ch].len() * width];
-                    decode_data_section(*g, p, &mut r, channels.clone(), &mut buf).map(|()| Some(buf))
+    let groups: Vec<(Group, Option<Vec<&mut [f32]>>)> =
+        Group::present(degree).map(|g| (g, base.iter_mut().find(|(b, _)| *b == g).map(|(_, runs)| std::mem::take(runs)))).collect();
+    // Per group: its parameters and, for an SH band, its decoded pieces (chunk, channels, values).
+    type Decoded = (Vec<GroupParams>, Vec<(usize, Range<usize>, Vec<f32>)>);
+    let decoded: Vec<Decoded> = groups
+        .into_par_iter()
+        .map(|(g, runs)| {
+            let params = read_group_params(c, g, params_chunks)?;
+            let section = |ch: usize, channels: Range<usize>, dst: &mut [f32]| {
+                let mut r = c.reader(g.data_kind(), ch as u16);
+                decode_data_section(g, &params[params_of[ch]], &mut r, channels, dst)
+            };
+            let pieces = match runs {
+                Some(runs) => {
+                    runs.into_par_iter().enumerate().try_for_each(|(ch, dst)| section(ch, 0..g.channels(), dst))?;
+                    Vec::new()
                 }
-            }
+                None => {
+                    // SH bands are split further into channel ranges of about JOB_CHANNELS so
+                    // that the work balances over the threads even for a one-chunk scene; a
+                    // codebook band's one job (all its channels) decodes one row index per Gaussian.
+                    let codebook = params[0].codebook.is_some();
+                    let (k, split) = (g.channels(), if codebook { 1 } else { g.channels().div_ceil(JOB_CHANNELS) });
+                    let jobs: Vec<(usize, Range<usize>)> =
+                        (0..chunks).flat_map(|ch| (0..split).map(move |i| (ch, i * k / split..(i + 1) * k / split))).collect();
+                    jobs.into_par_iter()
+                        .map(|(ch, channels)| {
+                            let mut buf = vec![0.0; ranges[ch].len() * if codebook { 1 } else { channels.len() }];
+                            section(ch, channels.clone(), &mut buf).map(|()| (ch, channels, buf))
+                        })
+                        .collect::<Result<_, _>>()?
+                }
+            };
+            Ok((params, pieces))
         })
-        .collect::<Result<_, _>>()?;
-    let pieces: Vec<Piece> = jobs
-        .iter()
-        .zip(&buffers)
-        .filter_map(|((gi, ch, channels), buf)| {
-            let (group, p) = &params.of_level(level_of[*ch])[*gi];
-            let codebook = p.codebook.as_deref().map(|cb| &cb.values[..]);
-            Some(Piece { group: *group, first: ranges[*ch].start, columns: channels.clone(), values: buf.as_deref()?, codebook })
+        .collect::<Result<_, DecodeError>>()?;
+    let pieces: Vec<Piece> = Group::present(degree)
+        .zip(&decoded)
+        .flat_map(|(group, (params, pieces))| {
+            let codebook = params[0].codebook.as_deref().map(|cb| &cb.values[..]);
+            pieces.iter().map(move |(ch, columns, values)| Piece {
+                group,
+                first: ranges[*ch].start,
+                columns: columns.clone(),
+                values,
+                codebook,
+            })
         })
         .collect();
     scatter_sh(n, degree, &pieces, sh_rest);
@@ -150,13 +162,13 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
 }
 
 /// `values` (`width` values per Gaussian) cut into the runs of rows of the chunks `ranges`.
-fn by_chunk<'a>(mut values: &'a mut [f32], ranges: &[Range<usize>], width: usize) -> Vec<Option<&'a mut [f32]>> {
+fn by_chunk<'a>(mut values: &'a mut [f32], ranges: &[Range<usize>], width: usize) -> Vec<&'a mut [f32]> {
     ranges
         .iter()
         .map(|r| {
             let (run, rest) = std::mem::take(&mut values).split_at_mut(r.len() * width);
             values = rest;
-            Some(run)
+            run
         })
         .collect()
 }

@@ -191,29 +191,34 @@ pub fn read_all_params(c: &Container<'_>, degree: u8, levels: usize) -> Result<P
         return Ok(ParamSets { sets: Vec::new(), header });
     }
     let groups: Vec<Group> = Group::present(degree).collect();
-    let codebooks: Vec<Option<Arc<Codebook>>> = groups
-        .par_iter()
-        .map(|&g| match c.codebook(g)? {
-            Some(mut r) => Ok(Some(Arc::new(read_codebook(g, &mut r, c.header.gaussians as usize, header.has_neighbours())?))),
-            None => Ok(None),
-        })
-        .collect::<Result<_, DecodeError>>()?;
-    // The parameter chunks those levels use: 0 … that of the last level.
-    let chunks = levels.checked_sub(1).map_or(0, |l| header.params_chunk(l) + 1);
-    let jobs: Vec<(usize, usize)> = (0..chunks).flat_map(|l| (0..groups.len()).map(move |gi| (l, gi))).collect();
-    let mut read = jobs
-        .into_par_iter()
-        .map(|(l, gi)| {
-            let (g, chunk) = (groups[gi], l as u16);
-            if c.section(g.params_kind(), chunk).is_none() {
-                return Err(c.missing(SectionId { kind: g.params_kind(), chunk }, g.params_name()));
-            }
-            Ok((g, read_params(g, &mut c.reader(g.params_kind(), chunk), codebooks[gi].clone(), header.has_neighbours())?))
-        })
-        .collect::<Result<Vec<_>, DecodeError>>()?
-        .into_iter();
-    let sets = (0..chunks).map(|_| read.by_ref().take(groups.len()).collect()).collect();
+    let chunks = params_chunks(&header, levels);
+    let read = groups.par_iter().map(|&g| read_group_params(c, g, chunks)).collect::<Result<Vec<_>, DecodeError>>()?;
+    // Group-major to chunk-major.
+    let mut read: Vec<_> = read.into_iter().map(Vec::into_iter).collect();
+    let sets = (0..chunks).map(|_| groups.iter().zip(&mut read).filter_map(|(&g, p)| Some((g, p.next()?))).collect()).collect();
     Ok(ParamSets { sets, header })
+}
+
+/// How many parameter chunks the first `levels` levels use: 0 … that of the last level.
+pub fn params_chunks(header: &Header, levels: usize) -> usize {
+    levels.checked_sub(1).map_or(0, |l| header.params_chunk(l) + 1)
+}
+
+/// Group `g`'s parameter sections `0..chunks`, read in parallel, each with the group's codebook
+/// when it has one (read first); a missing section is an error.
+pub fn read_group_params(c: &Container<'_>, g: Group, chunks: usize) -> Result<Vec<GroupParams>, DecodeError> {
+    let header = c.header;
+    let codebook = match c.codebook(g)? {
+        Some(mut r) => Some(Arc::new(read_codebook(g, &mut r, header.gaussians as usize, header.has_neighbours())?)),
+        None => None,
+    };
+    let read = |chunk: u16| {
+        if c.section(g.params_kind(), chunk).is_none() {
+            return Err(c.missing(SectionId { kind: g.params_kind(), chunk }, g.params_name()));
+        }
+        read_params(g, &mut c.reader(g.params_kind(), chunk), codebook.clone(), header.has_neighbours())
+    };
+    (0..chunks as u16).into_par_iter().map(read).collect()
 }
 
 #[cfg(test)]

@@ -38,31 +38,25 @@ impl FreqTable {
     pub fn from_weights(weights: &[u32]) -> FreqTable {
         let n = weights.len();
         assert!((2..=MAX_SYMBOLS + 1).contains(&n), "table needs 2..=4097 symbols");
-        let ones;
-        let w: &[u32] = if weights.iter().all(|&x| x == 0) {
-            ones = vec![1u32; n];
-            &ones
-        } else {
-            weights
-        };
-        let total: u64 = w.iter().map(|&x| u64::from(x)).sum();
+        let sum: u64 = weights.iter().map(|&x| u64::from(x)).sum();
+        // All weights 1 when they sum to 0.
+        let (ones, total) = if sum == 0 { (1, n as u64) } else { (0, sum) };
         let r = u64::from(TOTAL) - n as u64;
-        let mut freq: Vec<u32> = w.iter().map(|&x| 1 + floor_div(u64::from(x) * r, total) as u32).collect();
-        let sum: u32 = freq.iter().sum();
-        let mut best = 0;
-        for s in 1..n {
-            if w[s] > w[best] {
-                best = s;
-            }
-        }
-        freq[best] += TOTAL - sum;
+        let share = Share::new(r, total);
         let mut cdf = Vec::with_capacity(n + 1);
         cdf.push(0);
-        let mut acc = 0;
-        for f in freq {
-            acc += f;
+        let (mut acc, mut best, mut best_w) = (0u32, 0, 0);
+        for (s, &x) in weights.iter().enumerate() {
+            let w = x | ones;
+            acc += 1 + share.of(w);
             cdf.push(acc);
+            if w > best_w {
+                (best, best_w) = (s, w);
+            }
         }
+        // The remainder of 2^16 to the first symbol of largest weight: every later bound moves.
+        let rest = TOTAL - acc;
+        cdf[best + 1..].iter_mut().for_each(|c| *c += rest);
         // Bucket b starts in the symbol s with cdf[s] <= b·2^shift < cdf[s+1].
         let shift = PRECISION as u32 - (n.next_power_of_two().trailing_zeros() + 3).clamp(8, 12);
         let mut bucket = vec![0u16; (TOTAL >> shift) as usize];
@@ -102,20 +96,38 @@ impl FreqTable {
     }
 }
 
-/// `⌊num / den⌋` for `num < 2^48`, `1 ≤ den < 2^53`, exactly, without a 64-bit division: both
-/// are exact in `f64`, whose correctly rounded quotient is within one of the floor; one integer
-/// check corrects it. (Tables are rebuilt for every channel of a file, and neighbour-context
-/// files have many: the division was most of the time it took to read their parameters.)
-#[inline(always)]
-fn floor_div(num: u64, den: u64) -> u64 {
-    debug_assert!(num < 1 << 48 && (1..1 << 53).contains(&den));
-    let q = (num as f64 / den as f64) as u64;
-    if q * den > num {
-        q - 1
-    } else if (q + 1) * den <= num {
-        q + 1
-    } else {
-        q
+/// `⌊w·r/t⌋` for weights `w ≤ t` (so the quotient is at most `r < 2^16`), exactly, without an
+/// integer division per weight. `w·(r/t)` in `f64` is within `2^16·2^−51` of the true quotient,
+/// so truncating it is the floor or one off it, and one integer check corrects that. (Tables are
+/// rebuilt for every channel of a file, neighbour-context files have many, and reading their
+/// parameters was a sixth of decoding a small scene while this was a division per weight.)
+#[derive(Clone, Copy)]
+struct Share {
+    r: u64,
+    t: u64,
+    ratio: f64,
+}
+
+impl Share {
+    /// For `1 ≤ t < 2^47` (4,097 weights below 2^32 sum to less than 2^45), `r < 2^16`.
+    fn new(r: u64, t: u64) -> Share {
+        debug_assert!(r < 1 << 16 && (1..1 << 47).contains(&t));
+        Share { r, t, ratio: r as f64 / t as f64 }
+    }
+
+    #[inline(always)]
+    fn of(self, w: u32) -> u32 {
+        debug_assert!(u64::from(w) <= self.t);
+        let num = u64::from(w) * self.r;
+        let q = (f64::from(w) * self.ratio) as i64 as u64;
+        let q = if q * self.t > num {
+            q - 1
+        } else if (q + 1) * self.t <= num {
+            q + 1
+        } else {
+            q
+        };
+        q as u32
     }
 }
 
@@ -190,7 +202,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn floor_div_is_integer_division() {
+    fn shares_are_integer_floors() {
         let mut x = 0x9E37_79B9_7F4A_7C15u64;
         let mut next = move || {
             x ^= x << 13;
@@ -199,16 +211,53 @@ mod tests {
             x
         };
         for i in 0..200_000 {
-            let den = 1 + next() % (1 << (1 + i % 45));
-            let num = next() % (1 << 48);
-            assert_eq!(floor_div(num, den), num / den, "{num} / {den}");
-            // Exact multiples and their neighbours, where rounding could land on the wrong side.
-            let q = num / den;
-            for m in [q * den, (q * den).saturating_sub(1), q * den + den - 1] {
-                if m < 1 << 48 {
-                    assert_eq!(floor_div(m, den), m / den, "{m} / {den}");
+            // Totals of up to 4,097 weights below 2^32, weights up to the total.
+            let t = 1 + next() % (1 << (1 + i % 44));
+            let r = u64::from(TOTAL) - 2 - next() % 4096;
+            let share = Share::new(r, t);
+            let w = (next() % (t + 1)).min(u64::from(u32::MAX));
+            // Weights whose share is (or is next to) an exact integer, where rounding could land
+            // on the wrong side: w·r/t = k exactly when w = k·t/r.
+            let k = next() % (r + 1);
+            let exact = k * t / r;
+            for w in [w, exact, exact.saturating_sub(1), exact + 1] {
+                if w <= t && w <= u64::from(u32::MAX) {
+                    assert_eq!(u64::from(share.of(w as u32)), w * r / t, "{w}·{r}/{t}");
                 }
             }
+        }
+    }
+
+    /// SPEC §4.2 with 128-bit integer division: the reference `from_weights` follows.
+    fn spec_frequencies(weights: &[u32]) -> Vec<u32> {
+        let n = weights.len();
+        let w: Vec<u128> = if weights.iter().all(|&x| x == 0) { vec![1; n] } else { weights.iter().map(|&x| u128::from(x)).collect() };
+        let (t, r) = (w.iter().sum::<u128>(), u128::from(TOTAL) - n as u128);
+        let mut f: Vec<u32> = w.iter().map(|&x| 1 + (x * r / t) as u32).collect();
+        let best = (0..n).fold(0, |b, s| if w[s] > w[b] { s } else { b });
+        f[best] += TOTAL - f.iter().sum::<u32>();
+        f
+    }
+
+    #[test]
+    fn frequencies_follow_the_spec() {
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for i in 0..2_000 {
+            let n = 2 + (next() % 4096) as usize;
+            let bits = 1 + i % 32;
+            let weights: Vec<u32> = (0..n).map(|_| if next() % 4 == 0 { 0 } else { (next() % (1 << bits)) as u32 }).collect();
+            let t = FreqTable::from_weights(&weights);
+            assert_eq!((0..n).map(|s| t.freq(s)).collect::<Vec<_>>(), spec_frequencies(&weights), "weights of {bits} bits");
+        }
+        for w in [vec![0, 0], vec![u32::MAX, u32::MAX], vec![u32::MAX; 4097], vec![0, 7, 7, 0]] {
+            let t = FreqTable::from_weights(&w);
+            assert_eq!((0..w.len()).map(|s| t.freq(s)).collect::<Vec<_>>(), spec_frequencies(&w));
         }
     }
 
