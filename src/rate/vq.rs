@@ -101,21 +101,34 @@ fn dist2_below(a: &[f32], b: &[f32], bound: f32) -> f32 {
     d
 }
 
-/// Centres (`K × c`, row-major) ordered along one coordinate, the axis, for [`Centres::nearest`].
+/// Centres (`K × c`, row-major) ordered along one direction, the axis, for [`Centres::nearest`].
 struct Centres<'a> {
     cen: &'a [f32],
     c: usize,
-    axis: usize,
-    /// Centre indices by their axis value (ties by index), and those values.
+    /// A unit vector: the keys are the centres' projections on it.
+    axis: &'a [f64],
+    /// Centre indices by their key (ties by index), and those keys.
     order: Vec<u32>,
-    keys: Vec<f32>,
+    keys: Vec<f64>,
 }
 
+/// `row · axis`, summed in order in `f64`.
+fn project(row: &[f32], axis: &[f64]) -> f64 {
+    row.iter().zip(axis).map(|(&x, &u)| f64::from(x) * u).sum()
+}
+
+/// How much a projection gap may exceed the distance through rounding, as a share: the gap and
+/// the unit axis are `f64` (relative error near 1e-15), the distance an `f32` sum of at most a few
+/// dozen terms (relative error below 1e-5); a centre is passed over only when its squared gap is
+/// this far above the best distance.
+const SLACK: f64 = 1e-4;
+
 impl<'a> Centres<'a> {
-    fn new(cen: &'a [f32], c: usize, axis: usize) -> Centres<'a> {
-        let mut order: Vec<u32> = (0..(cen.len() / c) as u32).collect();
-        order.sort_by(|&a, &b| cen[a as usize * c + axis].total_cmp(&cen[b as usize * c + axis]).then(a.cmp(&b)));
-        let keys = order.iter().map(|&k| cen[k as usize * c + axis]).collect();
+    fn new(cen: &'a [f32], c: usize, axis: &'a [f64]) -> Centres<'a> {
+        let all: Vec<f64> = cen.chunks_exact(c).map(|r| project(r, axis)).collect();
+        let mut order: Vec<u32> = (0..all.len() as u32).collect();
+        order.sort_by(|&a, &b| all[a as usize].total_cmp(&all[b as usize]).then(a.cmp(&b)));
+        let keys = order.iter().map(|&k| all[k as usize]).collect();
         Centres { cen, c, axis, order, keys }
     }
 
@@ -125,15 +138,16 @@ impl<'a> Centres<'a> {
 
     /// Index of the centre nearest to `row`, the first of equals. `hint` (any index) is measured
     /// first, so that its distance bounds the others' sums from the start; the centres are
-    /// visited outwards from `row`'s axis value, and a direction ends where the axis term alone
-    /// exceeds the best distance (a sum of squares is at least each of its terms, in `f32` too:
-    /// rounding is monotone). The answer does not depend on the hint or the axis, only the time.
+    /// visited outwards from `row`'s projection on the axis, and a direction ends where the
+    /// squared gap between the projections — at most the squared distance, the axis being a unit
+    /// vector — exceeds the best distance by more than rounding could ([`SLACK`]). The answer
+    /// does not depend on the hint or the axis, only the time.
     fn nearest(&self, row: &[f32], hint: u32) -> u32 {
-        let x = row[self.axis];
+        let x = project(row, self.axis);
         let mut best = (dist2(row, self.centre(hint)), hint);
         let visit = |pos: usize, best: &mut (f32, u32)| {
-            let t = (x - self.keys[pos]) * (x - self.keys[pos]);
-            if t > best.0 {
+            let gap = x - self.keys[pos];
+            if gap * gap * (1.0 - SLACK) > f64::from(best.0) {
                 return false;
             }
             let k = self.order[pos];
@@ -160,19 +174,45 @@ impl<'a> Centres<'a> {
     }
 }
 
-/// The channel along which `rows` (`c` values each) vary most: the axis of [`Centres`].
-fn widest_channel(rows: &[f32], c: usize, which: &[usize]) -> usize {
-    let spread = |j: usize| {
-        let (mut s, mut s2) = (0.0f64, 0.0f64);
-        for &i in which {
-            let x = f64::from(rows[i * c + j]);
-            s += x;
-            s2 += x * x;
+/// The direction along which `rows` (`c` values each, those listed in `which`) vary most, as a
+/// unit vector: the first principal component by power iteration on their covariance, sums in
+/// order (deterministic), started from the channel of largest variance — and that channel's unit
+/// vector where the rows do not vary. The axis of [`Centres`]: the wider the centres spread
+/// along it, the fewer [`Centres::nearest`] measures.
+fn principal_axis(rows: &[f32], c: usize, which: &[usize]) -> Vec<f64> {
+    let m = which.len().max(1) as f64;
+    let mut mean = vec![0.0f64; c];
+    for &i in which {
+        mean.iter_mut().zip(&rows[i * c..][..c]).for_each(|(s, &x)| *s += f64::from(x));
+    }
+    mean.iter_mut().for_each(|s| *s /= m);
+    let mut cov = vec![0.0f64; c * c];
+    for &i in which {
+        let r = &rows[i * c..][..c];
+        for a in 0..c {
+            let da = f64::from(r[a]) - mean[a];
+            for b in 0..c {
+                cov[a * c + b] += da * (f64::from(r[b]) - mean[b]);
+            }
         }
-        s2 - s * s / which.len().max(1) as f64
-    };
-    (0..c).map(|j| (spread(j), j)).fold((f64::NEG_INFINITY, 0), |b, (v, j)| if v > b.0 { (v, j) } else { b }).1
+    }
+    let widest = (0..c).fold(0, |b, j| if cov[j * c + j] > cov[b * c + b] { j } else { b });
+    let mut v = vec![0.0f64; c];
+    v[widest] = 1.0;
+    for _ in 0..POWER_STEPS {
+        let w: Vec<f64> = (0..c).map(|a| (0..c).map(|b| cov[a * c + b] * v[b]).sum()).collect();
+        let norm = w.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if !(norm > 0.0 && norm.is_finite()) {
+            break;
+        }
+        v = w.into_iter().map(|x| x / norm).collect();
+    }
+    v
 }
+
+/// Power-iteration steps of [`principal_axis`]: any unit vector is a valid axis, so a direction
+/// short of converged costs time, never the result.
+const POWER_STEPS: usize = 32;
 
 /// A codebook of at most `k` rows for the band rows `chans[channel][row]`, each row weighted by
 /// `weights[row]` (significance: how much of the views the Gaussian covers): k-means on the
@@ -221,6 +261,11 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     let first = pick(&mut rng, &w);
     centroids.extend_from_slice(row(train[first]));
     let mut d2: Vec<f32> = train.par_iter().map(|&i| dist2(row(i), &centroids[..c])).collect();
+    // The axis of the nearest-centre search; in the seeding, a row whose projection on it is
+    // farther from the new centre's than its distance so far cannot come nearer (as in
+    // `Centres::nearest`) and is passed over.
+    let axis = principal_axis(&rows, c, &train);
+    let along: Vec<f64> = train.iter().map(|&i| project(row(i), &axis)).collect();
     // Each training row's nearest centre so far (the hint of the first assignment).
     let mut assign = vec![0u32; train.len()];
     while centroids.len() < k * c {
@@ -232,7 +277,11 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
         let start = centroids.len();
         centroids.extend_from_slice(row(train[j]));
         let (cen, at) = (&centroids[start..], (start / c) as u32);
-        d2.par_iter_mut().zip(&mut assign).zip(&train).for_each(|((d, a), &i)| {
+        let key = project(cen, &axis);
+        d2.par_iter_mut().zip(&mut assign).zip(&train).zip(&along).for_each(|(((d, a), &i), &x)| {
+            if (x - key) * (x - key) * (1.0 - SLACK) > f64::from(*d) {
+                return;
+            }
             let new = dist2_below(row(i), cen, *d);
             if new < *d {
                 (*d, *a) = (new, at);
@@ -240,10 +289,9 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
         });
     }
     let kk = centroids.len() / c;
-    let axis = widest_channel(&rows, c, &train);
     // Lloyd iterations on the training rows; sums in row order (f64).
     for _ in 0..ITERATIONS {
-        let centres = Centres::new(&centroids, c, axis);
+        let centres = Centres::new(&centroids, c, &axis);
         assign = train.par_iter().zip(&assign).map(|(&i, &hint)| centres.nearest(row(i), hint)).collect();
         let mut sum = vec![0.0f64; kk * c];
         let mut mass = vec![0.0f64; kk];
@@ -268,7 +316,7 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     // A training row's last assignment is its hint (the rounded centres moved little).
     let mut hints = vec![0u32; n];
     train.iter().zip(&assign).for_each(|(&i, &a)| hints[i] = a);
-    let centres = Centres::new(&cen, c, axis);
+    let centres = Centres::new(&cen, c, &axis);
     let index: Vec<u32> = (0..n).into_par_iter().map(|i| centres.nearest(row(i), hints[i])).collect();
     compact(Codebook { channels: c, rows: int_rows, index })
 }
@@ -362,7 +410,7 @@ mod tests {
         let cen: Vec<f32> = cb.rows.iter().map(|&x| x as f32).collect();
         for i in 0..2000 {
             let r = &rows[i * 9..][..9];
-            let best = Centres::new(&cen, 9, 0).nearest(r, 0) as usize;
+            let best = Centres::new(&cen, 9, &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]).nearest(r, 0) as usize;
             assert_eq!(dist2(r, &cen[cb.index[i] as usize * 9..][..9]), dist2(r, &cen[best * 9..][..9]), "row {i}");
         }
     }
@@ -373,14 +421,63 @@ mod tests {
         let mut rng = Rng::new(3);
         let mut small = || (rng.uniform_f64() * 4.0).floor() as f32;
         let cen: Vec<f32> = (0..40 * 3).map(|_| small()).collect();
+        // The channels, diagonals (centres tie along them too) and the principal axis.
+        let s = 0.5f64.sqrt();
+        let mut axes = vec![
+            vec![1.0, 0.0, 0.0],
+            vec![0.0, 1.0, 0.0],
+            vec![0.0, 0.0, 1.0],
+            vec![s, s, 0.0],
+            vec![s, -s, 0.0],
+            vec![1.0 / 3f64.sqrt(); 3],
+        ];
+        axes.push(principal_axis(&cen, 3, &(0..40).collect::<Vec<_>>()));
         for _ in 0..300 {
             let r = [small(), small(), small()];
             let d: Vec<f32> = cen.chunks_exact(3).map(|c| dist2(&r, c)).collect();
             let first = d.iter().enumerate().fold(0, |b, (k, &x)| if x < d[b] { k } else { b });
-            for (axis, hint) in (0..3).flat_map(|a| (0..40).map(move |h| (a, h))) {
-                assert_eq!(Centres::new(&cen, 3, axis).nearest(&r, hint) as usize, first, "row {r:?} axis {axis} hint {hint}");
+            for (axis, hint) in axes.iter().flat_map(|a| (0..40).map(move |h| (a, h))) {
+                assert_eq!(Centres::new(&cen, 3, axis).nearest(&r, hint) as usize, first, "row {r:?} axis {axis:?} hint {hint}");
             }
         }
+    }
+
+    #[test]
+    fn nearest_matches_a_full_search_on_wide_rows_along_any_axis() {
+        // Rows of 21 values up to thousands (f32 sums round), centres close to one another.
+        let mut rng = Rng::new(9);
+        let c = 21;
+        let cen: Vec<f32> = (0..300 * c).map(|i| ((i % 7) as f64 * 900.0 + f64::from(rng.normal()) * 30.0).round() as f32).collect();
+        let mut axes = vec![principal_axis(&cen, c, &(0..300).collect::<Vec<_>>())];
+        let random: Vec<f64> = (0..c).map(|_| f64::from(rng.normal())).collect();
+        let norm = random.iter().map(|x| x * x).sum::<f64>().sqrt();
+        axes.push(random.iter().map(|x| x / norm).collect());
+        for _ in 0..200 {
+            let r: Vec<f32> = (0..c).map(|j| ((j % 7) as f64 * 900.0 + f64::from(rng.normal()) * 40.0).round() as f32).collect();
+            let d: Vec<f32> = cen.chunks_exact(c).map(|x| dist2(&r, x)).collect();
+            let first = d.iter().enumerate().fold(0, |b, (k, &x)| if x < d[b] { k } else { b });
+            for axis in &axes {
+                assert_eq!(Centres::new(&cen, c, axis).nearest(&r, 17) as usize, first);
+            }
+        }
+    }
+
+    #[test]
+    fn the_principal_axis_is_the_direction_of_most_spread() {
+        // Rows along (1, 1, 0)/√2 with a little noise in every channel.
+        let mut rng = Rng::new(4);
+        let rows: Vec<f32> = (0..500)
+            .flat_map(|_| {
+                let t = rng.normal() * 50.0;
+                [t + rng.normal(), t + rng.normal(), rng.normal()]
+            })
+            .collect();
+        let u = principal_axis(&rows, 3, &(0..500).collect::<Vec<_>>());
+        assert!((u.iter().map(|x| x * x).sum::<f64>() - 1.0).abs() < 1e-12, "unit length: {u:?}");
+        let s = 0.5f64.sqrt();
+        assert!((u[0].abs() - s).abs() < 0.01 && (u[1].abs() - s).abs() < 0.01 && u[2].abs() < 0.01 && u[0] * u[1] > 0.0, "{u:?}");
+        // No spread: the first channel's unit vector.
+        assert_eq!(principal_axis(&[2.0; 12], 3, &[0, 1, 2, 3]), vec![1.0, 0.0, 0.0]);
     }
 
     #[test]
