@@ -201,19 +201,10 @@ pub fn symbol_of(lo: i32, n: usize, v: i32) -> usize {
 mod tests {
     use super::*;
 
-    /// 64-bit words from xorshift64 (the whole range, unlike the crate's `Rng`'s floats).
-    fn xorshift(mut x: u64) -> impl FnMut() -> u64 {
-        move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        }
-    }
-
     #[test]
     fn shares_are_integer_floors() {
-        let mut next = xorshift(0x9E37_79B9_7F4A_7C15);
+        let mut rng = crate::rng::Rng::new(0x9E37_79B9_7F4A_7C15);
+        let mut next = move || rng.next_u64();
         for i in 0..200_000 {
             // Totals of up to 4,097 weights below 2^32, weights up to the total.
             let t = 1 + next() % (1 << (1 + i % 44));
@@ -245,7 +236,8 @@ mod tests {
 
     #[test]
     fn frequencies_follow_the_spec() {
-        let mut next = xorshift(0x2545_F491_4F6C_DD1D);
+        let mut rng = crate::rng::Rng::new(0x2545_F491_4F6C_DD1D);
+        let mut next = move || rng.next_u64();
         for i in 0..2_000 {
             let n = 2 + (next() % 4096) as usize;
             let bits = 1 + i % 32;
