@@ -107,9 +107,11 @@ struct Centres<'a> {
     c: usize,
     /// A unit vector: the keys are the centres' projections on it.
     axis: &'a [f64],
-    /// Centre indices by their key (ties by index), and those keys.
+    /// Centre indices by their key (ties by index), those keys, and the centres in that order
+    /// (so that the search reads them in sequence).
     order: Vec<u32>,
     keys: Vec<f64>,
+    sorted: Vec<f32>,
 }
 
 /// `row · axis`, summed in order in `f64`.
@@ -129,7 +131,8 @@ impl<'a> Centres<'a> {
         let mut order: Vec<u32> = (0..all.len() as u32).collect();
         order.sort_by(|&a, &b| all[a as usize].total_cmp(&all[b as usize]).then(a.cmp(&b)));
         let keys = order.iter().map(|&k| all[k as usize]).collect();
-        Centres { cen, c, axis, order, keys }
+        let sorted = order.iter().flat_map(|&k| &cen[k as usize * c..][..c]).copied().collect();
+        Centres { cen, c, axis, order, keys, sorted }
     }
 
     fn centre(&self, k: u32) -> &[f32] {
@@ -153,7 +156,7 @@ impl<'a> Centres<'a> {
             let k = self.order[pos];
             // An index below the best one also wins a tie.
             let bound = if k < best.1 { f32::from_bits(best.0.to_bits() + 1) } else { best.0 };
-            let d = dist2_below(row, self.centre(k), bound);
+            let d = dist2_below(row, &self.sorted[pos * self.c..][..self.c], bound);
             if k != best.1 && (d < best.0 || (d == best.0 && k < best.1)) {
                 *best = (d, k);
             }
