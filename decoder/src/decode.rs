@@ -109,8 +109,9 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
     ];
     let groups: Vec<(Group, Option<Vec<&mut [f32]>>)> =
         Group::present(degree).map(|g| (g, base.iter_mut().find(|(b, _)| *b == g).map(|(_, runs)| std::mem::take(runs)))).collect();
-    // Per group: its parameters and, for an SH band, its decoded pieces (chunk, channels, values).
-    type Decoded = (Vec<GroupParams>, Vec<(usize, Range<usize>, Vec<f32>)>);
+    // Per group: the group, its parameters and, for an SH band, its decoded pieces (chunk,
+    // channels, values).
+    type Decoded = (Group, Vec<GroupParams>, Vec<(usize, Range<usize>, Vec<f32>)>);
     let decoded: Vec<Decoded> = groups
         .into_par_iter()
         .map(|(g, runs)| {
@@ -129,7 +130,8 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
                     // that the work balances over the threads even for a one-chunk scene; a
                     // codebook band's one job (all its channels) decodes one row index per Gaussian.
                     let codebook = params[0].codebook.is_some();
-                    let (k, split) = (g.channels(), if codebook { 1 } else { g.channels().div_ceil(JOB_CHANNELS) });
+                    let k = g.channels();
+                    let split = if codebook { 1 } else { k.div_ceil(JOB_CHANNELS) };
                     let jobs: Vec<(usize, Range<usize>)> =
                         (0..chunks).flat_map(|ch| (0..split).map(move |i| (ch, i * k / split..(i + 1) * k / split))).collect();
                     jobs.into_par_iter()
@@ -140,12 +142,12 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
                         .collect::<Result<_, _>>()?
                 }
             };
-            Ok((params, pieces))
+            Ok((g, params, pieces))
         })
         .collect::<Result<_, DecodeError>>()?;
-    let pieces: Vec<Piece> = Group::present(degree)
-        .zip(&decoded)
-        .flat_map(|(group, (params, pieces))| {
+    let pieces: Vec<Piece> = decoded
+        .iter()
+        .flat_map(|&(group, ref params, ref pieces)| {
             let codebook = params[0].codebook.as_deref().map(|cb| &cb.values[..]);
             pieces.iter().map(move |(ch, columns, values)| Piece {
                 group,

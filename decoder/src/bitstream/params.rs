@@ -191,17 +191,13 @@ pub fn read_all_params(c: &Container<'_>, degree: u8, levels: usize) -> Result<P
         return Ok(ParamSets { sets: Vec::new(), header });
     }
     let groups: Vec<Group> = Group::present(degree).collect();
-    let chunks = params_chunks(&header, levels);
+    // The parameter chunks those levels use: 0 … that of the last level.
+    let chunks = levels.checked_sub(1).map_or(0, |l| header.params_chunk(l) + 1);
     let read = groups.par_iter().map(|&g| read_group_params(c, g, chunks)).collect::<Result<Vec<_>, DecodeError>>()?;
     // Group-major to chunk-major.
     let mut read: Vec<_> = read.into_iter().map(Vec::into_iter).collect();
     let sets = (0..chunks).map(|_| groups.iter().zip(&mut read).filter_map(|(&g, p)| Some((g, p.next()?))).collect()).collect();
     Ok(ParamSets { sets, header })
-}
-
-/// How many parameter chunks the first `levels` levels use: 0 … that of the last level.
-pub fn params_chunks(header: &Header, levels: usize) -> usize {
-    levels.checked_sub(1).map_or(0, |l| header.params_chunk(l) + 1)
 }
 
 /// Group `g`'s parameter sections `0..chunks`, read in parallel, each with the group's codebook
