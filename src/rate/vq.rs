@@ -56,12 +56,6 @@ impl Codebook {
     }
 }
 
-/// Rows of channel-major values `chans[channel][row]` as row-major `f32`.
-fn rows_of(chans: &[Vec<i32>]) -> Vec<f32> {
-    let n = chans.first().map_or(0, Vec::len);
-    (0..n).flat_map(|i| chans.iter().map(move |c| c[i] as f32)).collect()
-}
-
 /// The distinct rows of `chans`, sorted, with every row's index: a lossless codebook (a palette).
 pub fn palette(chans: &[Vec<i32>]) -> Codebook {
     let c = chans.len();
@@ -233,10 +227,9 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
         return pal;
     }
     let c = chans.len();
-    let rows = rows_of(chans);
     let mut rng = Rng::new(seed);
     // Deterministic subsample for training.
-    let train: Vec<usize> = if n > TRAIN_ROWS {
+    let sample: Vec<usize> = if n > TRAIN_ROWS {
         let mut idx: Vec<usize> = (0..n).collect();
         rng.shuffle(&mut idx);
         idx.truncate(TRAIN_ROWS);
@@ -245,9 +238,19 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     } else {
         (0..n).collect()
     };
-    let row = |i: usize| &rows[i * c..][..c];
+    // k-means of rows of which some are equal is k-means of the distinct rows, each weighted by
+    // the sum of its copies' weights (a seeding draw picks a value with the same probability,
+    // and a centroid is the same weighted mean), so it trains on the sample's distinct rows:
+    // quantised SH rows repeat (a third to a half of a band's rows, the zero row most).
     // Weights: a zero-weight row still counts a little, so that unseen rows are not ignored.
-    let w: Vec<f64> = train.iter().map(|&i| f64::from(weights[i].max(0.0)) + 1e-6).collect();
+    let mut mass = vec![0.0f64; pal.len()];
+    for &i in &sample {
+        mass[pal.index[i] as usize] += f64::from(weights[i].max(0.0)) + 1e-6;
+    }
+    let train: Vec<usize> = (0..pal.len()).filter(|&d| mass[d] > 0.0).collect();
+    let w: Vec<f64> = train.iter().map(|&d| mass[d]).collect();
+    let rows: Vec<f32> = pal.rows.iter().map(|&x| x as f32).collect();
+    let row = |d: usize| &rows[d * c..][..c];
     // k-means++ seeding (weighted D² sampling), distances kept up to date per new centre.
     let mut centroids: Vec<f32> = Vec::with_capacity(k * c);
     let pick = |rng: &mut Rng, p: &[f64]| -> usize {
@@ -313,14 +316,16 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
             }
         }
     }
-    // Integer codebook, then every row to its nearest integer centroid.
+    // Integer codebook, then every distinct row to its nearest integer centroid, and every row
+    // to its distinct row's.
     let int_rows: Vec<i32> = centroids.iter().map(|&x| x.round() as i32).collect();
     let cen: Vec<f32> = int_rows.iter().map(|&x| x as f32).collect();
     // A training row's last assignment is its hint (the rounded centres moved little).
-    let mut hints = vec![0u32; n];
-    train.iter().zip(&assign).for_each(|(&i, &a)| hints[i] = a);
+    let mut hints = vec![0u32; pal.len()];
+    train.iter().zip(&assign).for_each(|(&d, &a)| hints[d] = a);
     let centres = Centres::new(&cen, c, &axis);
-    let index: Vec<u32> = (0..n).into_par_iter().map(|i| centres.nearest(row(i), hints[i])).collect();
+    let nearest: Vec<u32> = (0..pal.len()).into_par_iter().map(|d| centres.nearest(row(d), hints[d])).collect();
+    let index = pal.index.iter().map(|&d| nearest[d as usize]).collect();
     compact(Codebook { channels: c, rows: int_rows, index })
 }
 
@@ -399,6 +404,36 @@ mod tests {
         assert!(k2.len() <= 2 && k2.index.iter().all(|&i| (i as usize) < k2.len()));
     }
 
+    /// k-means trains on the distinct rows with their copies' summed weights, so it does not
+    /// depend on the order of the rows (with equal weights every sum is exact), and a band
+    /// whose rows repeat (as quantised SH rows do, the zero row most) gets the codebook of its
+    /// values, each copy the same index.
+    #[test]
+    fn kmeans_depends_on_the_rows_not_their_order() {
+        let mut rng = Rng::new(5);
+        let n = 3000;
+        // Nine channels of small values, a third of the rows zero: many repeats.
+        let chans: Vec<Vec<i32>> =
+            (0..9).map(|_| (0..n).map(|i| if i % 3 == 0 { 0 } else { (rng.normal() * 1.2).round() as i32 }).collect()).collect();
+        let mut perm: Vec<usize> = (0..n).collect();
+        rng.shuffle(&mut perm);
+        let shuffled: Vec<Vec<i32>> = chans.iter().map(|c| perm.iter().map(|&i| c[i]).collect()).collect();
+        assert!(palette(&chans).len() < n * 3 / 4, "the rows repeat");
+        let (a, b) = (kmeans(&chans, &vec![0.5; n], 48, 3), kmeans(&shuffled, &vec![0.5; n], 48, 3));
+        assert_eq!(a.rows, b.rows);
+        for (j, &i) in perm.iter().enumerate() {
+            assert_eq!(a.index[i], b.index[j], "row {i}");
+        }
+        let row = |i: usize| chans.iter().map(|c| c[i]).collect::<Vec<i32>>();
+        for i in 0..n {
+            for j in [0, 3, 6] {
+                if row(i) == row(j) {
+                    assert_eq!(a.index[i], a.index[j], "equal rows {i} and {j}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn kmeans_error_falls_as_k_grows_and_rows_go_to_a_nearest_centre() {
         let (chans, w) = band(2000, 9, 3);
@@ -409,7 +444,7 @@ mod tests {
         let e: Vec<f64> = [16, 64, 256].iter().map(|&k| err(&kmeans(&chans, &w, k, 7))).collect();
         assert!(e[0] > e[1] && e[1] > e[2], "{e:?}");
         let cb = kmeans(&chans, &w, 64, 7);
-        let rows = rows_of(&chans);
+        let rows: Vec<f32> = (0..2000).flat_map(|i| chans.iter().map(move |c| c[i] as f32)).collect();
         let cen: Vec<f32> = cb.rows.iter().map(|&x| x as f32).collect();
         for i in 0..2000 {
             let r = &rows[i * 9..][..9];
