@@ -316,7 +316,8 @@ pub fn apply_level_factors(q: &mut Quantised, splats: &Splats, order: &[usize], 
 }
 
 /// Codes SH band b (1..=3) of `q` by vector quantisation where `ks[b − 1] > 0`: a codebook of at
-/// most that many rows ([`super::vq::kmeans`], from `memo` when it holds it), and the band's
+/// most that many rows ([`super::vq::band_codebook`]: a k-means, from `memo` when it holds it,
+/// or the rows `memo` pins the band to), and the band's
 /// channels become the rows the codebook restores. k-means sees the rows in the order of the
 /// scene `q` was quantised from (`order[i]`: the scene index of file row `i`) with `weights[j]`
 /// the weight of scene row `j`, so the codebook does not depend on the file order (levels,
@@ -335,7 +336,7 @@ pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: 
             continue;
         }
         let rows: Vec<Vec<i32>> = chans.iter().map(|c| by_scene.iter().map(|&i| c[i]).collect()).collect();
-        let cb = super::vq::kmeans_memo(memo, &rows, weights, ks[b - 1] as usize, b as u64);
+        let cb = super::vq::band_codebook(memo, b, &rows, weights, ks[b - 1] as usize);
         let mut index = vec![0; cb.index.len()];
         by_scene.iter().zip(&cb.index).for_each(|(&i, &k)| index[i] = k);
         let cb = super::vq::Codebook { channels: cb.channels, rows: cb.rows.clone(), index };

@@ -271,6 +271,11 @@ impl<'a> Evaluator<'a> {
         Ok((bytes.len(), report, dec))
     }
 
+    /// The SH codebooks `config` codes with (its groups and codebooks from the cache).
+    fn codebooks(&self, config: &EncodeConfig) -> Result<Vec<(Group, super::vq::Codebook)>, SceneError> {
+        Ok(encode_cached(self.scene, config, Some(&self.importance), Some(&self.cache))?.2.codebooks)
+    }
+
     /// `D` of a decoded scene on these views (see [`RdDistortion`]). A scene with the base's
     /// geometry is drawn by replaying the base's frames.
     ///
@@ -839,9 +844,20 @@ pub fn pruning_opacity(trials: &mut Trials, lambda: Lambda, config: &EncodeConfi
     let mut log = Log { path: Vec::new(), on_step: &mut |_: &Trial| {}, lambda };
     let base = EncodeConfig { min_removal_error: 0.0, min_opacity: 1.0 / 255.0, learned_tables: false, ..*config };
     let Outcome { bytes: b, d, .. } = trials.one(&base)?;
+    // Every candidate keeps a subset of `base`'s Gaussians: its SH bands are coded with `base`'s
+    // codebooks (each row by its nearest), not with a k-means of their own, which would cost
+    // each candidate about ten times the rest of its encode. (No other stage tries opacity
+    // thresholds without removal errors, so the outcomes recorded under these configurations
+    // are never wanted with codebooks of their own.)
+    let memo = &trials.ev.cache.codebooks;
+    for (g, cb) in trials.ev.codebooks(&base)? {
+        memo.pin(usize::from(g.sh_band()), Some(&cb));
+    }
     let cands =
         PRUNE_OPACITIES.iter().map(|&m| (format!("prune opacity<{m}/255"), EncodeConfig { min_opacity: m / 255.0, ..base })).collect();
-    Ok(log.stage(trials, (log.j(b, d), base), cands)?.1.min_opacity)
+    let chosen = log.stage(trials, (log.j(b, d), base), cands);
+    (1..=3).for_each(|band| trials.ev.cache.codebooks.pin(band, None));
+    Ok(chosen?.1.min_opacity)
 }
 
 #[cfg(test)]

@@ -333,18 +333,73 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
 /// a band's rows, weights and K as they were (another group's step, the importance classes)
 /// finds the band's codebook here instead of running k-means again. Entries are never evicted
 /// (a search computes a few dozen).
+///
+/// A band may also be **pinned** to given rows ([`Memo::pin`]): while it is, a codebook asked
+/// for that band is those rows, each row of the band coded by its nearest ([`nearest_rows`]),
+/// instead of a k-means of the band's own rows.
 #[derive(Default)]
-pub struct Memo(Mutex<HashMap<(u64, u64), Arc<Codebook>>>);
+pub struct Memo {
+    codebooks: Mutex<HashMap<(u64, u64), Arc<Codebook>>>,
+    /// Per SH band 1..=3: (channels, rows) of the band's pinned codebook.
+    pinned: Mutex<[Option<Arc<(usize, Vec<i32>)>>; 3]>,
+}
 
 impl Memo {
     /// Codebooks held.
     pub fn len(&self) -> usize {
-        self.0.lock().expect("not poisoned").len()
+        self.codebooks.lock().expect("not poisoned").len()
     }
 
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+
+    /// Pins SH band `band` (1..=3) to the rows of `cb` (its index is not used), or unpins it.
+    ///
+    /// # Panics
+    /// If `band` is not 1..=3.
+    pub fn pin(&self, band: usize, cb: Option<&Codebook>) {
+        self.pinned.lock().expect("not poisoned")[band - 1] = cb.map(|c| Arc::new((c.channels, c.rows.clone())));
+    }
+
+    /// The rows band `band` (1..=3) is pinned to, if it is.
+    fn pinned(&self, band: usize) -> Option<Arc<(usize, Vec<i32>)>> {
+        self.pinned.lock().expect("not poisoned")[band - 1].clone()
+    }
+}
+
+/// The codebook of SH band `band` (1..=3) for its rows `chans[channel][row]`: the rows `memo`
+/// pins the band to when it does ([`nearest_rows`]), else [`kmeans_memo`].
+///
+/// # Panics
+/// If a pinned codebook does not have one value per channel of `chans` in each row.
+pub fn band_codebook(memo: Option<&Memo>, band: usize, chans: &[Vec<i32>], weights: &[f32], k: usize) -> Arc<Codebook> {
+    match memo.and_then(|m| m.pinned(band)) {
+        Some(p) => {
+            assert_eq!(p.0, chans.len(), "a pinned codebook of the band's channels");
+            Arc::new(nearest_rows(chans, &p.1))
+        }
+        None => kmeans_memo(memo, chans, weights, k, band as u64),
+    }
+}
+
+/// `rows` (row-major integer rows of `chans.len()` values) as the codebook of `chans`: each row
+/// indexes its nearest (the first of equals), and rows no index uses are dropped ([`compact`]).
+///
+/// # Panics
+/// If `rows` is empty while `chans` has rows.
+pub fn nearest_rows(chans: &[Vec<i32>], rows: &[i32]) -> Codebook {
+    let c = chans.len();
+    let pal = palette(chans);
+    assert!(pal.is_empty() || !rows.is_empty(), "rows to code the band with");
+    let cen: Vec<f32> = rows.iter().map(|&x| x as f32).collect();
+    let k: Vec<usize> = (0..rows.len() / c.max(1)).collect();
+    let axis = principal_axis(&cen, c, &k);
+    let centres = Centres::new(&cen, c, &axis);
+    let values: Vec<f32> = pal.rows.iter().map(|&x| x as f32).collect();
+    let nearest: Vec<u32> = (0..pal.len()).into_par_iter().map(|d| centres.nearest(&values[d * c..][..c], 0)).collect();
+    let index = pal.index.iter().map(|&d| nearest[d as usize]).collect();
+    compact(Codebook { channels: c, rows: rows.to_vec(), index })
 }
 
 /// [`kmeans`] of the same arguments, taken from `memo` when it holds it (keyed by a 128-bit
@@ -352,11 +407,11 @@ impl Memo {
 pub fn kmeans_memo(memo: Option<&Memo>, chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Arc<Codebook> {
     let Some(memo) = memo else { return Arc::new(kmeans(chans, weights, k, seed)) };
     let key = super::encode::key128(|h| (chans, weights.iter().map(|w| w.to_bits()).collect::<Vec<_>>(), k, seed).hash(h));
-    if let Some(cb) = memo.0.lock().expect("not poisoned").get(&key) {
+    if let Some(cb) = memo.codebooks.lock().expect("not poisoned").get(&key) {
         return cb.clone();
     }
     let cb = Arc::new(kmeans(chans, weights, k, seed));
-    memo.0.lock().expect("not poisoned").insert(key, cb.clone());
+    memo.codebooks.lock().expect("not poisoned").insert(key, cb.clone());
     cb
 }
 
@@ -432,6 +487,42 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A band pinned to a codebook's rows is coded by them (each row by a nearest, unused rows
+    /// dropped) whatever its own rows; unpinned, it gets its k-means again.
+    #[test]
+    fn a_pinned_band_is_coded_with_the_pinned_rows() {
+        let (chans, w) = band(1500, 9, 11);
+        let base = kmeans(&chans, &w, 64, 2);
+        // A third of the rows, as a pruning candidate keeps them.
+        let sub: Vec<Vec<i32>> = chans.iter().map(|c| c.iter().step_by(3).copied().collect()).collect();
+        let wsub: Vec<f32> = w.iter().step_by(3).copied().collect();
+        let memo = Memo::default();
+        memo.pin(2, Some(&base));
+        let cb = band_codebook(Some(&memo), 2, &sub, &wsub, 64);
+        assert!(cb.index.iter().all(|&i| (i as usize) < cb.len()));
+        let base_rows: Vec<&[i32]> = (0..base.len()).map(|i| base.row(i)).collect();
+        let d2 = |a: &[i32], b: &[i32]| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<i32>();
+        for i in 0..cb.len() {
+            assert!(base_rows.contains(&cb.row(i)), "row {i} is one of the pinned rows");
+        }
+        for (i, &k) in cb.index.iter().enumerate() {
+            let r: Vec<i32> = sub.iter().map(|c| c[i]).collect();
+            let best = base_rows.iter().map(|b| d2(&r, b)).min().unwrap();
+            assert_eq!(d2(&r, cb.row(k as usize)), best, "row {i} goes to a nearest pinned row");
+        }
+        // A pinned row no row is near is left out of the codebook.
+        let mut far = base.clone();
+        far.rows.extend([1000; 9]);
+        memo.pin(2, Some(&far));
+        let with_far = band_codebook(Some(&memo), 2, &sub, &wsub, 64);
+        assert_eq!(with_far.decoded_channels(), cb.decoded_channels());
+        assert!((0..with_far.len()).all(|i| with_far.row(i) != [1000; 9]));
+        // Only the pinned band is pinned, and unpinning restores the k-means.
+        assert_eq!(*band_codebook(Some(&memo), 1, &sub, &wsub, 64), kmeans(&sub, &wsub, 64, 1));
+        memo.pin(2, None);
+        assert_eq!(*band_codebook(Some(&memo), 2, &sub, &wsub, 64), kmeans(&sub, &wsub, 64, 2));
     }
 
     #[test]
