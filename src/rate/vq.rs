@@ -319,14 +319,22 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     // Integer codebook, then every distinct row to its nearest integer centroid, and every row
     // to its distinct row's.
     let int_rows: Vec<i32> = centroids.iter().map(|&x| x.round() as i32).collect();
-    let cen: Vec<f32> = int_rows.iter().map(|&x| x as f32).collect();
     // A training row's last assignment is its hint (the rounded centres moved little).
     let mut hints = vec![0u32; pal.len()];
     train.iter().zip(&assign).for_each(|(&d, &a)| hints[d] = a);
-    let centres = Centres::new(&cen, c, &axis);
-    let nearest: Vec<u32> = (0..pal.len()).into_par_iter().map(|d| centres.nearest(row(d), hints[d])).collect();
+    coded_by(&pal, &rows, int_rows, &axis, &hints)
+}
+
+/// The codebook `rows` (integer, row-major) for the rows `pal` is the palette of, `values` its
+/// rows as `f32`: each distinct row to its nearest codebook row (searched along `axis`, starting
+/// from `hints[d]`), every row to its distinct row's, rows no index uses dropped ([`compact`]).
+fn coded_by(pal: &Codebook, values: &[f32], rows: Vec<i32>, axis: &[f64], hints: &[u32]) -> Codebook {
+    let c = pal.channels;
+    let cen: Vec<f32> = rows.iter().map(|&x| x as f32).collect();
+    let centres = Centres::new(&cen, c, axis);
+    let nearest: Vec<u32> = (0..pal.len()).into_par_iter().map(|d| centres.nearest(&values[d * c..][..c], hints[d])).collect();
     let index = pal.index.iter().map(|&d| nearest[d as usize]).collect();
-    compact(Codebook { channels: c, rows: int_rows, index })
+    compact(Codebook { channels: c, rows, index })
 }
 
 /// Codebooks already computed, by their input ([`kmeans_memo`]): an RD-search trial that leaves
@@ -395,11 +403,8 @@ pub fn nearest_rows(chans: &[Vec<i32>], rows: &[i32]) -> Codebook {
     let cen: Vec<f32> = rows.iter().map(|&x| x as f32).collect();
     let k: Vec<usize> = (0..rows.len() / c.max(1)).collect();
     let axis = principal_axis(&cen, c, &k);
-    let centres = Centres::new(&cen, c, &axis);
     let values: Vec<f32> = pal.rows.iter().map(|&x| x as f32).collect();
-    let nearest: Vec<u32> = (0..pal.len()).into_par_iter().map(|d| centres.nearest(&values[d * c..][..c], 0)).collect();
-    let index = pal.index.iter().map(|&d| nearest[d as usize]).collect();
-    compact(Codebook { channels: c, rows: rows.to_vec(), index })
+    coded_by(&pal, &values, rows.to_vec(), &axis, &vec![0; pal.len()])
 }
 
 /// [`kmeans`] of the same arguments, taken from `memo` when it holds it (keyed by a 128-bit
