@@ -45,9 +45,9 @@ pub struct Args {
     pub iters: Option<usize>,
     /// Dataset input: code SCENE, a scene trained on this dataset elsewhere (.ply, .spz, …, in
     /// the dataset's world frame), instead of training one from the images: the RD search
-    /// measures on the dataset's training cameras, retraining (--retrain-iters, default 300)
-    /// fine-tunes the Gaussians it keeps to the training images, and the report measures the
-    /// held-out views.
+    /// measures on the dataset's training cameras, retraining (--retrain-iters, default 1000:
+    /// a third of a dataset's default --iters) fine-tunes the Gaussians it keeps to the
+    /// training images, and the report measures the held-out views.
     #[arg(long, value_name = "SCENE", conflicts_with_all = ["iters", "max_gaussians", "densify_grad_threshold"])]
     pub init: Option<PathBuf>,
     /// Dataset input: after the RD search has pruned the trained scene (and dropped SH bands),
