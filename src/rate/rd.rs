@@ -30,6 +30,12 @@ use std::time::Instant;
 /// Views and resolution the search renders.
 pub const VIEWS: usize = 8;
 pub const SIZE: u32 = 96;
+/// The side of the orbit views on which the pruning stage measures `D` for a scene without
+/// cameras: the evaluation's own (`encoder::ORBIT_SIZE`, what `eval --reference --orbit 8` and
+/// `--target-psnr` measure), where every later stage renders at [`SIZE`]. Pruning decides which
+/// Gaussians exist, and at 96² small ones look cheaper to drop than the 256² views find them
+/// (docs/codec.md §16); the later stages trade steps, which the coarser views rank alike.
+pub const PRUNING_SIZE: u32 = 256;
 
 /// The views `D` is measured on: cameras, the background they are drawn over, and what `D`
 /// measures on them ([`RdDistortion`]).
@@ -200,11 +206,23 @@ impl<'a> Evaluator<'a> {
         let t = Instant::now();
         let importance = views.importance(scene);
         let sig_s = t.elapsed().as_secs_f64();
-        let sig_views = match (timing(), &views.significance_cams) {
-            (false, _) => 0,
-            (true, Some(cams)) => cams.len(),
-            (true, None) => super::importance::views(scene).len(),
-        };
+        let ev = Self::with_importance(scene, views.clone(), importance);
+        if timing() {
+            let sig_views = match &views.significance_cams {
+                Some(cams) => cams.len(),
+                None => super::importance::views(scene).len(),
+            };
+            eprintln!(
+                "timing: significance and removal errors ({sig_views} views) {sig_s:.3} s wall; reference renders {:.3} s wall",
+                t.elapsed().as_secs_f64() - sig_s
+            );
+        }
+        ev
+    }
+
+    /// `D` on `views`, pruning and the importance classes taking the Gaussians in the order of
+    /// `importance` (measured elsewhere).
+    fn with_importance(scene: &'a Splats, views: RdViews, importance: Importance) -> Self {
         let RdViews { cams, background, pixel_scale, distortion, .. } = views;
         let opts = RenderOptions { background, ..RenderOptions::default() };
         let refs: Vec<Image> = cams.par_iter().map(|c| render(scene, c, &opts)).collect();
@@ -223,13 +241,6 @@ impl<'a> Evaluator<'a> {
                 Some(LossD { wd, l_orig, scale: None })
             }
         };
-        if timing() {
-            eprintln!(
-                "timing: significance and removal errors ({} views) {sig_s:.3} s wall; reference renders {:.3} s wall",
-                sig_views,
-                t.elapsed().as_secs_f64() - sig_s
-            );
-        }
         Evaluator {
             scene,
             cams,
@@ -361,22 +372,23 @@ struct Clock {
 
 impl Clock {
     fn new(trials: &Trials) -> Clock {
-        Clock { on: timing(), lap: Instant::now(), evaluated: trials.seen.len() }
+        Clock { on: timing(), lap: Instant::now(), evaluated: trials.len() }
     }
 
     /// Prints the stage that ends now (see [`timing`]) and starts the next.
     fn lap(&mut self, trials: &Trials, stage: &str) {
         if self.on {
             let secs = |a: &AtomicU64| a.swap(0, Ordering::Relaxed) as f64 * 1e-9;
-            let (e, r) = (secs(&trials.ev.encode_ns), secs(&trials.ev.render_ns));
-            let n = trials.seen.len() - self.evaluated;
+            let evs = std::iter::once(&trials.ev).chain(trials.pruning.as_ref().map(|p| &p.0));
+            let (e, r) = evs.fold((0.0, 0.0), |(e, r), ev| (e + secs(&ev.encode_ns), r + secs(&ev.render_ns)));
+            let n = trials.len() - self.evaluated;
             eprintln!(
                 "timing: {stage}: {n} trials, {:.3} s wall; trial encode {e:.3} s, render {r:.3} s (summed over threads)",
                 self.lap.elapsed().as_secs_f64()
             );
         }
         self.lap = Instant::now();
-        self.evaluated = trials.seen.len();
+        self.evaluated = trials.len();
     }
 }
 
@@ -422,6 +434,9 @@ fn with_knob(c: &EncodeConfig, g: Group, m: f32) -> EncodeConfig {
 pub struct Trials<'a> {
     ev: Evaluator<'a>,
     seen: Vec<(EncodeConfig, Outcome)>,
+    /// The pruning stage's evaluator and outcomes, on the orbit views at [`PRUNING_SIZE`]² (a
+    /// scene without cameras, [`Trials::new`]); `None`: pruning measures on `ev`'s views.
+    pruning: Option<(Evaluator<'a>, Vec<(EncodeConfig, Outcome)>)>,
 }
 
 /// What a configuration gives: its bytes, `D`, 255²·MSE (= `D` for [`RdDistortion::Mse`]) and
@@ -440,7 +455,11 @@ impl<'a> Trials<'a> {
     /// # Errors
     /// An invalid scene (NaN/Inf, inconsistent arrays).
     pub fn new(scene: &'a Splats) -> Result<Self, SceneError> {
-        Self::with_views(scene, RdViews::orbit(scene))
+        let mut trials = Self::with_views(scene, RdViews::orbit(scene))?;
+        let views = RdViews::cameras(orbit_cameras(scene, VIEWS, PRUNING_SIZE, PRUNING_SIZE, UpAxis::NegY.vector()), [0.0; 3]);
+        let importance = trials.ev.importance.clone();
+        trials.pruning = Some((Evaluator::with_importance(scene, views, importance), Vec::new()));
+        Ok(trials)
     }
 
     /// [`Trials::new`] with `D` measured on `views`.
@@ -449,7 +468,7 @@ impl<'a> Trials<'a> {
     /// An invalid scene (NaN/Inf, inconsistent arrays).
     pub fn with_views(scene: &'a Splats, views: RdViews) -> Result<Self, SceneError> {
         scene.validate()?;
-        Ok(Trials { ev: Evaluator::with_views(scene, views), seen: Vec::new() })
+        Ok(Trials { ev: Evaluator::with_views(scene, views), seen: Vec::new(), pruning: None })
     }
 
     /// The scene the trials code.
@@ -462,13 +481,13 @@ impl<'a> Trials<'a> {
         &self.ev.importance
     }
 
-    /// Configurations evaluated so far.
+    /// Configurations evaluated so far (those of the pruning views included).
     pub fn len(&self) -> usize {
-        self.seen.len()
+        self.seen.len() + self.pruning.as_ref().map_or(0, |p| p.1.len())
     }
 
     pub fn is_empty(&self) -> bool {
-        self.seen.is_empty()
+        self.len() == 0
     }
 
     /// Fixes the factor that brings [`RdDistortion::Loss`] into `D`'s unit: 255²·MSE over the
@@ -497,17 +516,15 @@ impl<'a> Trials<'a> {
 impl Trials<'_> {
     /// The outcomes of `configs`, in order.
     fn run(&mut self, configs: &[EncodeConfig]) -> Result<Vec<Outcome>, SceneError> {
-        let mut todo: Vec<EncodeConfig> = Vec::new();
-        for c in configs {
-            if !self.seen.iter().any(|(k, _)| k == c) && !todo.contains(c) {
-                todo.push(*c);
-            }
+        run_on(&self.ev, &mut self.seen, configs)
+    }
+
+    /// [`Trials::run`] for the pruning stage: on the pruning views where there are some.
+    fn run_pruning(&mut self, configs: &[EncodeConfig]) -> Result<Vec<Outcome>, SceneError> {
+        match &mut self.pruning {
+            Some((ev, seen)) => run_on(ev, seen, configs),
+            None => self.run(configs),
         }
-        let done: Vec<Result<Outcome, SceneError>> = todo.par_iter().map(|c| self.ev.outcome(c)).collect();
-        for (c, r) in todo.into_iter().zip(done) {
-            self.seen.push((c, r?));
-        }
-        Ok(configs.iter().map(|c| self.seen.iter().find(|(k, _)| k == c).expect("evaluated above").1.clone()).collect())
     }
 
     fn one(&mut self, config: &EncodeConfig) -> Result<Outcome, SceneError> {
@@ -523,6 +540,22 @@ impl Trials<'_> {
         }
         Ok(outcome)
     }
+}
+
+/// The outcomes of `configs` on `ev`, in order, each evaluated once: those in `seen` reused, the
+/// others evaluated in parallel and added to it.
+fn run_on(ev: &Evaluator, seen: &mut Vec<(EncodeConfig, Outcome)>, configs: &[EncodeConfig]) -> Result<Vec<Outcome>, SceneError> {
+    let mut todo: Vec<EncodeConfig> = Vec::new();
+    for c in configs {
+        if !seen.iter().any(|(k, _)| k == c) && !todo.contains(c) {
+            todo.push(*c);
+        }
+    }
+    let done: Vec<Result<Outcome, SceneError>> = todo.par_iter().map(|c| ev.outcome(c)).collect();
+    for (c, r) in todo.into_iter().zip(done) {
+        seen.push((c, r?));
+    }
+    Ok(configs.iter().map(|c| seen.iter().find(|(k, _)| k == c).expect("evaluated above").1.clone()).collect())
 }
 
 /// The trials a search has recorded, reported to `on_step` as they come.
@@ -554,14 +587,21 @@ impl<F: FnMut(&Trial)> Log<'_, F> {
         cands: Vec<(String, EncodeConfig)>,
     ) -> Result<(f64, EncodeConfig), SceneError> {
         let configs: Vec<EncodeConfig> = cands.iter().map(|c| c.1).collect();
+        let outcomes = trials.run(&configs)?;
+        Ok(self.pick(keep, cands, outcomes))
+    }
+
+    /// Records each candidate's outcome and returns the (J, config) of lowest J, the first of
+    /// equals, or `keep` when none is below `keep`'s J.
+    fn pick(&mut self, keep: (f64, EncodeConfig), cands: Vec<(String, EncodeConfig)>, outcomes: Vec<Outcome>) -> (f64, EncodeConfig) {
         let mut best = keep;
-        for ((name, c), o) in cands.into_iter().zip(trials.run(&configs)?) {
+        for ((name, c), o) in cands.into_iter().zip(outcomes) {
             self.record(name, &o);
             if self.j(o.bytes, o.d) < best.0 {
                 best = (self.j(o.bytes, o.d), c);
             }
         }
-        Ok(best)
+        best
     }
 }
 
@@ -712,6 +752,9 @@ pub fn search_with(
     // Keep one search's coded groups at a time (memory grows with the scene); the outcomes of
     // the configurations, which are small, stay for the next search.
     trials.ev.cache = GroupCache::default();
+    if let Some((ev, _)) = &mut trials.pruning {
+        ev.cache = GroupCache::default();
+    }
     let mut clock = Clock::new(trials);
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
@@ -722,8 +765,10 @@ pub fn search_with(
     //    removal changes nothing, quantiles of the rest, and everything (an empty file).
     let m = &trials.ev.importance;
     let errs = sorted((0..scene.len()).filter(|&i| opaque_enough(scene, i, &fine)).map(|i| m.removal[i]).collect());
+    //    `D` on the pruning views ([`PRUNING_SIZE`]) where the trials have them.
     let cands = prune_candidates(&errs, &fine);
-    let base = log.stage(trials, (f64::INFINITY, fine), cands)?.1;
+    let outcomes = trials.run_pruning(&cands.iter().map(|c| c.1).collect::<Vec<_>>())?;
+    let base = log.pick((f64::INFINITY, fine), cands, outcomes).1;
     let b0 = trials.base(&base)?.bytes;
     clock.lap(trials, "pruning");
     if b0 < 200 {
@@ -924,6 +969,40 @@ mod tests {
         // The orbit views measure something else.
         let d_orbit = Trials::new(&scene).unwrap().one(&config).unwrap().d;
         assert_ne!(d, d_orbit);
+    }
+
+    /// A scene's pruning stage measures `D` on the orbit views at [`PRUNING_SIZE`]² (the
+    /// evaluation's), the later stages on the search's views at [`SIZE`]²; a dataset's views
+    /// serve every stage.
+    #[test]
+    fn pruning_measures_on_the_evaluation_views() {
+        let scene = crate::sample::scene(300, 4);
+        let (_, path) = search(&scene, Lambda::new(20.0).unwrap(), |_| {}).unwrap();
+        let orbit = |size| RdViews::cameras(orbit_cameras(&scene, VIEWS, size, size, UpAxis::NegY.vector()), [0.0; 3]);
+        let (fine, coarse) = (Evaluator::with_views(&scene, orbit(PRUNING_SIZE)), Evaluator::new(&scene));
+        let fine_config = EncodeConfig { steps: fine_steps(), learned_tables: false, ..EncodeConfig::default() };
+        for (name, t) in [("prune none", 0.0), ("prune all", f32::INFINITY)] {
+            let config = EncodeConfig { min_removal_error: t, ..fine_config };
+            let trial = path.iter().find(|p| p.change == name).unwrap();
+            let (bytes, d) = fine.eval(&config).unwrap();
+            assert_eq!((trial.bytes, trial.d), (bytes, d), "{name}");
+            assert_ne!(coarse.eval(&config).unwrap().1, d, "{name}: the 96² views measure something else");
+        }
+        // The SH degree stage (the next) measures on the search's views, from the pruning of
+        // lowest J (the first of equals).
+        let trials = Trials::new(&scene).unwrap();
+        let errs =
+            sorted((0..scene.len()).filter(|&i| opaque_enough(&scene, i, &fine_config)).map(|i| trials.importance().removal[i]).collect());
+        let pruned = path.iter().take_while(|p| p.change.starts_with("prune")).collect::<Vec<_>>();
+        let best = pruned.iter().fold(pruned[0], |b, p| if p.j < b.j { p } else { b });
+        let (_, chosen) = prune_candidates(&errs, &fine_config).into_iter().find(|(n, _)| *n == best.change).unwrap();
+        let deg = scene.sh_degree.min(3);
+        let sh = path.iter().find(|p| p.change == format!("sh_degree={deg}")).unwrap();
+        assert_eq!((sh.bytes, sh.d), coarse.eval(&EncodeConfig { max_sh_degree: deg, ..chosen }).unwrap());
+        // A dataset's trials have no separate pruning views.
+        let cams = crate::views::training_cameras(&scene, 2, 50, 40, glam::Vec3::NEG_Y);
+        assert!(Trials::with_views(&scene, RdViews::cameras(cams, [0.0; 3])).unwrap().pruning.is_none());
+        assert!(Trials::new(&scene).unwrap().pruning.is_some());
     }
 
     /// A loss's `D` is the loss (WD in the `pyramid` space at σ × the views' pixel scale, plus
