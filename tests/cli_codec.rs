@@ -448,6 +448,7 @@ fn encode_init_codes_a_trained_scene_against_the_dataset() {
     assert_eq!(report["init"], truth.to_str().unwrap());
     assert_eq!((report["iters"].as_u64(), report["retrain_iters"].as_u64()), (Some(0), Some(0)));
     assert!(report["train"].is_null(), "no training from the images");
+    assert!(report.get("retrain_lambda").is_none());
     assert!(psnr > scratch + 5.0 && psnr > 30.0, "{psnr} dB from the truth against {scratch} dB from scratch");
     let o = gscodec(&["eval", coded.to_str().unwrap(), tiny.to_str().unwrap(), "--json", "--quiet"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -457,6 +458,9 @@ fn encode_init_codes_a_trained_scene_against_the_dataset() {
     let (retrained, _, report) = encode("retrained.gsc", &["--init", truth.to_str().unwrap(), "--retrain-iters", "10"]);
     assert_eq!((report["iters"].as_u64(), report["retrain_iters"].as_u64()), (Some(0), Some(10)));
     assert_eq!(report["train"]["config"]["iters"], 10);
+    // Its rate term at a share of λ (docs/wd.md §27); none without retraining.
+    let lambda = report["lambda"].as_f64().unwrap();
+    assert_eq!(report["retrain_lambda"].as_f64(), Some(lambda * gscodec::encoder::RETRAIN_RATE_WEIGHT));
     let decoded = gscodec_decoder::decode(&std::fs::read(retrained).unwrap()).unwrap();
     assert_eq!(decoded.len(), report["gaussians"].as_u64().unwrap() as usize);
     // Refused: a scene input, a missing scene, training flags beside it.

@@ -38,7 +38,7 @@ pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, Tr
 pub use breakdown::CodingStage;
 pub use config::{
     check_densify_grad_threshold, EncoderConfig, InvalidConfig, Profile, SearchDistortion, DEFAULT_DATASET_ITERS, MAX_ITERS,
-    RETRAIN_DIVISOR,
+    RETRAIN_DIVISOR, RETRAIN_RATE_WEIGHT,
 };
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
 pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
@@ -452,13 +452,15 @@ impl Encoder {
         // Retraining: the Gaussians the search keeps learn to cover for those it pruned, against
         // the images (the .ply path's fine-tuning, with the images as targets).
         let retrain = self.config.retrain_iters_for(true);
+        let retrain_lambda = Lambda::new(self.config.lambda.get() * RETRAIN_RATE_WEIGHT).expect("a share of a valid λ");
         let init = (retrain > 0).then(|| rate::prepared(trained, &config, Some(&trained_importance))).filter(|s| !s.is_empty());
         let mut retrain_report = None;
         let retrained = if let Some(init) = init {
             let cfg = self.fine_tune_config(retrain, &init);
-            // The loss of the main run, with WD / WD-R from the first iteration.
-            let retrainer =
-                Encoder { config: self.config.clone().with_loss(LossSpec { wd_warmup: Some(0.0), ..self.config.loss.clone() }) };
+            // The loss of the main run, with WD / WD-R from the first iteration, and the rate
+            // term at its retraining weight.
+            let loss = LossSpec { wd_warmup: Some(0.0), ..self.config.loss.clone() };
+            let retrainer = Encoder { config: self.config.clone().with_loss(loss).with_lambda(retrain_lambda) };
             let mut progress = |p: &Progress| progress(&Progress { iteration: iters + p.iteration, iters: iters + retrain, ..*p });
             let first = series.len();
             let (s, r2) = retrainer.train(dataset, Some(init), &cfg, &config, 0, start, &mut series, &mut progress)?;
@@ -479,6 +481,7 @@ impl Encoder {
         let r = r.or(retrain_report);
         let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, r, heldout)?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
+        e.report.retrain_lambda = retrained.is_some().then_some(retrain_lambda);
         if self.config.coding_breakdown {
             e.report.coding_breakdown = Some(breakdown::coding_breakdown(coded, importance, &self.file_config(&config), dataset)?);
         }
@@ -640,6 +643,7 @@ impl Encoder {
             wd_warmup: train.as_ref().and_then(|_| self.config.loss.reported_warmup()),
             iters,
             retrain_iters: 0,
+            retrain_lambda: None,
             search_distortion: heldout.map(|_| self.config.search_distortion.name()),
             backend: train.as_ref().map(|t| t.backend),
             file_bytes: bytes.len(),

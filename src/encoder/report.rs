@@ -64,6 +64,10 @@ pub struct EncodeReport {
     /// Iterations that retrained what the RD search kept of a trained dataset scene
     /// ([`super::EncoderConfig::retrain_iters`]; 0: none).
     pub retrain_iters: usize,
+    /// The λ the retraining's rate term trained at, when it ran: λ × `RETRAIN_RATE_WEIGHT`
+    /// (docs/wd.md §27).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub retrain_lambda: Option<Lambda>,
     /// What the RD search measured `D` with (`mse`, `loss`: `encode --search-distortion`),
     /// for a dataset input.
     pub search_distortion: Option<&'static str>,
