@@ -15,7 +15,8 @@ pub const RETRAIN_DIVISOR: usize = 3;
 /// ([`crate::rate::Lambda::training_weight_per_bit`]). Retraining fits the images with what the
 /// RD search chose; at the full weight the term's pull on top of that choice cost more quality
 /// than it saved bytes (lego-200, `--init`, λ 6–60: at 0.3 the L1-SSIM curve saves 19 % on ꟻLIP
-/// and 14 % on PSNR, WD-R's 28.5 % on ꟻLIP; at 0.1 about the same; docs/wd.md §27).
+/// and 14 % on PSNR, WD-R's 28.5 % on ꟻLIP; at 0.1 about the same; playbot-200 −13.8 % on
+/// ꟻLIP). From the images, where the scene grew under the term, it is neutral (docs/wd.md §27).
 pub const RETRAIN_RATE_WEIGHT: f64 = 0.3;
 /// Largest number of training iterations accepted.
 pub const MAX_ITERS: usize = 10_000_000;
