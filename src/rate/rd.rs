@@ -206,12 +206,13 @@ impl<'a> Evaluator<'a> {
         let t = Instant::now();
         let importance = views.importance(scene);
         let sig_s = t.elapsed().as_secs_f64();
-        let ev = Self::with_importance(scene, views.clone(), importance);
+        let sig_views = match (timing(), &views.significance_cams) {
+            (false, _) => 0,
+            (true, Some(cams)) => cams.len(),
+            (true, None) => super::importance::views(scene).len(),
+        };
+        let ev = Self::with_importance(scene, views, importance);
         if timing() {
-            let sig_views = match &views.significance_cams {
-                Some(cams) => cams.len(),
-                None => super::importance::views(scene).len(),
-            };
             eprintln!(
                 "timing: significance and removal errors ({sig_views} views) {sig_s:.3} s wall; reference renders {:.3} s wall",
                 t.elapsed().as_secs_f64() - sig_s
