@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::{EncodeStages, Encoded, Encoder, InvalidConfig, Lambda, Orbit};
+use super::{EncodeStages, Encoded, Encoder, InvalidConfig, Lambda, Orbit, Profile};
 use crate::io::{Dataset, Split};
 use crate::rate::{self, rd, rd::Trials, EncodeConfig};
 use crate::train::Progress;
@@ -39,6 +39,12 @@ const CLOSE_PSNR: f64 = 0.05;
 const CLOSE_BYTES: f64 = 0.005;
 /// Rounds of configurations between the best probe and the nearest miss (`Encoder::fill`).
 const FILL_ROUNDS: usize = 3;
+/// Trained probes that step away from the first phase's λ before the target is bracketed
+/// ([`refine`]): each doubles the step of the one before.
+const MAX_OUTWARD_PROBES: usize = 4;
+/// The first step away from the first phase's λ, in `ln(1+λ)`, when the first phase's curve
+/// does not predict one.
+const FIRST_STEP: f64 = 0.1;
 
 /// One encode of the search.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -49,6 +55,9 @@ pub struct Probe {
     pub bytes: usize,
     /// Orbit PSNR, dB.
     pub psnr: f64,
+    /// Whether this encode trained (fine-tuning a scene, retraining a dataset's scene), or was
+    /// one of the first phase's, which bracket λ without training ([`Encoder::encode_scene_to`]).
+    pub trained: bool,
 }
 
 /// A configuration tried between the best probe and the nearest one that missed
@@ -140,34 +149,138 @@ struct Searched {
     missed: Vec<(f64, EncodeConfig)>,
 }
 
-/// Brackets λ for `target` ([`bracket`]: regula falsi, Illinois) in `t = ln(1+λ)` over
-/// [0, [`MAX_LAMBDA`]]: the PSNR falls and the size shrinks as λ grows, so the search keeps the
-/// boundary between λs that meet the target and λs that do not. `encode(λ)` makes one probe
-/// and returns it with the PSNR the target reads.
-fn search_lambda(target: Target, mut encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
-    let mut found = Searched { probes: Vec::new(), best: None, missed: Vec::new() };
-    let mut probe = |t: f64| -> Result<f64> {
+/// A search on λ in progress: `encode(λ)` makes one probe and returns it with the PSNR the
+/// target reads; `trained` marks the probes ([`Probe::trained`]).
+struct Search<F> {
+    target: Target,
+    trained: bool,
+    encode: F,
+    found: Searched,
+}
+
+impl<F: FnMut(Lambda) -> Result<(Encoded, f64)>> Search<F> {
+    fn new(target: Target, trained: bool, encode: F) -> Self {
+        Search { target, trained, encode, found: Searched { probes: Vec::new(), best: None, missed: Vec::new() } }
+    }
+
+    /// Encodes at `t = ln(1+λ)` and returns the margin by which the target is met (≥ 0) or
+    /// missed (< 0).
+    fn probe(&mut self, t: f64) -> Result<f64> {
+        let target = self.target;
         let lambda = Lambda::new(t.exp_m1().max(0.0)).unwrap_or(Lambda::ZERO);
-        let (e, psnr) = encode(lambda)?;
+        let (e, psnr) = (self.encode)(lambda)?;
         let outcome = (e.bytes.len(), psnr);
-        found.probes.push(Probe { lambda, bytes: outcome.0, psnr });
+        self.found.probes.push(Probe { lambda, bytes: outcome.0, psnr, trained: self.trained });
         let met = target.met(outcome);
         let margin = target.margin(outcome);
         if !met {
-            found.missed.push((t, e.config));
-        } else if found.best.as_ref().is_none_or(|b| target.better(outcome, (b.1.bytes.len(), b.2))) {
-            found.best = Some((t, e, psnr));
+            self.found.missed.push((t, e.config));
+        } else if self.found.best.as_ref().is_none_or(|b| target.better(outcome, (b.1.bytes.len(), b.2))) {
+            self.found.best = Some((t, e, psnr));
         }
         // `met` decides the side even where the margin rounds to 0.
         Ok(if met { margin.max(0.0) } else { margin.min(-f64::MIN_POSITIVE) })
-    };
+    }
+}
+
+/// Brackets λ for `target` ([`bracket`]: regula falsi, Illinois) in `t = ln(1+λ)` over
+/// [0, [`MAX_LAMBDA`]]: the PSNR falls and the size shrinks as λ grows, so the search keeps the
+/// boundary between λs that meet the target and λs that do not. `encode(λ)` makes one probe
+/// and returns it with the PSNR the target reads; `trained` marks the probes.
+fn search_lambda(target: Target, trained: bool, encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
+    let mut search = Search::new(target, trained, encode);
     // Ends: t = 0 (finest) and t = ln(1 + MAX_LAMBDA) (coarsest).
     let ends = [0.0f64, MAX_LAMBDA.ln_1p()];
-    let (m0, m1) = (probe(ends[0])?, probe(ends[1])?);
+    let (m0, m1) = (search.probe(ends[0])?, search.probe(ends[1])?);
     if (m0 >= 0.0) != (m1 >= 0.0) {
-        bracket(ends[0], m0, ends[1], m1, target.close(), probe)?;
+        bracket(ends[0], m0, ends[1], m1, target.close(), |t| search.probe(t))?;
     }
-    Ok(found)
+    Ok(search.found)
+}
+
+/// The second phase of a search whose encodes train: the first phase ([`search_lambda`] with
+/// encodes that do not train, a fraction of the cost) found `first`, and the best `t` meeting
+/// the target there; training moves each λ's file along the curve (fine-tuning: smaller and
+/// better at the same λ), so the trained encodes start at that `t`, step away from it — the
+/// first step where the first phase's curve, shifted by what training changed at that `t`,
+/// meets the target, then doubling — until one lands on the other side of the target, and
+/// [`bracket`] narrows the two. No trained encode runs at the ends (λ = 0: the whole scene
+/// trained; λ = [`MAX_LAMBDA`]: an empty one) unless the first phase met the target nowhere:
+/// then the trained encodes search on their own, as [`search_lambda`].
+fn refine(target: Target, first: &Searched, mut encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
+    let Some((t0, _, _)) = first.best else { return search_lambda(target, true, encode) };
+    let mut search = Search::new(target, true, &mut encode);
+    let curve: Vec<(f64, f64)> = first.probes.iter().map(|p| (p.lambda.get().ln_1p(), target.margin((p.bytes, p.psnr)))).collect();
+    let m0 = search.probe(t0)?;
+    if (0.0..target.close()).contains(&m0) {
+        return Ok(search.found);
+    }
+    let (t_max, met) = (MAX_LAMBDA.ln_1p(), m0 >= 0.0);
+    // Towards the λs that miss (a PSNR's margin falls as t grows, a size's rises).
+    let falling = matches!(target, Target::Psnr(_));
+    let dir = if met == falling { 1.0 } else { -1.0 };
+    let mut step = predicted_step(&curve, t0, m0, dir).unwrap_or(FIRST_STEP).max(RESOLUTION);
+    let (mut near, mut m_near) = (t0, m0);
+    for _ in 0..MAX_OUTWARD_PROBES {
+        let t = (near + dir * step).clamp(0.0, t_max);
+        if t == near {
+            break;
+        }
+        let m = search.probe(t)?;
+        if (m >= 0.0) != met {
+            bracket(near, m_near, t, m, target.close(), |t| search.probe(t))?;
+            break;
+        }
+        if (0.0..target.close()).contains(&m) {
+            break;
+        }
+        (near, m_near) = (t, m);
+        step *= 2.0;
+    }
+    Ok(search.found)
+}
+
+/// How far from `t0`, in the direction `dir` (±1), the first phase's margins `curve` (points
+/// `(t, margin)`), shifted by `m0 − margin(t0)` (what training changed at `t0`), cross 0: the
+/// distance to where the piecewise-linear curve through the points reaches `margin(t0) − m0`.
+/// `None` when the points do not reach it on that side.
+fn predicted_step(curve: &[(f64, f64)], t0: f64, m0: f64, dir: f64) -> Option<f64> {
+    let mut pts: Vec<(f64, f64)> = curve.iter().copied().filter(|p| p.1.is_finite()).collect();
+    pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    pts.dedup_by(|a, b| a.0 == b.0);
+    let at = |t: f64| {
+        let i = pts.partition_point(|p| p.0 < t);
+        match (i.checked_sub(1).and_then(|j| pts.get(j)), pts.get(i)) {
+            (_, Some(b)) if b.0 == t => Some(b.1),
+            (Some(a), Some(b)) => Some(a.1 + (t - a.0) / (b.0 - a.0) * (b.1 - a.1)),
+            _ => None,
+        }
+    };
+    let want = at(t0)? - m0;
+    pts.windows(2)
+        .filter_map(|w| {
+            let ((ta, ma), (tb, mb)) = (w[0], w[1]);
+            let crosses = (ma - want) * (mb - want) <= 0.0 && ma != mb;
+            crosses.then(|| ta + (want - ma) / (mb - ma) * (tb - ta))
+        })
+        .map(|t| (t - t0) * dir)
+        .filter(|&d| d > 0.0)
+        .min_by(f64::total_cmp)
+}
+
+/// The result of a two-phase search: the best probe of either phase that met the target (a
+/// trained one, unless an untrained encode met it with a smaller file, or a better PSNR within
+/// the size); its report lists every probe of both phases.
+fn finish_two_phase(target: Target, first: Searched, second: Searched) -> Result<Encoded> {
+    let probes: Vec<Probe> = first.probes.iter().chain(&second.probes).copied().collect();
+    let outcome = |b: &(f64, Encoded, f64)| (b.1.bytes.len(), b.2);
+    let best = match (first.best, second.best) {
+        (Some(a), Some(b)) => Some(if target.better(outcome(&a), outcome(&b)) { a } else { b }),
+        (a, b) => b.or(a),
+    };
+    let Some((_, mut best, _)) = best else { return Err(unreachable(target, &probes)) };
+    best.report.target = Some(TargetSearch { target, probes, between: Vec::new() });
+    Ok(best)
 }
 
 /// The error of a target no probe met.
@@ -202,11 +315,22 @@ impl Encoder {
         // depend on λ, so each is coded and rendered once for all probes.
         let mut trials = Trials::new(scene).map_err(|e| crate::Error::Input(e.to_string()))?;
         let orbit = Orbit::new(scene);
-        let Searched { probes, best, missed } = search_lambda(target, |lambda| {
-            let e = Encoder { config: self.config.clone().with_lambda(lambda) }.encode_scene_with(&mut trials, &orbit, progress)?;
+        // With fine-tuning (the explicit profile's), the RD search alone brackets λ first and
+        // the fine-tuned encodes refine it ([`refine`]).
+        let two_phase = self.config.iters_for(false) > 0 && self.config.profile == Profile::Explicit;
+        let mut encode_at = |lambda: Lambda, iters: Option<usize>| -> Result<(Encoded, f64)> {
+            let enc = Encoder { config: self.config.clone().with_lambda(lambda).with_iters(iters) };
+            let e = enc.encode_scene_with(&mut trials, &orbit, progress)?;
             let psnr = e.report.orbit_psnr;
             Ok((e, psnr))
-        })?;
+        };
+        let first_iters = if two_phase { Some(0) } else { self.config.iters };
+        let first = search_lambda(target, !two_phase && self.config.iters_for(false) > 0, |lambda| encode_at(lambda, first_iters))?;
+        if two_phase {
+            let second = refine(target, &first, |lambda| encode_at(lambda, self.config.iters))?;
+            return finish_two_phase(target, first, second);
+        }
+        let Searched { probes, best, missed } = first;
         let Some((best_t, mut best, _)) = best else { return Err(unreachable(target, &probes)) };
         // The RD curve has steps (the search's choices are discrete): between the best probe
         // and the nearest that missed, try configurations mixing their choices.
@@ -256,15 +380,31 @@ impl Encoder {
                 Scene::Trained(&trained)
             }
         };
-        let Searched { probes, best, .. } = search_lambda(target, |lambda| {
-            let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
+        // With retraining, coding the scene without it brackets λ first and the retrained
+        // encodes refine it ([`refine`]).
+        let two_phase = self.config.retrain_iters_for(true) > 0;
+        let mut encode_at = |lambda: Lambda, retrain: Option<usize>| -> Result<(Encoded, f64)> {
             let e = match &scene {
-                Scene::Trained(t) => enc.resolved().code_trained_scene(dataset, t, progress)?,
-                Scene::Given(s) => enc.encode_trained(dataset, s, progress)?,
+                Scene::Trained(t) => {
+                    // Resolved before the retraining is set: the warm-up's default depends on it.
+                    let config = self.resolved().config.with_lambda(lambda).with_retrain_iters(retrain);
+                    Encoder { config }.code_trained_scene(dataset, t, progress)?
+                }
+                Scene::Given(s) => {
+                    let config = self.config.clone().with_lambda(lambda).with_retrain_iters(retrain);
+                    Encoder { config }.encode_trained(dataset, s, progress)?
+                }
             };
             let psnr = crate::metrics::view::mean_psnr_ssim(&e.decoded, &heldout, dataset.background)?.map_or(f64::NAN, |m| m.0);
             Ok((e, psnr))
-        })?;
+        };
+        let first_retrain = if two_phase { Some(0) } else { self.config.retrain_iters };
+        let first = search_lambda(target, false, |lambda| encode_at(lambda, first_retrain))?;
+        if two_phase {
+            let second = refine(target, &first, |lambda| encode_at(lambda, self.config.retrain_iters))?;
+            return finish_two_phase(target, first, second);
+        }
+        let Searched { probes, best, .. } = first;
         let Some((_, mut best, _)) = best else { return Err(unreachable(target, &probes)) };
         best.report.target = Some(TargetSearch { target, probes, between: Vec::new() });
         Ok(best)
@@ -426,6 +566,52 @@ mod tests {
         // Unreachable: more than the finest setting gives.
         let e = enc.encode_scene_to(&scene, Target::Psnr(199.0), &mut |_| {}).unwrap_err();
         assert!(e.to_string().contains("not reachable") && e.exit_code() == 2, "{e}");
+    }
+
+    /// With fine-tuning, the RD search alone brackets λ and the fine-tuned encodes start from
+    /// its λ: none runs at the ends, and the file is the smallest fine-tuned one that met the
+    /// target.
+    #[test]
+    fn a_fine_tuned_target_is_bracketed_by_the_search_alone_first() {
+        use crate::encoder::Backend;
+        let scene = crate::sample::scene(200, 3);
+        let config = EncoderConfig { iters: Some(4), backend: Backend::Cpu, ..EncoderConfig::default() };
+        let plain = Encoder::new(EncoderConfig { iters: Some(0), ..config.clone() }).unwrap();
+        let want = plain.encode_scene(&scene, &mut |_| {}).unwrap().report.orbit_psnr - 3.0;
+        let e = Encoder::new(config).unwrap().encode_scene_to(&scene, Target::Psnr(want), &mut |_| {}).unwrap();
+        let s = e.report.target.clone().unwrap();
+        assert!(e.report.orbit_psnr >= want, "{} < {want}", e.report.orbit_psnr);
+        // The first phase: the ends and a bracket, untrained; then the trained probes.
+        let first = s.probes.iter().take_while(|p| !p.trained).count();
+        let trained = &s.probes[first..];
+        assert!(first >= 2 && s.probes[0].lambda == Lambda::ZERO, "{s:?}");
+        assert!(trained.iter().all(|p| p.trained), "{s:?}");
+        assert!((1..=1 + MAX_OUTWARD_PROBES + MAX_INNER_PROBES).contains(&trained.len()), "{s:?}");
+        assert!(trained.iter().all(|p| p.lambda != Lambda::ZERO && p.lambda.get() < MAX_LAMBDA), "{s:?}");
+        // The first trained probe is at the first phase's best λ.
+        let best_first = s.probes[..first].iter().filter(|p| p.psnr >= want).min_by_key(|p| p.bytes).unwrap();
+        assert_eq!(trained[0].lambda, best_first.lambda, "{s:?}");
+        // The output is the smallest probe that met the target, a fine-tuned one where it ties.
+        let best = s.probes.iter().filter(|p| p.psnr >= want).min_by_key(|p| p.bytes).unwrap();
+        assert_eq!(e.bytes.len(), best.bytes, "{s:?}");
+        if trained.iter().any(|p| p.psnr >= want && p.bytes == best.bytes) {
+            assert_eq!(e.report.iters, 4);
+        }
+    }
+
+    #[test]
+    fn the_first_step_follows_the_first_phase_shifted_by_the_training_gain() {
+        // Margins falling as 5 − 2t; at t = 2 (margin 1) training gained 2 dB (margin 3): the
+        // shifted curve 7 − 2t crosses 0 at 3.5.
+        let curve: Vec<(f64, f64)> = [0.0, 1.0, 2.5, 4.0, 6.0].iter().map(|&t| (t, 5.0 - 2.0 * t)).collect();
+        let step = predicted_step(&curve, 2.0, 3.0, 1.0).unwrap();
+        assert!((step - 1.5).abs() < 1e-12, "{step}");
+        // Not on the other side, nor beyond the points.
+        assert_eq!(predicted_step(&curve, 2.0, 3.0, -1.0), None);
+        assert_eq!(predicted_step(&curve, 2.0, 30.0, 1.0), None);
+        // Training that lost 2 dB (margin −1): 3 − 2t crosses 0 at 1.5, below t = 2.
+        let step = predicted_step(&curve, 2.0, -1.0, -1.0).unwrap();
+        assert!((step - 0.5).abs() < 1e-12, "{step}");
     }
 
     /// Runs [`bracket`] on `margin` over the ends' bracket; returns the probes (t, margin).
