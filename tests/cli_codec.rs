@@ -242,7 +242,7 @@ fn a_dataset_target_is_met_on_its_held_out_views() {
         let (psnr, bytes) = (heldout_psnr(), std::fs::metadata(&gsc).unwrap().len());
         let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
         let probes = r["target"]["probes"].as_array().unwrap();
-        assert!(probes.len() > 2, "{flag}: {probes:?}");
+        assert!(probes.len() > 2 && probes.iter().all(|p| p["trained"] == false), "{flag}: {probes:?}");
         let of = |p: &serde_json::Value| (p["bytes"].as_u64().unwrap(), p["psnr"].as_f64().unwrap());
         let chosen = probes.iter().map(of).find(|p| p.0 == bytes).expect("the file is one of the probes");
         assert!((chosen.1 - psnr).abs() < 0.01, "{flag}: probe {} dB, eval {psnr} dB", chosen.1);
@@ -254,18 +254,15 @@ fn a_dataset_target_is_met_on_its_held_out_views() {
             assert!(probes.iter().map(of).filter(|p| p.0 <= 6000).all(|p| p.1 <= psnr), "the best within 6000 bytes");
         }
     }
-    // With retraining: coding without it brackets λ (from λ = 0), then retrained encodes start
-    // at its λ; none at λ = 0. The file is the smallest probe of either phase that reaches 40 dB.
+    // With retraining every probe retrains, λ = 0 included.
     let o =
         gscodec(&["encode", data, "--init", init, "--retrain-iters", "5", "-o", out, "--target-psnr", "40", "--report", rep, "--quiet"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let (psnr, bytes) = (heldout_psnr(), std::fs::metadata(&gsc).unwrap().len());
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     let probes = r["target"]["probes"].as_array().unwrap();
-    let (first, retrained): (Vec<_>, Vec<_>) = probes.iter().partition(|p| p["trained"] == false);
-    assert!(first.len() >= 2 && first[0]["lambda"] == 0.0, "{probes:?}");
-    assert!(!retrained.is_empty() && retrained.iter().all(|p| p["lambda"].as_f64().unwrap() > 0.0), "{probes:?}");
-    assert!(psnr >= 40.0 - 0.01, "{psnr}");
+    assert!(probes.len() > 2 && probes[0]["lambda"] == 0.0 && probes.iter().all(|p| p["trained"] == true), "{probes:?}");
+    assert!(psnr >= 40.0 - 0.01 && r["retrain_iters"] == 5, "{psnr} {r}");
     let of = |p: &serde_json::Value| (p["bytes"].as_u64().unwrap(), p["psnr"].as_f64().unwrap());
     assert!(probes.iter().map(of).filter(|p| p.1 >= 40.0).all(|p| p.0 >= bytes), "the smallest that reaches 40 dB: {probes:?}");
     // Trained from the images once (20 iterations here), then coded at each probe's λ.

@@ -28,9 +28,8 @@ pub struct Args {
     /// measures it (8 orbit views at 256×256, up −y, black background). For a dataset: the
     /// held-out (test) views' PSNR as `gscodec eval OUTPUT DATASET` measures it; the scene is
     /// trained from the images once, at the default λ (or is --init), and each probe runs the
-    /// RD search, the retraining and the coding at its λ. With --iters (a scene) or retraining
-    /// (a dataset), encodes without that training bracket λ first, and the trained encodes
-    /// start from the λ they found.
+    /// RD search, the retraining and the coding at its λ. With --iters on a scene, the RD
+    /// search alone brackets λ first, and the fine-tuned encodes start from the λ it found.
     #[arg(long, value_name = "DB", conflicts_with_all = ["lambda", "target_bytes"])]
     pub target_psnr: Option<f64>,
     /// Instead of a λ: the best PSNR (measured as for --target-psnr) among files of at most N

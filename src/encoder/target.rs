@@ -55,8 +55,8 @@ pub struct Probe {
     pub bytes: usize,
     /// Orbit PSNR, dB.
     pub psnr: f64,
-    /// Whether this encode trained (fine-tuning a scene, retraining a dataset's scene), or was
-    /// one of the first phase's, which bracket λ without training ([`Encoder::encode_scene_to`]).
+    /// Whether this encode trained (fine-tuned a scene, retrained a dataset's scene); with
+    /// fine-tuning, the first phase's encodes bracket λ without it ([`Encoder::encode_scene_to`]).
     pub trained: bool,
 }
 
@@ -380,31 +380,15 @@ impl Encoder {
                 Scene::Trained(&trained)
             }
         };
-        // With retraining, coding the scene without it brackets λ first and the retrained
-        // encodes refine it ([`refine`]).
-        let two_phase = self.config.retrain_iters_for(true) > 0;
-        let mut encode_at = |lambda: Lambda, retrain: Option<usize>| -> Result<(Encoded, f64)> {
+        let Searched { probes, best, .. } = search_lambda(target, self.config.retrain_iters_for(true) > 0, |lambda| {
+            let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
             let e = match &scene {
-                Scene::Trained(t) => {
-                    // Resolved before the retraining is set: the warm-up's default depends on it.
-                    let config = self.resolved().config.with_lambda(lambda).with_retrain_iters(retrain);
-                    Encoder { config }.code_trained_scene(dataset, t, progress)?
-                }
-                Scene::Given(s) => {
-                    let config = self.config.clone().with_lambda(lambda).with_retrain_iters(retrain);
-                    Encoder { config }.encode_trained(dataset, s, progress)?
-                }
+                Scene::Trained(t) => enc.resolved().code_trained_scene(dataset, t, progress)?,
+                Scene::Given(s) => enc.encode_trained(dataset, s, progress)?,
             };
             let psnr = crate::metrics::view::mean_psnr_ssim(&e.decoded, &heldout, dataset.background)?.map_or(f64::NAN, |m| m.0);
             Ok((e, psnr))
-        };
-        let first_retrain = if two_phase { Some(0) } else { self.config.retrain_iters };
-        let first = search_lambda(target, false, |lambda| encode_at(lambda, first_retrain))?;
-        if two_phase {
-            let second = refine(target, &first, |lambda| encode_at(lambda, self.config.retrain_iters))?;
-            return finish_two_phase(target, first, second);
-        }
-        let Searched { probes, best, .. } = first;
+        })?;
         let Some((_, mut best, _)) = best else { return Err(unreachable(target, &probes)) };
         best.report.target = Some(TargetSearch { target, probes, between: Vec::new() });
         Ok(best)
