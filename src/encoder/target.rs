@@ -580,8 +580,8 @@ mod tests {
     }
 
     /// With fine-tuning, the RD search alone brackets λ and the fine-tuned encodes start from
-    /// its λ: none runs at the ends, and the file is the smallest fine-tuned one that met the
-    /// target.
+    /// its λ: none runs at the ends, and the file is the smallest probe that met the target, or
+    /// a mix of its choices with its nearest miss's that is smaller still.
     #[test]
     fn a_fine_tuned_target_is_bracketed_by_the_search_alone_first() {
         use crate::encoder::Backend;
