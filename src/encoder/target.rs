@@ -128,6 +128,11 @@ impl Target {
         }
     }
 
+    /// Whether `margin` meets the target closely enough to stop searching.
+    fn met_closely(self, margin: f64) -> bool {
+        (0.0..self.close()).contains(&margin)
+    }
+
     /// A margin close enough to the target to stop searching.
     fn close(self) -> f64 {
         match self {
@@ -148,6 +153,13 @@ struct Searched {
     probes: Vec<Probe>,
     best: Option<(f64, Encoded, f64)>,
     missed: Vec<(f64, EncodeConfig)>,
+}
+
+impl Searched {
+    /// The (bytes, PSNR) of the best probe that met the target.
+    fn best_outcome(&self) -> Option<(usize, f64)> {
+        self.best.as_ref().map(|b| (b.1.bytes.len(), b.2))
+    }
 }
 
 /// A search on λ in progress: `encode(λ)` makes one probe and returns it with the PSNR the
@@ -176,7 +188,7 @@ impl<F: FnMut(Lambda) -> Result<(Encoded, f64)>> Search<F> {
         let margin = target.margin(outcome);
         if !met {
             self.found.missed.push((t, e.config));
-        } else if self.found.best.as_ref().is_none_or(|b| target.better(outcome, (b.1.bytes.len(), b.2))) {
+        } else if self.found.best_outcome().is_none_or(|b| target.better(outcome, b)) {
             self.found.best = Some((t, e, psnr));
         }
         // `met` decides the side even where the margin rounds to 0.
@@ -213,7 +225,7 @@ fn refine(target: Target, first: &Searched, mut encode: impl FnMut(Lambda) -> Re
     let mut search = Search::new(target, true, &mut encode);
     let curve: Vec<(f64, f64)> = first.probes.iter().map(|p| (p.lambda.get().ln_1p(), target.margin((p.bytes, p.psnr)))).collect();
     let m0 = search.probe(t0)?;
-    if (0.0..target.close()).contains(&m0) {
+    if target.met_closely(m0) {
         return Ok(search.found);
     }
     let (t_max, met) = (MAX_LAMBDA.ln_1p(), m0 >= 0.0);
@@ -232,7 +244,7 @@ fn refine(target: Target, first: &Searched, mut encode: impl FnMut(Lambda) -> Re
             bracket(near, m_near, t, m, target.close(), |t| search.probe(t))?;
             break;
         }
-        if (0.0..target.close()).contains(&m) {
+        if target.met_closely(m) {
             break;
         }
         (near, m_near) = (t, m);
@@ -311,20 +323,19 @@ impl Encoder {
             Ok((e, psnr))
         };
         let first_iters = if two_phase { Some(0) } else { self.config.iters };
-        let first = search_lambda(target, !two_phase && self.config.iters_for(false) > 0, |lambda| encode_at(lambda, first_iters))?;
+        let mut first = search_lambda(target, !two_phase && self.config.iters_for(false) > 0, |lambda| encode_at(lambda, first_iters))?;
         let (probes, Searched { best, missed, .. }) = match two_phase {
             true => {
                 let second = refine(target, &first, |lambda| encode_at(lambda, self.config.iters))?;
                 let probes = first.probes.iter().chain(&second.probes).copied().collect();
                 // The better phase's best (the fine-tuned one where they tie) and its misses.
-                let outcome = |b: &(f64, Encoded, f64)| (b.1.bytes.len(), b.2);
-                let first_wins = match (&first.best, &second.best) {
-                    (Some(a), Some(b)) => target.better(outcome(a), outcome(b)),
+                let first_wins = match (first.best_outcome(), second.best_outcome()) {
+                    (Some(a), Some(b)) => target.better(a, b),
                     (a, b) => a.is_some() && b.is_none(),
                 };
                 (probes, if first_wins { first } else { second })
             }
-            false => (first.probes.clone(), first),
+            false => (std::mem::take(&mut first.probes), first),
         };
         let Some((best_t, mut best, _)) = best else { return Err(unreachable(target, &probes)) };
         // The RD curve has steps (the search's choices are discrete): between the best probe
