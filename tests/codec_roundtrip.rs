@@ -81,6 +81,30 @@ fn the_file_does_not_depend_on_how_the_input_labels_a_gaussians_axes() {
     assert!((ratio - 1.0).abs() < 0.002, "{} against {} bytes", c.len(), a.len());
 }
 
+/// Opacities above the renderer's α cap (`quantise::opacity_logit_cap`) are coded at the cap:
+/// the file does not depend on how far above it a trained scene pushed them, and they decode
+/// within a step of it.
+#[test]
+fn opacities_above_the_alpha_cap_are_coded_at_the_cap() {
+    let mut s = scene(2000, 0, 1.0, 5);
+    // A third of the Gaussians saturated, their logits spread up to 19 as training leaves them.
+    for (i, o) in s.opacity_logits.iter_mut().enumerate() {
+        if i % 3 == 0 {
+            *o = 5.0 + 14.0 * ((i * 7919) % 1000) as f32 / 1000.0;
+        }
+    }
+    let config = EncodeConfig::default();
+    let cap = quantise::opacity_logit_cap(config.steps.opacity);
+    let mut at_cap = s.clone();
+    at_cap.opacity_logits.iter_mut().for_each(|o| *o = o.min(cap));
+    let (a, _, _) = rate::encode(&s, &config).unwrap();
+    let (b, _, _) = rate::encode(&at_cap, &config).unwrap();
+    assert!(a == b, "logits above the cap reach the file");
+    let decoded = decode(&a).unwrap();
+    let top = decoded.opacity_logits.iter().fold(f32::MIN, |m, &o| m.max(o));
+    assert!((cap - config.steps.opacity..=cap + config.steps.opacity).contains(&top), "decoded logit {top}, cap {cap}");
+}
+
 #[test]
 fn rate_estimate_matches_file_size() {
     let s = scene(3000, 3, 1.0, 7);

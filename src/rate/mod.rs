@@ -209,6 +209,7 @@ fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, importance
         s = s.with_sh_degree(config.max_sh_degree);
     }
     quantise::canonical_axes(&mut s);
+    quantise::cap_opacities(&mut s, config.steps.opacity);
     (s, sig)
 }
 

@@ -6,7 +6,7 @@ use gscodec_decoder::bitstream::layout::{Group, MAX_POSITION_BITS};
 use gscodec_decoder::bitstream::levels::Layout;
 use gscodec_decoder::bitstream::params::Grid;
 use gscodec_decoder::bitstream::positions::{morton_encode, position_of};
-use gscodec_decoder::math::sigmoid;
+use gscodec_decoder::math::{sigmoid, MAX_ALPHA};
 use gscodec_decoder::Splats;
 
 use super::group::{layout, values, values_mut};
@@ -426,6 +426,29 @@ pub fn canonical_axes(splats: &mut Splats) {
     });
 }
 
+/// The largest opacity logit worth coding at opacity step `step` (logit units):
+/// `max(logit MAX_ALPHA, ln(8/step − 1))`. Lowering an opacity `o > σ(ℓ)` to `σ(ℓ)` changes any
+/// pixel's α (`min(MAX_ALPHA, o·G)`, DESIGN §3) by at most `1 − σ(ℓ)`, which here is
+/// `min(0.01, step/8)`: never more than the largest α error of rounding a logit to the step
+/// (`step/8`: `σ′ = ¼` at α = ½, half a step off), nor than the renderer's own margin above its
+/// α cap. Above it the logits of trained scenes spread far (lego trained here: 15 % above 6, up
+/// to 19), and each distinct value costs bits for an α change the step already exceeds.
+pub fn opacity_logit_cap(step: f32) -> f32 {
+    let cap = (MAX_ALPHA / (1.0 - MAX_ALPHA)).ln();
+    if step > 0.0 {
+        cap.max((8.0 / step - 1.0).max(1.0).ln())
+    } else {
+        cap
+    }
+}
+
+/// Lowers every opacity logit above [`opacity_logit_cap`] of `step` to it (encoder-side: the
+/// format is unchanged).
+pub fn cap_opacities(splats: &mut Splats, step: f32) {
+    let cap = opacity_logit_cap(step);
+    splats.opacity_logits.iter_mut().for_each(|o| *o = o.min(cap));
+}
+
 /// Normalises, makes the largest component positive and quantises the other three.
 pub fn smallest_three(r: [f32; 4], step: f32) -> (usize, [i32; 3]) {
     let norm = r.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
@@ -649,5 +672,29 @@ mod tests {
         }
         assert_eq!(zeroed, s.len() / 2);
         assert_eq!((d.positions.clone(), d.sh_dc.clone()), (s.positions.clone(), s.sh_dc.clone()));
+    }
+
+    /// The cap lowers α by at most the step's largest α rounding error (`step/8`) and at most the
+    /// renderer's margin above its α cap (0.01), and is no higher than that needs: `1 − σ(cap)`
+    /// is the smaller of the two.
+    #[test]
+    fn the_opacity_cap_changes_alpha_by_at_most_the_steps_rounding_error() {
+        let logit_099 = (0.99f32 / 0.01).ln();
+        for step in [1e-3f32, 0.01, 0.04, 0.08, 0.112, 0.5, 3.9, 4.0, 10.0, 0.0] {
+            let cap = opacity_logit_cap(step);
+            assert!(cap >= logit_099 - 1e-6, "step {step}: cap {cap}");
+            let alpha_change = 1.0 / (1.0 + f64::from(cap).exp()); // 1 − σ(cap)
+            let bound = if step > 0.0 { 0.01f64.min(f64::from(step) / 8.0) } else { 0.01 };
+            assert!(alpha_change <= bound * (1.0 + 1e-4), "step {step}: 1 − σ(cap) = {alpha_change} > {bound}");
+            assert!(alpha_change >= bound * (1.0 - 1e-3), "step {step}: a higher cap than needed: {alpha_change} < {bound}");
+        }
+        let mut s = gscodec_decoder::testkit::random_splats(50, 0, 3);
+        s.opacity_logits.iter_mut().enumerate().for_each(|(i, o)| *o = -3.0 + 0.4 * i as f32);
+        let before = s.opacity_logits.clone();
+        cap_opacities(&mut s, 0.112);
+        let cap = opacity_logit_cap(0.112);
+        for (a, b) in before.iter().zip(&s.opacity_logits) {
+            assert_eq!(*b, a.min(cap), "only logits above the cap move, to it");
+        }
     }
 }
