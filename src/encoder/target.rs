@@ -434,8 +434,10 @@ impl Encoder {
     /// Between `good` (the best encode meeting `target`, of `trials`' scene: the input, or the
     /// scene a fine-tuned probe decodes to) and `bad` (the choices of the nearest probe that
     /// missed it), up to [`FILL_ROUNDS`] rounds from the
-    /// best so far: the best with each one of its knobs set as in `bad` ([`rd::between`]) or
-    /// with another choice of importance classes ([`rd::tail_variants`]); of
+    /// best so far: the best with each one of its knobs set as in `bad` ([`rd::between`]),
+    /// with another choice of importance classes ([`rd::tail_variants`]) or with one group's
+    /// step an eighth of an octave coarser (for a PSNR target) or finer (for a size target,
+    /// [`rd::step_nudges`]); of
     /// those that meet the target and beat the best, the best one, then the others added one
     /// after another (most bytes saved, or PSNR gained, first), each kept if the result still
     /// meets the target and is better. A round that finds nothing better ends the search. Every
@@ -458,12 +460,18 @@ impl Encoder {
         };
         // Compared like for like: without learned tables (as every trial), same PSNR.
         let start = (good.config, eval(&good.config)?);
+        // Steps nudged the way that spends the best's margin: coarser for fewer bytes.
+        let coarser = matches!(target, Target::Psnr(_));
         let mut cur = start;
         for round in 1..=FILL_ROUNDS {
             // One knob as in the miss, or another choice of importance classes (finer than the
             // search's steps between the two).
             let mut alone = rd::between(&cur.0, bad);
-            let others: Vec<_> = rd::tail_variants(&cur.0).into_iter().filter(|v| alone.iter().all(|a| a.1 != v.1)).collect();
+            let others: Vec<_> = rd::tail_variants(&cur.0)
+                .into_iter()
+                .chain(rd::step_nudges(&cur.0, coarser))
+                .filter(|v| alone.iter().all(|a| a.1 != v.1))
+                .collect();
             alone.extend(others);
             let outcomes = alone.par_iter().map(|(_, c)| eval(c)).collect::<Result<Vec<_>>>()?;
             let mut pays = Vec::new();
@@ -481,7 +489,8 @@ impl Encoder {
             let from = cur;
             cur = (c, o);
             for &(knob, _, _) in &pays[1..] {
-                let Some((_, c)) = rd::between(&cur.0, bad).into_iter().find(|(name, _)| name == knob) else { continue };
+                let again = rd::between(&cur.0, bad).into_iter().chain(rd::step_nudges(&cur.0, coarser));
+                let Some((_, c)) = again.into_iter().find(|(name, _)| name == knob) else { continue };
                 let o = eval(&c)?;
                 tried.push(Between { round, change: format!("+ {knob}"), bytes: o.0, psnr: o.1 });
                 if target.met(o) && target.better(o, cur.1) {

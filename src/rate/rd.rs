@@ -412,6 +412,8 @@ const TAIL_FACTORS: [f32; 5] = [1.5, 2.0, 3.0, 4.0, 6.0];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
 /// Quarter-octave moves of the last pass.
 const REFINE_FINE: [f32; 3] = [0.840_896_4, 1.0, 1.189_207_1];
+/// An eighth of an octave: [`step_nudges`].
+const NUDGE: f32 = 1.090_507_7;
 
 fn sorted(mut v: Vec<f32>) -> Vec<f32> {
     v.sort_by(f32::total_cmp);
@@ -679,6 +681,22 @@ fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: Enco
         chosen = log.stage(trials, keep, cands)?.1;
     }
     Ok(chosen)
+}
+
+/// `from` with one group's step an eighth of an octave ([`NUDGE`]) coarser (or finer), for
+/// every group: moves smaller than the search's quarter-octave steps, named by the group and
+/// the direction. A target spends what its best probe has to spare with them: a PSNR above the
+/// target on fewer bytes (coarser), or bytes below it on more PSNR (finer).
+pub fn step_nudges(from: &EncodeConfig, coarser: bool) -> Vec<(String, EncodeConfig)> {
+    let (dir, m) = if coarser { ("coarser", NUDGE) } else { ("finer", 1.0 / NUDGE) };
+    [Group::Position, Group::Scale, Group::Rotation, Group::Opacity, Group::ShDc, Group::Sh1, Group::Sh2, Group::Sh3]
+        .into_iter()
+        .map(|g| {
+            let mut c = *from;
+            *c.steps.of_mut(g) *= m;
+            (format!("{} step {dir}", g.name()), c)
+        })
+        .collect()
 }
 
 /// `from` with each importance class choice the search tries ([`TAIL_SHARES`] ×
@@ -1253,6 +1271,22 @@ mod tests {
             assert_eq!(super::super::encode(&scene, &a).unwrap().0, super::super::encode(&scene, &b).unwrap().0);
         }
         assert!(added[1] < added[0] && added[2] < added[0], "configurations evaluated per search: {added:?}");
+    }
+
+    #[test]
+    fn step_nudges_move_one_groups_step_an_eighth_of_an_octave() {
+        let from = EncodeConfig::default();
+        let nudges = [step_nudges(&from, true), step_nudges(&from, false)].concat();
+        assert_eq!(nudges.len(), 16);
+        for (name, c) in &nudges {
+            let moved: Vec<Group> = Group::ALL.into_iter().filter(|&g| c.steps.of(g) != from.steps.of(g)).collect();
+            assert_eq!(moved.len(), 1, "{name}: one group's step moves");
+            let ratio = c.steps.of(moved[0]) / from.steps.of(moved[0]);
+            let expected = if name.ends_with("coarser") { 2f32.powf(0.125) } else { 2f32.powf(-0.125) };
+            assert!((ratio / expected - 1.0).abs() < 1e-6, "{name}: × {ratio}");
+            assert!(name.starts_with(moved[0].name()), "{name} names {}", moved[0].name());
+            assert_eq!(EncodeConfig { steps: from.steps, ..*c }, from, "{name}: nothing but the step");
+        }
     }
 
     #[test]
