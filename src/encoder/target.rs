@@ -464,8 +464,8 @@ impl Encoder {
         let coarser = matches!(target, Target::Psnr(_));
         let mut cur = start;
         for round in 1..=FILL_ROUNDS {
-            // One knob as in the miss, or another choice of importance classes (finer than the
-            // search's steps between the two).
+            // One knob as in the miss, another choice of importance classes or one step nudged
+            // (all finer than the search's steps between the two).
             let mut alone = rd::between(&cur.0, bad);
             let others: Vec<_> = rd::tail_variants(&cur.0)
                 .into_iter()

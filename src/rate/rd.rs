@@ -689,7 +689,7 @@ fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: Enco
 /// target on fewer bytes (coarser), or bytes below it on more PSNR (finer).
 pub fn step_nudges(from: &EncodeConfig, coarser: bool) -> Vec<(String, EncodeConfig)> {
     let (dir, m) = if coarser { ("coarser", NUDGE) } else { ("finer", 1.0 / NUDGE) };
-    [Group::Position, Group::Scale, Group::Rotation, Group::Opacity, Group::ShDc, Group::Sh1, Group::Sh2, Group::Sh3]
+    Group::ALL
         .into_iter()
         .map(|g| {
             let mut c = *from;
