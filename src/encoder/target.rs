@@ -469,7 +469,7 @@ impl Encoder {
             let mut alone = rd::between(&cur.0, bad);
             let others: Vec<_> = rd::tail_variants(&cur.0)
                 .into_iter()
-                .chain(rd::step_nudges(&cur.0, coarser))
+                .chain(rd::step_nudges(&cur.0, coarser, scene.sh_degree))
                 .filter(|v| alone.iter().all(|a| a.1 != v.1))
                 .collect();
             alone.extend(others);
@@ -489,7 +489,7 @@ impl Encoder {
             let from = cur;
             cur = (c, o);
             for &(knob, _, _) in &pays[1..] {
-                let again = rd::between(&cur.0, bad).into_iter().chain(rd::step_nudges(&cur.0, coarser));
+                let again = rd::between(&cur.0, bad).into_iter().chain(rd::step_nudges(&cur.0, coarser, scene.sh_degree));
                 let Some((_, c)) = again.into_iter().find(|(name, _)| name == knob) else { continue };
                 let o = eval(&c)?;
                 tried.push(Between { round, change: format!("+ {knob}"), bytes: o.0, psnr: o.1 });

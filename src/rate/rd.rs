@@ -684,13 +684,13 @@ fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: Enco
 }
 
 /// `from` with one group's step an eighth of an octave ([`NUDGE`]) coarser (or finer), for
-/// every group: moves smaller than the search's quarter-octave steps, named by the group and
-/// the direction. A target spends what its best probe has to spare with them: a PSNR above the
-/// target on fewer bytes (coarser), or bytes below it on more PSNR (finer).
-pub fn step_nudges(from: &EncodeConfig, coarser: bool) -> Vec<(String, EncodeConfig)> {
+/// every group a scene of SH degree `sh_degree` coded with `from` has: moves smaller than the
+/// search's quarter-octave steps, named by the group and the direction. A target spends what
+/// its best probe has to spare with them: a PSNR above the target on fewer bytes (coarser), or
+/// bytes below it on more PSNR (finer).
+pub fn step_nudges(from: &EncodeConfig, coarser: bool, sh_degree: u8) -> Vec<(String, EncodeConfig)> {
     let (dir, m) = if coarser { ("coarser", NUDGE) } else { ("finer", 1.0 / NUDGE) };
-    Group::ALL
-        .into_iter()
+    Group::present(sh_degree.min(from.max_sh_degree))
         .map(|g| {
             let mut c = *from;
             *c.steps.of_mut(g) *= m;
@@ -1276,8 +1276,11 @@ mod tests {
     #[test]
     fn step_nudges_move_one_groups_step_an_eighth_of_an_octave() {
         let from = EncodeConfig::default();
-        let nudges = [step_nudges(&from, true), step_nudges(&from, false)].concat();
+        let nudges = [step_nudges(&from, true, 3), step_nudges(&from, false, 3)].concat();
         assert_eq!(nudges.len(), 16);
+        // Only the groups the file has: no SH band above the scene's degree or the config's.
+        assert_eq!(step_nudges(&from, true, 1).len(), 6);
+        assert_eq!(step_nudges(&EncodeConfig { max_sh_degree: 0, ..from }, true, 3).len(), 5);
         for (name, c) in &nudges {
             let moved: Vec<Group> = Group::ALL.into_iter().filter(|&g| c.steps.of(g) != from.steps.of(g)).collect();
             assert_eq!(moved.len(), 1, "{name}: one group's step moves");
