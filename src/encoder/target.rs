@@ -461,17 +461,14 @@ impl Encoder {
         // Compared like for like: without learned tables (as every trial), same PSNR.
         let start = (good.config, eval(&good.config)?);
         // Steps nudged the way that spends the best's margin: coarser for fewer bytes.
-        let coarser = matches!(target, Target::Psnr(_));
+        let nudges = |c: &EncodeConfig| rd::step_nudges(c, matches!(target, Target::Psnr(_)), scene.sh_degree);
         let mut cur = start;
         for round in 1..=FILL_ROUNDS {
             // One knob as in the miss, another choice of importance classes or one step nudged
             // (all finer than the search's steps between the two).
             let mut alone = rd::between(&cur.0, bad);
-            let others: Vec<_> = rd::tail_variants(&cur.0)
-                .into_iter()
-                .chain(rd::step_nudges(&cur.0, coarser, scene.sh_degree))
-                .filter(|v| alone.iter().all(|a| a.1 != v.1))
-                .collect();
+            let others: Vec<_> =
+                rd::tail_variants(&cur.0).into_iter().chain(nudges(&cur.0)).filter(|v| alone.iter().all(|a| a.1 != v.1)).collect();
             alone.extend(others);
             let outcomes = alone.par_iter().map(|(_, c)| eval(c)).collect::<Result<Vec<_>>>()?;
             let mut pays = Vec::new();
@@ -489,7 +486,7 @@ impl Encoder {
             let from = cur;
             cur = (c, o);
             for &(knob, _, _) in &pays[1..] {
-                let again = rd::between(&cur.0, bad).into_iter().chain(rd::step_nudges(&cur.0, coarser, scene.sh_degree));
+                let again = rd::between(&cur.0, bad).into_iter().chain(nudges(&cur.0));
                 let Some((_, c)) = again.into_iter().find(|(name, _)| name == knob) else { continue };
                 let o = eval(&c)?;
                 tried.push(Between { round, change: format!("+ {knob}"), bytes: o.0, psnr: o.1 });
