@@ -3,7 +3,9 @@
 //! [`significance`] renders [`views`] — the RD search's evaluation views
 //! ([`super::rd::Evaluator`]: [`crate::views::orbit_cameras`], up −y, [`VIEWS`] views) **and** the
 //! 24 views of [`crate::views::training_cameras`] (three rings of 8 at 10°, 25° and 40°
-//! elevation, azimuths between the evaluation views), all at [`SIZE`]×[`SIZE`] pixels — and sums,
+//! elevation, azimuths between the evaluation views), all at [`PRUNING_SIZE`]² pixels, the
+//! evaluation's resolution (at the search's [`SIZE`]² until session 36: small Gaussians then
+//! looked less important than the evaluation finds them, docs/codec.md §19) — and sums,
 //! per Gaussian, its blending weight `α·T` over every pixel
 //! ([`gscodec_decoder::render::contributions`]). The extra rings keep the measure from being the
 //! evaluation's own: a Gaussian that the 8 evaluation views miss but a view a little higher,
@@ -28,14 +30,14 @@ use gscodec_decoder::render::{contributions, contributions_and_removal_errors};
 use gscodec_decoder::{RenderOptions, Splats};
 use rayon::prelude::*;
 
-use super::rd::{SIZE, VIEWS};
+use super::rd::{PRUNING_SIZE, SIZE, VIEWS};
 use crate::views::{orbit_cameras, training_cameras, UpAxis};
 
 /// The cameras [`significance`] sums over (see the module docs).
 pub fn views(scene: &Splats) -> Vec<gscodec_decoder::Camera> {
     let up = UpAxis::NegY.vector();
-    let mut cams = orbit_cameras(scene, VIEWS, SIZE, SIZE, up);
-    cams.extend(training_cameras(scene, VIEWS, SIZE, SIZE, up));
+    let mut cams = orbit_cameras(scene, VIEWS, PRUNING_SIZE, PRUNING_SIZE, up);
+    cams.extend(training_cameras(scene, VIEWS, PRUNING_SIZE, PRUNING_SIZE, up));
     cams
 }
 
@@ -145,6 +147,20 @@ pub fn levels(significance: &[f32]) -> Vec<u8> {
 mod tests {
     use super::*;
     use gscodec_decoder::testkit::random_splats;
+
+    /// The importance views begin with the evaluation's own cameras — the 8 orbit views at
+    /// 256² that `eval --reference --orbit 8` and `--target-psnr` render — and every view is at
+    /// that size, so a Gaussian ranks by what it adds where the file is judged.
+    #[test]
+    fn importance_is_measured_at_the_evaluations_resolution() {
+        use crate::encoder::{ORBIT_SIZE, ORBIT_VIEWS};
+        let s = random_splats(50, 1, 4);
+        let cams = views(&s);
+        let eval = orbit_cameras(&s, ORBIT_VIEWS, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
+        assert_eq!(cams.len(), 32);
+        assert_eq!(cams[..ORBIT_VIEWS], eval[..]);
+        assert!(cams.iter().all(|c| (c.width, c.height) == (ORBIT_SIZE, ORBIT_SIZE)));
+    }
 
     #[test]
     fn significance_sums_the_views_and_ignores_what_no_view_sees() {

@@ -34,7 +34,9 @@ pub const SIZE: u32 = 96;
 /// cameras: the evaluation's own (`encoder::ORBIT_SIZE`, what `eval --reference --orbit 8` and
 /// `--target-psnr` measure), where every later stage renders at [`SIZE`]. Pruning decides which
 /// Gaussians exist, and at 96² small ones look cheaper to drop than the 256² views find them
-/// (docs/codec.md §16); the later stages trade steps, which the coarser views rank alike.
+/// (docs/codec.md §16); the later stages trade steps, which the coarser views rank alike. The
+/// importance measures that rank the Gaussians (significance, removal errors:
+/// [`super::importance::views`]) are taken at this side too (§19).
 pub const PRUNING_SIZE: u32 = 256;
 
 /// The views `D` is measured on: cameras, the background they are drawn over, and what `D`
