@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Linear prediction from the channels below (docs/codec.md §19): would a colour or scale
+"""Linear prediction from the channels below (docs/codec.md §20): would a colour or scale
 transform pay beside the format's neighbour tables (SPEC §4.3)?
 
 For every chunk of an 8.0 file and every multi-channel group (scale, rotation, SH DC), per

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Variants of a 3DGS `.ply` unlike the test scenes (docs/codec.md §20), to check the codec's
+"""Variants of a 3DGS `.ply` unlike the test scenes (docs/codec.md §21), to check the codec's
 ratio to SPZ and that nothing breaks where a captured scene differs from ours:
 
     shift     every position moved by (1000, −500, 2000)

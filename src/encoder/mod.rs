@@ -269,12 +269,23 @@ impl Encoder {
             train_report = Some(r);
         }
         let Some(trained) = trained else {
-            return self.finish(orbit, scene, &config, iters, start, stages, series, None, None);
+            return self.finish(orbit, scene, &config, iters, start, stages, series, None, None, Some(trials.importance()));
         };
-        let tuned = self.finish(orbit, &trained, &config, iters, start, stages, series, train_report, None)?;
+        let tuned = self.finish(orbit, &trained, &config, iters, start, stages, series, train_report, None, None)?;
         // Fine-tuning must pay: where the RD search's own file has the lower J on the orbit
         // views (D at 256², what the report's PSNR measures), that file is the output.
-        let plain = self.finish(orbit, scene, &searched, 0, Instant::now(), EncodeStages::default(), Vec::new(), None, None)?;
+        let plain = self.finish(
+            orbit,
+            scene,
+            &searched,
+            0,
+            Instant::now(),
+            EncodeStages::default(),
+            Vec::new(),
+            None,
+            None,
+            Some(trials.importance()),
+        )?;
         let j = |e: &Encoded| orbit.distortion(&e.decoded) + self.config.lambda.rate_cost(e.bytes.len());
         if j(&plain) < j(&tuned) {
             let r = tuned.report;
@@ -476,10 +487,9 @@ impl Encoder {
             None
         };
         let (coded, importance) = retrained.as_ref().map_or((trained, &trained_importance), |(s, m)| (s, m));
-        let heldout = Some((dataset, importance));
         // The report's run: the training from the images, else (a given scene) the retraining.
         let r = r.or(retrain_report);
-        let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, r, heldout)?;
+        let mut e = self.finish(&orbit, coded, &config, iters, start, stages, series, r, Some(dataset), Some(importance))?;
         e.report.retrain_iters = if retrained.is_some() { retrain } else { 0 };
         e.report.retrain_lambda = retrained.is_some().then_some(retrain_lambda);
         if self.config.coding_breakdown {
@@ -597,8 +607,9 @@ impl Encoder {
 
     /// Codes `coded` with `config`, measures the result against `reference`'s orbit views and
     /// builds the report. For a dataset input, `heldout` is the dataset (the coded scene is
-    /// measured on its held-out views) and the importance `coded` is pruned with
-    /// ([`RdViews::importance`]); else `coded`'s own.
+    /// measured on its held-out views). `importance` is what `coded` is pruned with: the RD
+    /// search's measure of it ([`RdViews::importance`]) where the search measured this scene,
+    /// else `None` (`coded`'s own, measured here).
     #[allow(clippy::too_many_arguments)]
     fn finish(
         &self,
@@ -610,15 +621,16 @@ impl Encoder {
         mut stages: EncodeStages,
         mut series: Vec<SeriesPoint>,
         train: Option<TrainReport>,
-        heldout: Option<(&Dataset, &Importance)>,
+        heldout: Option<&Dataset>,
+        importance: Option<&Importance>,
     ) -> Result<Encoded> {
         let t = Instant::now();
         let config = &self.file_config(config);
-        let (bytes, r, q) = rate::encode_with(coded, config, heldout.map(|h| h.1)).map_err(|e| Error::Input(e.to_string()))?;
+        let (bytes, r, q) = rate::encode_with(coded, config, importance).map_err(|e| Error::Input(e.to_string()))?;
         stages.write_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let decoded = rate::quantise::dequantise(&q);
-        if let Some((ds, _)) = heldout {
+        if let Some(ds) = heldout {
             // The final point of the series: the coded scene on the held-out images.
             if let Some((psnr, _)) = crate::metrics::view::mean_psnr_ssim(&decoded, &ds.split(Split::Test), ds.background)? {
                 series.push(SeriesPoint {

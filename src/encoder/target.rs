@@ -504,7 +504,18 @@ impl Encoder {
         // Its search: the best probe's RD search, then this one.
         let searched = good.report.stages.rd_search_s + began.elapsed().as_secs_f64();
         let stages = EncodeStages { rd_search_s: searched, ..EncodeStages::default() };
-        let mut e = enc.finish(orbit, scene, &config, 0, Instant::now(), stages, good.report.series.clone(), None, None)?;
+        let mut e = enc.finish(
+            orbit,
+            scene,
+            &config,
+            0,
+            Instant::now(),
+            stages,
+            good.report.series.clone(),
+            None,
+            None,
+            Some(trials.importance()),
+        )?;
         e.report.stages.total_s += searched;
         // The decoded scene, hence the PSNR, is the trial's; learned tables only shrink the file.
         Ok(target.met((e.bytes.len(), e.report.orbit_psnr)).then_some(e))
