@@ -378,7 +378,11 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     let init = Plan { init: Some("/s/scene.ply".into()), ..capped.clone() };
     write_point(tmp.path(), &PointResult { max_gaussians: Some(15_000), ..r.clone() });
     assert!(capped.is_done(&wdr) && !init.is_done(&wdr));
+    // (retrained as `--init` retrains by default: a point of the 1000 steps before is redone)
     write_point(tmp.path(), &PointResult { max_gaussians: Some(15_000), init: Some("/s/scene.ply".into()), ..r.clone() });
+    assert!(!init.is_done(&wdr) && !capped.is_done(&wdr));
+    let init_r = PointResult { retrain_iters: gscodec::encoder::INIT_RETRAIN_ITERS, init: Some("/s/scene.ply".into()), ..r.clone() };
+    write_point(tmp.path(), &PointResult { max_gaussians: Some(15_000), ..init_r });
     assert!(init.is_done(&wdr) && !capped.is_done(&wdr));
     assert!(!Plan { init: Some("/s/other.ply".into()), ..capped.clone() }.is_done(&wdr));
     assert!(init.point_command(&wdr).join(" ").contains("--init /s/scene.ply"));

@@ -46,15 +46,15 @@ pub struct Args {
     pub iters: Option<usize>,
     /// Dataset input: code SCENE, a scene trained on this dataset elsewhere (.ply, .spz, …, in
     /// the dataset's world frame), instead of training one from the images: the RD search
-    /// measures on the dataset's training cameras, retraining (--retrain-iters, default 1000:
-    /// a third of a dataset's default --iters) fine-tunes the Gaussians it keeps to the
+    /// measures on the dataset's training cameras, retraining (--retrain-iters, default 3000:
+    /// as many as a dataset's default --iters) fine-tunes the Gaussians it keeps to the
     /// training images, and the report measures the held-out views.
     #[arg(long, value_name = "SCENE", conflicts_with_all = ["iters", "max_gaussians", "densify_grad_threshold"])]
     pub init: Option<PathBuf>,
     /// Dataset input: after the RD search has pruned the trained scene (and dropped SH bands),
     /// train the Gaussians it keeps N more iterations on the images under D + λ·R (no
-    /// densification; WD / WD-R without warm-up), then code them. Default: a third of --iters;
-    /// 0 codes the search's choice as it is.
+    /// densification; WD / WD-R without warm-up), then code them. Default: a third of --iters,
+    /// 3000 with --init; 0 codes the search's choice as it is.
     #[arg(long, value_name = "N")]
     pub retrain_iters: Option<usize>,
     /// Dataset input: report (in --report's `coding_breakdown`) the held-out PSNR of the
@@ -164,8 +164,10 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
     if args.init.is_some() && !dataset {
         return Err(Error::input(&args.input, INIT_NEEDS_DATASET));
     }
-    let training = if args.init.is_some() { 0 } else { encoder.config().iters_for(dataset) };
-    let iters = training + encoder.config().retrain_iters_for(dataset);
+    let iters = match args.init {
+        Some(_) => encoder.config().retrain_iters_for_init(),
+        None => encoder.config().iters_for(dataset) + encoder.config().retrain_iters_for(dataset),
+    };
     let pb = super::progress::bar(iters as u64, "train", args.quiet || iters == 0);
     let mut progress = |p: &crate::train::Progress| pb.set_position(p.iteration as u64);
     let out = if let Some(target) = args.target() {

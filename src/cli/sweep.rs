@@ -31,7 +31,7 @@ pub struct Args {
     /// summary.json also has each seed's BD-rates (the training noise) [default: 0].
     #[arg(long, value_delimiter = ',')]
     pub seeds: Vec<u64>,
-    /// `encode --retrain-iters` of every point (dataset input; default: a third of --iters).
+    /// `encode --retrain-iters` of every point (dataset input; default: a third of --iters, 3000 with --init).
     #[arg(long, value_name = "N")]
     pub retrain_iters: Option<usize>,
     /// `encode --coding-breakdown` for every point (dataset input): each point's report.json

@@ -37,8 +37,8 @@ pub use crate::rate::Lambda;
 pub use backend::{Backend, CpuBackend, LossSpec, RateObjective, TrainBackend, TrainJob};
 pub use breakdown::CodingStage;
 pub use config::{
-    check_densify_grad_threshold, EncoderConfig, InvalidConfig, Profile, SearchDistortion, DEFAULT_DATASET_ITERS, MAX_ITERS,
-    RETRAIN_DIVISOR, RETRAIN_RATE_WEIGHT,
+    check_densify_grad_threshold, EncoderConfig, InvalidConfig, Profile, SearchDistortion, DEFAULT_DATASET_ITERS, INIT_RETRAIN_ITERS,
+    MAX_ITERS, RETRAIN_DIVISOR, RETRAIN_RATE_WEIGHT,
 };
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
 pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
@@ -414,7 +414,7 @@ impl Encoder {
     /// Codes `scene`, a scene trained on `dataset` elsewhere (`encode DATASET --init SCENE`: by
     /// the reference 3DGS trainer, gsplat, Brush, or `gscodec train`), as [`Encoder::encode_dataset`]
     /// codes the scene it trains: the RD search measures on the dataset's training cameras,
-    /// retraining (`retrain_iters`, default a third of the default `iters`) fine-tunes the
+    /// retraining (`retrain_iters`, default [`INIT_RETRAIN_ITERS`]: as long as a default training) fine-tunes the
     /// Gaussians it keeps to the training images under `D + λ·R`, and the report measures the
     /// held-out views. The scene must be in the dataset's world frame. `iters`, `max_gaussians`
     /// and `densify_grad_threshold`, which shape training from the images, are not used.
@@ -425,7 +425,9 @@ impl Encoder {
         let start = Instant::now();
         self.config.validate()?;
         check_breakdown_views(&self.config, dataset)?;
-        self.code_trained(dataset, scene, rate::rd::fine_steps(), None, 0, start, Vec::new(), progress)
+        let retrain = Some(self.config.retrain_iters_for_init());
+        let pinned = Encoder { config: self.config.clone().with_retrain_iters(retrain) };
+        pinned.code_trained(dataset, scene, rate::rd::fine_steps(), None, 0, start, Vec::new(), progress)
     }
 
     /// The part of [`Encoder::encode_dataset`] after training: `trained` (trained `iters`

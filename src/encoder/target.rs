@@ -417,7 +417,11 @@ impl Encoder {
                 Scene::Trained(&trained)
             }
         };
-        let Searched { probes, best, .. } = search_lambda(target, self.config.retrain_iters_for(true) > 0, |lambda| {
+        let retrains = match init {
+            Some(_) => self.config.retrain_iters_for_init(),
+            None => self.config.retrain_iters_for(true),
+        } > 0;
+        let Searched { probes, best, .. } = search_lambda(target, retrains, |lambda| {
             let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
             let e = match &scene {
                 Scene::Trained(t) => enc.resolved().code_trained_scene(dataset, t, progress)?,

@@ -150,9 +150,14 @@ impl Plan {
     }
 
     /// The retraining iterations every point runs with: `--retrain-iters` or the encoder's
-    /// default for this many `--iters`, for a dataset; 0 for a `.ply`.
+    /// default for this many `--iters` (or for `--init`), for a dataset; 0 for a `.ply`.
     pub fn retrain_iters_applied(&self) -> usize {
-        EncoderConfig::default().with_iters(self.iters).with_retrain_iters(self.retrain_iters).retrain_iters_for(!is_ply(&self.input))
+        let config = EncoderConfig::default().with_iters(self.iters).with_retrain_iters(self.retrain_iters);
+        match (is_ply(&self.input), &self.init) {
+            (true, _) => 0,
+            (false, Some(_)) => config.retrain_iters_for_init(),
+            (false, None) => config.retrain_iters_for(true),
+        }
     }
 
     /// Checks λs, losses, seeds, σ and the warm-up share.
@@ -534,6 +539,10 @@ mod tests {
             (plan.encoder_config(&pts[1]).unwrap().retrain_iters_for(true), plan.settings()["retrain_iters"].as_u64()),
             (100, Some(100))
         );
+        // --init retrains as long as a default training, whatever --iters says
+        let init = Plan { init: Some("scene.ply".into()), ..plan.clone() };
+        assert_eq!((init.retrain_iters_applied(), init.settings()["retrain_iters"].as_u64()), (3000, Some(3000)));
+        assert_eq!(Plan { retrain_iters: Some(10), ..init }.retrain_iters_applied(), 10);
         let cb = Plan { coding_breakdown: true, ..rt.clone() };
         assert!(cb.point_command(&pts[1]).join(" ").ends_with("--retrain-iters 0 --coding-breakdown --points-only --quiet"));
         assert!(cb.encoder_config(&pts[1]).unwrap().coding_breakdown && !rt.encoder_config(&pts[1]).unwrap().coding_breakdown);
