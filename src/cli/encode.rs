@@ -164,10 +164,9 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
     if args.init.is_some() && !dataset {
         return Err(Error::input(&args.input, INIT_NEEDS_DATASET));
     }
-    let iters = match args.init {
-        Some(_) => encoder.config().retrain_iters_for_init(),
-        None => encoder.config().iters_for(dataset) + encoder.config().retrain_iters_for(dataset),
-    };
+    let init = args.init.is_some();
+    let training = if init { 0 } else { encoder.config().iters_for(dataset) };
+    let iters = training + if dataset { encoder.config().retrain_iters_of_dataset(init) } else { 0 };
     let pb = super::progress::bar(iters as u64, "train", args.quiet || iters == 0);
     let mut progress = |p: &crate::train::Progress| pb.set_position(p.iteration as u64);
     let out = if let Some(target) = args.target() {

@@ -271,6 +271,15 @@ impl EncoderConfig {
         self.retrain_iters.unwrap_or(INIT_RETRAIN_ITERS)
     }
 
+    /// Retraining iterations of a dataset encode: of a scene given with `--init` (`init`,
+    /// [`EncoderConfig::retrain_iters_for_init`]) or of one trained here from the images.
+    pub fn retrain_iters_of_dataset(&self, init: bool) -> usize {
+        match init {
+            true => self.retrain_iters_for_init(),
+            false => self.retrain_iters_for(true),
+        }
+    }
+
     /// Checks the settings.
     ///
     /// # Errors

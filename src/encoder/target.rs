@@ -417,10 +417,7 @@ impl Encoder {
                 Scene::Trained(&trained)
             }
         };
-        let retrains = match init {
-            Some(_) => self.config.retrain_iters_for_init(),
-            None => self.config.retrain_iters_for(true),
-        } > 0;
+        let retrains = self.config.retrain_iters_of_dataset(init.is_some()) > 0;
         let Searched { probes, best, .. } = search_lambda(target, retrains, |lambda| {
             let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
             let e = match &scene {

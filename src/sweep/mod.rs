@@ -153,10 +153,10 @@ impl Plan {
     /// default for this many `--iters` (or for `--init`), for a dataset; 0 for a `.ply`.
     pub fn retrain_iters_applied(&self) -> usize {
         let config = EncoderConfig::default().with_iters(self.iters).with_retrain_iters(self.retrain_iters);
-        match (is_ply(&self.input), &self.init) {
-            (true, _) => 0,
-            (false, Some(_)) => config.retrain_iters_for_init(),
-            (false, None) => config.retrain_iters_for(true),
+        if is_ply(&self.input) {
+            0
+        } else {
+            config.retrain_iters_of_dataset(self.init.is_some())
         }
     }
 
