@@ -25,6 +25,7 @@ fn setup(n: usize) -> (Splats, Image, gscodec_decoder::Camera) {
 const OPTS: RenderOptions = RenderOptions { background: [1.0; 3], max_sh_degree: 3 };
 
 fn bench_stages(c: &mut Criterion) {
+    gscodec::cli::keep_freed_memory(); // as the CLI runs
     let (params, target, cam) = setup(10_000);
     let (img, st) = raster::forward(&params, &cam, &OPTS);
     let (_, dl) = L1Ssim::default().eval(&img, &target);
@@ -84,6 +85,7 @@ fn bench_stages(c: &mut Criterion) {
 }
 
 fn bench_iteration(c: &mut Criterion) {
+    gscodec::cli::keep_freed_memory(); // as the CLI runs
     let mut group = c.benchmark_group("train_iteration_200x200");
     group.sample_size(10);
     for n in [10_000usize, 50_000] {

@@ -8,6 +8,7 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    gscodec::cli::keep_freed_memory();
     let cli = gscodec::cli::Cli::parse();
     if let Err(e) = gscodec::cli::run(cli) {
         eprintln!("error: {e}");

@@ -21,7 +21,7 @@
 
 use rayon::prelude::*;
 
-use super::tensor::{Real, Tensor};
+use super::tensor::{blur_into, Real, Tensor};
 
 /// Number of low-pass levels above the pointwise level 0.
 pub const NUM_LEVELS: usize = 5;
@@ -114,29 +114,55 @@ struct Moments<T> {
     var: Vec<Option<Tensor<T>>>,
 }
 
-fn square<T: Real>(x: &Tensor<T>) -> Tensor<T> {
-    Tensor { data: x.data.iter().map(|&v| v * v).collect(), ..*x }
+/// One level's statistics of every plane: `(K * x, K * q, K * q − (K * x)²)`, with `q = x²` squared
+/// plane by plane when `q` is `None` (level 1, whose running arrays are the array itself).
+fn level_stats<T: Real>(x: &Tensor<T>, q: Option<&Tensor<T>>) -> (Tensor<T>, Tensor<T>, Tensor<T>) {
+    let (mut m, mut p, mut v) = (Tensor::zeros(x.c, x.h, x.w), Tensor::zeros(x.c, x.h, x.w), Tensor::zeros(x.c, x.h, x.w));
+    let n = x.plane_len();
+    if n > 0 {
+        m.data.par_chunks_mut(n).zip(p.data.par_chunks_mut(n)).zip(v.data.par_chunks_mut(n)).enumerate().for_each(|(c, ((m, p), v))| {
+            let xs = x.plane(c);
+            blur_into(xs, x.h, x.w, m);
+            match q {
+                Some(q) => blur_into(q.plane(c), x.h, x.w, p),
+                None => blur_into(&xs.iter().map(|&v| v * v).collect::<Vec<T>>(), x.h, x.w, p),
+            }
+            for ((v, &p), &m) in v.iter_mut().zip(p.iter()).zip(m.iter()) {
+                *v = p - m * m;
+            }
+        });
+    }
+    (m, p, v)
+}
+
+/// [`Tensor::blur_subsample`] of the running arrays `x` and `q` (`q = x²` when `None`).
+fn blur_subsample_pair<T: Real>(x: &Tensor<T>, q: Option<&Tensor<T>>) -> (Tensor<T>, Tensor<T>) {
+    let q = match q {
+        Some(q) => q.blur_subsample(),
+        None => Tensor { data: x.data.iter().map(|&v| v * v).collect(), ..*x }.blur_subsample(),
+    };
+    (x.blur_subsample(), q)
 }
 
 fn moments<T: Real>(x: &Tensor<T>, plan: &Plan<T>) -> Moments<T> {
     let top = plan.max_level();
     let mut mean = vec![None; NUM_LEVELS + 1];
     let mut var = vec![None; NUM_LEVELS + 1];
-    let mut run_x = x.clone();
-    let mut run_q = square(x);
+    // The running arrays entering the level; None before level 1 (x itself and its square).
+    let mut run: Option<(Tensor<T>, Tensor<T>)> = None;
     for k in 1..=top {
+        let (rx, rq) = match &run {
+            Some((a, b)) => (a, Some(b)),
+            None => (x, None),
+        };
         if plan.weights[k].is_none() {
             // Only the subsampled running arrays are needed from this level.
-            run_x = run_x.blur_subsample();
-            run_q = run_q.blur_subsample();
+            run = Some(blur_subsample_pair(rx, rq));
             continue;
         }
-        let m = run_x.blur();
-        let p = run_q.blur();
-        let v = Tensor { data: p.data.iter().zip(&m.data).map(|(&p, &m)| p - m * m).collect(), ..m };
+        let (m, p, v) = level_stats(rx, rq);
         if k < top {
-            run_x = m.subsample(0, 0);
-            run_q = p.subsample(0, 0);
+            run = Some((m.subsample(0, 0), p.subsample(0, 0)));
         }
         var[k] = Some(v);
         mean[k] = Some(m);
