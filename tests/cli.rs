@@ -100,6 +100,37 @@ fn bad_inputs_exit_2_with_one_error_line_and_no_output() {
     )
     .unwrap();
     assert_bad(&["sample", s(&out), "--scene", s(&empty), "--quiet"], "empty.ply", &out);
+    // A sweep of an unreadable input leaves no output directory behind.
+    assert_bad(&["sweep", s(&d.join("nan.ply")), "-o", s(&out), "--lambdas", "20", "--quiet"], "not finite", &out);
+}
+
+#[test]
+fn an_output_in_a_missing_directory_is_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let nodir = dir.path().join("nodir");
+    let truth = tiny().join("truth.ply");
+    let gsc = nodir.join("o.gsc");
+    let ply = nodir.join("o.ply");
+    let encoded = dir.path().join("t.gsc");
+    let (report, data, trained) = (nodir.join("r.json"), tiny(), dir.path().join("t.ply"));
+    assert!(gscodec(&["convert", s(&truth), s(&encoded)]).status.success());
+    let cases: [&[&str]; 6] = [
+        &["encode", s(&truth), "-o", s(&gsc), "--quiet"],
+        &["encode", s(&truth), "-o", s(&encoded), "--report", s(&report), "--quiet"],
+        &["decode", s(&encoded), "-o", s(&ply)],
+        &["convert", s(&truth), s(&ply)],
+        &["train", s(&data), "-o", s(&ply), "--iters", "1", "--quiet"],
+        &["train", s(&data), "-o", s(&trained), "--report", s(&report), "--iters", "1", "--quiet"],
+    ];
+    for args in cases {
+        let o = gscodec(args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+        assert!(err.starts_with("error: ") && err.contains("nodir") && err.contains("does not exist"), "{args:?}: {err}");
+        assert!(!nodir.exists());
+    }
+    assert!(!trained.exists(), "train wrote its scene before refusing the report");
 }
 
 #[test]

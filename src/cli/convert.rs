@@ -17,6 +17,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> crate::Result<()> {
+    crate::io::atomic::check_parent_dir(&args.output)?;
     let scene = read_scene(&args.input)?;
     if args.output.extension().is_some_and(|e| e.eq_ignore_ascii_case("gsc")) {
         // Fine default quantisation, no rendering-based RD search (that is `gscodec encode`).

@@ -211,6 +211,10 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
 }
 
 pub fn run(args: Args) -> crate::Result<()> {
+    crate::io::atomic::check_parent_dir(&args.output)?;
+    if let Some(report) = &args.report {
+        crate::io::atomic::check_parent_dir(report)?;
+    }
     let encoder = Encoder::new(args.config())?;
     let out = encode_input(&args, &encoder)?;
     crate::io::atomic::write_bytes_atomic(&args.output, &out.bytes)?;

@@ -125,13 +125,21 @@ pub fn run(args: Args) -> Result<()> {
     if args.jobs == 0 {
         return Err(Error::input(Path::new("--jobs"), "must be at least 1"));
     }
-    std::fs::create_dir_all(&plan.out).map_err(|e| Error::failure(&plan.out, e))?;
     // Absolute paths: children and emitted jobs may run from elsewhere.
     plan.input = std::fs::canonicalize(&plan.input).map_err(|e| Error::input(&plan.input, e))?;
-    plan.out = std::fs::canonicalize(&plan.out).map_err(|e| Error::failure(&plan.out, e))?;
     if let Some(init) = &plan.init {
         plan.init = Some(std::fs::canonicalize(init).map_err(|e| Error::input(init, e))?);
     }
+    let created = !plan.out.exists();
+    std::fs::create_dir_all(&plan.out).map_err(|e| Error::failure(&plan.out, e))?;
+    plan.out = std::fs::canonicalize(&plan.out).map_err(|e| Error::failure(&plan.out, e))?;
+    // An unreadable input leaves no output directory behind (one this run did not create stays).
+    let unmade = |e: Error| {
+        if created {
+            let _ = std::fs::remove_dir(&plan.out);
+        }
+        e
+    };
     let exe = std::env::current_exe().map_err(|e| Error::failure(Path::new("gscodec"), format!("cannot find own executable: {e}")))?;
 
     if let Some(file) = &args.emit_jobs {
@@ -144,7 +152,11 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("sweep: {skipped} finished point(s) kept, {} to run", pending.len());
     }
     // Loaded once for every point, and only when a point is to run.
-    let input = if pending.is_empty() { None } else { Some(Input::load(&plan.input, &args.dataset.load_options(), plan.init.as_deref())?) };
+    let input = if pending.is_empty() {
+        None
+    } else {
+        Some(Input::load(&plan.input, &args.dataset.load_options(), plan.init.as_deref()).map_err(unmade)?)
+    };
     // Points that train alike from the images (l1ssim and wdr at a λ and seed, by default) are
     // one job: trained once, coded once each.
     let groups = plan.training_groups(&pending)?;

@@ -12,6 +12,20 @@ pub fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
+/// Refuses, before any work is done, an output `path` whose directory does not exist (a
+/// mistyped `-o`): the write at the end would fail only after the encode or training.
+///
+/// # Errors
+/// [`Error::input`] naming `path`.
+pub fn check_parent_dir(path: &Path) -> Result<()> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if dir.is_dir() {
+        Ok(())
+    } else {
+        Err(Error::input(path, format!("cannot write: directory {} does not exist", dir.display())))
+    }
+}
+
 /// Writes `path` through `write`; on any error the target is left untouched and the temporary removed.
 pub fn write_atomic(path: &Path, write: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
     let tmp = temp_path(path);
