@@ -58,6 +58,32 @@ fn naive_blur(x: &[f64], h: usize, w: usize) -> Vec<f64> {
     out
 }
 
+/// The [`Tensor`] blurs against [`naive_blur`] and the adjoints against the inner-product
+/// identity ⟨A x, y⟩ = ⟨x, Aᵀ y⟩, on odd, even and one-sample sizes (the WD gradient tests
+/// reach them only through whole level plans).
+#[test]
+fn tensor_blurs_match_their_definition_and_adjoints() {
+    let mut rng = Rng::new(7);
+    let dot = |a: &Tensor<f64>, b: &Tensor<f64>| -> f64 { a.data.iter().zip(&b.data).map(|(x, y)| x * y).sum() };
+    for (h, w) in [(1usize, 1usize), (1, 6), (5, 1), (2, 3), (7, 8), (8, 7), (6, 6), (9, 11)] {
+        let (h2, w2) = (h.div_ceil(2), w.div_ceil(2));
+        let x = random_tensor::<f64>(&mut rng, 2, h, w);
+        let b = x.blur();
+        for c in 0..2 {
+            let n = naive_blur(x.plane(c), h, w);
+            assert!(b.plane(c).iter().zip(&n).all(|(a, b)| (a - b).abs() < 1e-14), "blur {h}×{w}");
+        }
+        // The fused blur + subsample computes the same sums as the two steps.
+        assert_eq!(x.blur_subsample(), b.subsample(0, 0), "blur_subsample {h}×{w}");
+        let (y, y2) = (random_tensor::<f64>(&mut rng, 2, h, w), random_tensor::<f64>(&mut rng, 2, h2, w2));
+        let close = |a: f64, b: f64, what: &str| assert!((a - b).abs() < 1e-12, "{what} {h}×{w}: {a} vs {b}");
+        close(dot(&x.blur(), &y), dot(&x, &y.blur()), "blur");
+        close(dot(&x.blur_subsample(), &y2), dot(&x, &y2.blur_subsample_adjoint(h, w)), "blur_subsample");
+        close(dot(&x.subsample(0, 0), &y2), dot(&x, &y2.subsample_adjoint(h, w, 0, 0)), "subsample");
+        close(dot(&x.lowpass2(), &y2), dot(&x, &y2.lowpass2_adjoint(h, w)), "lowpass2");
+    }
+}
+
 fn naive_sub(x: &[f64], h: usize, w: usize, oy: usize, ox: usize) -> (Vec<f64>, usize, usize) {
     let (h2, w2) = (h.div_ceil(2), w.div_ceil(2));
     let mut o = vec![0.0; h2 * w2];
