@@ -131,6 +131,11 @@ fn an_output_in_a_missing_directory_is_refused_before_any_work() {
         assert!(!nodir.exists());
     }
     assert!(!trained.exists(), "train wrote its scene before refusing the report");
+    // An output that is a directory.
+    let o = gscodec(&["encode", s(&truth), "-o", s(dir.path()), "--quiet"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.starts_with("error: ") && err.contains("is a directory") && err.lines().count() == 1, "{err}");
 }
 
 #[test]

@@ -19,7 +19,7 @@ pub struct Args {
 pub fn run(args: Args) -> crate::Result<()> {
     // An unbundled SOG scene (`DIR/meta.json`) is written as a folder, created with its parents.
     if !crate::io::sog::is_sog_meta(&args.output) {
-        crate::io::atomic::check_parent_dir(&args.output)?;
+        crate::io::atomic::check_output_file(&args.output)?;
     }
     let scene = read_scene(&args.input)?;
     if args.output.extension().is_some_and(|e| e.eq_ignore_ascii_case("gsc")) {

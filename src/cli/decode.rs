@@ -21,7 +21,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> crate::Result<()> {
-    crate::io::atomic::check_parent_dir(&args.output)?;
+    crate::io::atomic::check_output_file(&args.output)?;
     let limits = Limits { max_sh_degree: args.max_sh_degree, ..Limits::default() };
     let scene = crate::io::read_scene_with(&args.input, &limits)?;
     crate::io::write_ply(&args.output, &scene)

@@ -211,9 +211,9 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
 }
 
 pub fn run(args: Args) -> crate::Result<()> {
-    crate::io::atomic::check_parent_dir(&args.output)?;
+    crate::io::atomic::check_output_file(&args.output)?;
     if let Some(report) = &args.report {
-        crate::io::atomic::check_parent_dir(report)?;
+        crate::io::atomic::check_output_file(report)?;
     }
     let encoder = Encoder::new(args.config())?;
     let out = encode_input(&args, &encoder)?;

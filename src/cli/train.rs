@@ -70,7 +70,7 @@ pub fn run(args: Args) -> Result<()> {
     crate::encoder::check_densify_grad_threshold(args.densify_grad_threshold).map_err(|e| Error::Input(e.to_string()))?;
     check_output(&args.output, "ply")?;
     if let Some(report) = &args.report {
-        io::atomic::check_parent_dir(report)?;
+        io::atomic::check_output_file(report)?;
     }
     // Before the dataset, so a bad --features file fails fast.
     let loss = LossSpec::from_args(&args.loss, crate::loss::LossKind::L1ssim);
@@ -144,7 +144,7 @@ pub fn run(args: Args) -> Result<()> {
 
 fn check_output(path: &Path, ext: &str) -> Result<()> {
     match path.extension().and_then(|e| e.to_str()) {
-        Some(e) if e.eq_ignore_ascii_case(ext) => io::atomic::check_parent_dir(path),
+        Some(e) if e.eq_ignore_ascii_case(ext) => io::atomic::check_output_file(path),
         _ => Err(Error::input(path, format!("output must be a .{ext} file"))),
     }
 }

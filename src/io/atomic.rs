@@ -12,17 +12,20 @@ pub fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
-/// Refuses, before any work is done, an output `path` whose directory does not exist (a
-/// mistyped `-o`): the write at the end would fail only after the encode or training.
+/// Refuses, before any work is done, an output file `path` that is a directory or whose directory
+/// does not exist (a mistyped `-o`): the write at the end would fail only after the encode or
+/// training.
 ///
 /// # Errors
 /// [`Error::input`] naming `path`.
-pub fn check_parent_dir(path: &Path) -> Result<()> {
+pub fn check_output_file(path: &Path) -> Result<()> {
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    if dir.is_dir() {
-        Ok(())
-    } else {
+    if !dir.is_dir() {
         Err(Error::input(path, format!("cannot write: directory {} does not exist", dir.display())))
+    } else if path.is_dir() {
+        Err(Error::input(path, "cannot write: is a directory"))
+    } else {
+        Ok(())
     }
 }
 
