@@ -274,9 +274,10 @@ impl EncoderConfig {
     /// Retraining iterations of a dataset encode: of a scene given with `--init` (`init`,
     /// [`EncoderConfig::retrain_iters_for_init`]) or of one trained here from the images.
     pub fn retrain_iters_of_dataset(&self, init: bool) -> usize {
-        match init {
-            true => self.retrain_iters_for_init(),
-            false => self.retrain_iters_for(true),
+        if init {
+            self.retrain_iters_for_init()
+        } else {
+            self.retrain_iters_for(true)
         }
     }
 

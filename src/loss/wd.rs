@@ -114,6 +114,10 @@ struct Moments<T> {
     var: Vec<Option<Tensor<T>>>,
 }
 
+fn squares<T: Real>(x: &[T]) -> Vec<T> {
+    x.iter().map(|&v| v * v).collect()
+}
+
 /// One level's statistics of every plane: `(K * x, K * q, K * q − (K * x)²)`, with `q = x²` squared
 /// plane by plane when `q` is `None` (level 1, whose running arrays are the array itself).
 fn level_stats<T: Real>(x: &Tensor<T>, q: Option<&Tensor<T>>) -> (Tensor<T>, Tensor<T>, Tensor<T>) {
@@ -125,7 +129,7 @@ fn level_stats<T: Real>(x: &Tensor<T>, q: Option<&Tensor<T>>) -> (Tensor<T>, Ten
             blur_into(xs, x.h, x.w, m);
             match q {
                 Some(q) => blur_into(q.plane(c), x.h, x.w, p),
-                None => blur_into(&xs.iter().map(|&v| v * v).collect::<Vec<T>>(), x.h, x.w, p),
+                None => blur_into(&squares(xs), x.h, x.w, p),
             }
             for ((v, &p), &m) in v.iter_mut().zip(p.iter()).zip(m.iter()) {
                 *v = p - m * m;
@@ -139,7 +143,7 @@ fn level_stats<T: Real>(x: &Tensor<T>, q: Option<&Tensor<T>>) -> (Tensor<T>, Ten
 fn blur_subsample_pair<T: Real>(x: &Tensor<T>, q: Option<&Tensor<T>>) -> (Tensor<T>, Tensor<T>) {
     let q = match q {
         Some(q) => q.blur_subsample(),
-        None => Tensor { data: x.data.iter().map(|&v| v * v).collect(), ..*x }.blur_subsample(),
+        None => Tensor { data: squares(&x.data), ..*x }.blur_subsample(),
     };
     (x.blur_subsample(), q)
 }
