@@ -8,6 +8,7 @@ use gscodec_decoder::math::{self, MAX_ALPHA, MIN_ALPHA, SH_C1, SH_C2, SH_C3, TIL
 use gscodec_decoder::render::{cull_thresholds, gather_tile};
 use gscodec_decoder::Splats;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
 
 /// Gradients of a scalar loss with respect to every Gaussian parameter.
 #[derive(Debug, Clone, PartialEq)]
@@ -127,18 +128,8 @@ pub fn backward(splats: &Splats, state: &RasterState, dl_dimg: &[f32]) -> Gradie
         }
     });
 
-    // 2. Sum per Gaussian in tile-list order (fixed, independent of the thread count): ranges of
-    // Gaussians in parallel, each scanning the whole list for its own.
-    let mut per_g = vec![Grad2d::default(); splats.len()];
-    let span = splats.len().div_ceil(rayon::current_num_threads() * 4).max(1);
-    per_g.par_chunks_mut(span).enumerate().for_each(|(c, out)| {
-        let first = c * span;
-        for (e, &g) in entries.iter().zip(&bins.ids) {
-            if let Some(o) = (g as usize).checked_sub(first).and_then(|i| out.get_mut(i)) {
-                o.add(e);
-            }
-        }
-    });
+    // 2. Sum per Gaussian in tile-list order (fixed, independent of the thread count).
+    let per_g = sum_per_gaussian(&entries, &bins.ids, splats.len());
     drop(entries);
 
     // 3. Screen-space gradients to parameters, one Gaussian at a time.
@@ -162,6 +153,46 @@ pub fn backward(splats: &Splats, state: &RasterState, dl_dimg: &[f32]) -> Gradie
     let (hw, hh) = (w as f32 / 2.0, h as f32 / 2.0);
     let mean2d_ndc_norm = per_g.par_iter().map(|g| ((g.mean[0] * hw).powi(2) + (g.mean[1] * hh).powi(2)).sqrt()).collect();
     Gradients { params, mean2d_ndc_norm }
+}
+
+/// Per Gaussian `g < n`, the sum of the `entries` listed for it (`ids[e] == g`), added in list
+/// order: a fixed order, so the sums are the same bits on any thread count. A counting sort of
+/// the list by Gaussian (counts and slots taken with atomics, then each Gaussian's slots put
+/// back in list order) makes every step parallel and linear in the list's length.
+fn sum_per_gaussian(entries: &[Grad2d], ids: &[u32], n: usize) -> Vec<Grad2d> {
+    let cursor: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
+    ids.par_iter().for_each(|&g| {
+        cursor[g as usize].fetch_add(1, Relaxed);
+    });
+    let mut starts = Vec::with_capacity(n + 1);
+    starts.push(0u32);
+    for c in &cursor {
+        let start = *starts.last().expect("starts holds 0");
+        starts.push(start + c.swap(start, Relaxed));
+    }
+    let slots: Vec<AtomicU32> = (0..ids.len()).map(|_| AtomicU32::new(0)).collect();
+    ids.par_iter().enumerate().for_each(|(e, &g)| {
+        slots[cursor[g as usize].fetch_add(1, Relaxed) as usize].store(e as u32, Relaxed);
+    });
+    let mut slots: Vec<u32> = slots.into_iter().map(AtomicU32::into_inner).collect();
+    let mut lists: Vec<&mut [u32]> = Vec::with_capacity(n);
+    let mut rest: &mut [u32] = &mut slots;
+    for g in 0..n {
+        let (head, tail) = rest.split_at_mut((starts[g + 1] - starts[g]) as usize);
+        lists.push(head);
+        rest = tail;
+    }
+    lists
+        .into_par_iter()
+        .map(|list| {
+            list.sort_unstable();
+            let mut sum = Grad2d::default();
+            for &e in list.iter() {
+                sum.add(&entries[e as usize]);
+            }
+            sum
+        })
+        .collect()
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -332,4 +363,50 @@ fn sh_basis_backward(degree: u8, dir: Vec3, g: &[f32; 16]) -> Vec3 {
             + c[5] * (xx - yy) * g[14];
     }
     d
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The parallel counting sort adds each Gaussian's entries in list order: the same bits as
+    /// one plain pass over the list, on one thread or several (the list is long enough, ~120k
+    /// entries, for three threads to split it: with the slots left unsorted this fails).
+    #[test]
+    fn per_gaussian_sums_are_the_list_order_fold() {
+        let (n, tiles) = (2000usize, 200u32);
+        let mut rng = crate::rng::Rng::new(7);
+        // Tile-major lists, each Gaussian at most once per tile, some Gaussians in none.
+        let mut ids = Vec::new();
+        for _ in 0..tiles {
+            let mut tile: Vec<u32> = (0..n as u32).filter(|_| rng.uniform() < 0.3).collect();
+            rng.shuffle(&mut tile);
+            ids.extend(tile);
+        }
+        let v = |rng: &mut crate::rng::Rng| (rng.uniform() - 0.5) * 10f32.powi((rng.uniform() * 8.0) as i32 - 4);
+        let entries: Vec<Grad2d> = ids
+            .iter()
+            .map(|_| Grad2d {
+                mean: [v(&mut rng), v(&mut rng)],
+                conic: [v(&mut rng), v(&mut rng), v(&mut rng)],
+                opacity: v(&mut rng),
+                color: [v(&mut rng), v(&mut rng), v(&mut rng)],
+            })
+            .collect();
+        let mut want = vec![Grad2d::default(); n];
+        for (e, &g) in entries.iter().zip(&ids) {
+            want[g as usize].add(e);
+        }
+        let bits = |s: &[Grad2d]| -> Vec<u32> {
+            s.iter()
+                .flat_map(|g| g.mean.iter().chain(&g.conic).chain([&g.opacity]).chain(&g.color).map(|x| x.to_bits()).collect::<Vec<_>>())
+                .collect()
+        };
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let got = pool.install(|| sum_per_gaussian(&entries, &ids, n));
+            assert_eq!(bits(&got), bits(&want), "{threads} threads");
+        }
+        assert!(sum_per_gaussian(&[], &[], 4).iter().all(|g| bits(std::slice::from_ref(g)).iter().all(|&b| b == 0)));
+    }
 }
