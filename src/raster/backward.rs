@@ -55,13 +55,7 @@ pub fn backward(splats: &Splats, state: &RasterState, dl_dimg: &[f32]) -> Gradie
 
     // 1. One gradient slot per tile-list entry; each tile fills its own slots.
     let mut entries = vec![Grad2d::default(); bins.ids.len()];
-    let mut chunks: Vec<&mut [Grad2d]> = Vec::with_capacity(n_tiles);
-    let mut rest: &mut [Grad2d] = &mut entries;
-    for t in 0..n_tiles {
-        let (head, tail) = rest.split_at_mut((bins.ranges[t + 1] - bins.ranges[t]) as usize);
-        chunks.push(head);
-        rest = tail;
-    }
+    let chunks = split_at_ranges(&mut entries, &bins.ranges[..=n_tiles]);
     let cull = cull_thresholds(proj);
     chunks.into_par_iter().enumerate().for_each_init(Vec::new, |local, (t, out)| {
         let ids = bins.tile(t);
@@ -175,14 +169,7 @@ fn sum_per_gaussian(entries: &[Grad2d], ids: &[u32], n: usize) -> Vec<Grad2d> {
         slots[cursor[g as usize].fetch_add(1, Relaxed) as usize].store(e as u32, Relaxed);
     });
     let mut slots: Vec<u32> = slots.into_iter().map(AtomicU32::into_inner).collect();
-    let mut lists: Vec<&mut [u32]> = Vec::with_capacity(n);
-    let mut rest: &mut [u32] = &mut slots;
-    for g in 0..n {
-        let (head, tail) = rest.split_at_mut((starts[g + 1] - starts[g]) as usize);
-        lists.push(head);
-        rest = tail;
-    }
-    lists
+    split_at_ranges(&mut slots, &starts)
         .into_par_iter()
         .map(|list| {
             list.sort_unstable();
@@ -193,6 +180,18 @@ fn sum_per_gaussian(entries: &[Grad2d], ids: &[u32], n: usize) -> Vec<Grad2d> {
             sum
         })
         .collect()
+}
+
+/// `data` cut into the slices `ranges[i]..ranges[i + 1]` (ascending offsets from 0).
+fn split_at_ranges<'a, T>(data: &'a mut [T], ranges: &[u32]) -> Vec<&'a mut [T]> {
+    let mut parts = Vec::with_capacity(ranges.len().saturating_sub(1));
+    let mut rest = data;
+    for r in ranges.windows(2) {
+        let (head, tail) = rest.split_at_mut((r[1] - r[0]) as usize);
+        parts.push(head);
+        rest = tail;
+    }
+    parts
 }
 
 #[derive(Debug, Clone, Copy)]
