@@ -369,8 +369,8 @@ mod tests {
     use super::*;
 
     /// The parallel counting sort adds each Gaussian's entries in list order: the same bits as
-    /// one plain pass over the list, on one thread or several (the list is long enough, ~120k
-    /// entries, for three threads to split it: with the slots left unsorted this fails).
+    /// one plain pass over the list, on one thread or several (the list, ~120k entries, is long
+    /// enough for three threads to split it: with the slots left unsorted this failed here).
     #[test]
     fn per_gaussian_sums_are_the_list_order_fold() {
         let (n, tiles) = (2000usize, 200u32);
