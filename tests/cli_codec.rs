@@ -488,3 +488,34 @@ fn encode_init_codes_a_trained_scene_against_the_dataset() {
     refused(&[tiny.to_str().unwrap(), "--init", missing.to_str().unwrap()], "missing.ply");
     refused(&[tiny.to_str().unwrap(), "--init", truth.to_str().unwrap(), "--iters", "5"], "cannot be used with");
 }
+
+/// A scene's encode states its orbit PSNR, and below 30 dB says how to ask for a quality; a
+/// dataset's encode, whose PSNR would be against its own trained scene, shows none.
+#[test]
+fn encode_states_the_orbit_psnr_and_notes_a_low_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
+    let out = dir.path().join("t.gsc");
+    let run = |lambda: &str| {
+        let o = gscodec(&["encode", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--lambda", lambda]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let psnr = |err: &str| -> f64 {
+        let at = err.find("orbit PSNR ").unwrap_or_else(|| panic!("no PSNR in: {err}")) + "orbit PSNR ".len();
+        err[at..].split(' ').next().unwrap().parse().unwrap()
+    };
+    let fine = run("20");
+    let o = gscodec(&["eval", out.to_str().unwrap(), "--reference", input.to_str().unwrap(), "--orbit", "8", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let eval: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!((psnr(&fine) - eval["psnr"].as_f64().unwrap()).abs() < 0.006, "{fine} vs eval {eval}");
+    assert!(psnr(&fine) >= 30.0 && !fine.contains("note:"), "{fine}");
+    let coarse = run("100000");
+    assert!(psnr(&coarse) < 30.0 && coarse.contains("note: orbit PSNR below 30 dB at λ 100000"), "{coarse}");
+    let dataset = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
+    let o = gscodec(&["encode", dataset.to_str().unwrap(), "-o", out.to_str().unwrap(), "--iters", "20", "--lambda", "100000"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("PSNR") && !err.contains("note:"), "{err}");
+}

@@ -210,6 +210,19 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
     Ok(out)
 }
 
+/// Below this orbit PSNR a scene's encode at a given λ says how to ask for a quality instead.
+const LOW_PSNR_DB: f64 = 30.0;
+
+/// The note of an encode at `lambda` whose orbit PSNR is below [`LOW_PSNR_DB`]. `R` is the
+/// file's megabits, so at one λ a scene of many Gaussians trades far harder than a small one
+/// (docs/codec.md §15): the default λ 20 gives a 1.1 M-Gaussian scene 21 dB.
+fn low_psnr_note(lambda: Lambda) -> String {
+    format!(
+        "note: orbit PSNR below {LOW_PSNR_DB} dB at λ {lambda}; for a quality ask --target-psnr DB, or give a smaller --lambda \
+         (λ weighs the file's megabits, so one λ trades harder the more Gaussians a scene has)"
+    )
+}
+
 pub fn run(args: Args) -> crate::Result<()> {
     crate::io::atomic::check_output_file(&args.output)?;
     if let Some(report) = &args.report {
@@ -224,8 +237,12 @@ pub fn run(args: Args) -> crate::Result<()> {
             0 => String::new(),
             n => format!(" ({:.2} bytes/Gaussian)", r.file_bytes as f64 / n as f64),
         };
+        // A scene's orbit PSNR is against the input, what `eval --reference INPUT --orbit 8`
+        // reads; a dataset's is against the scene trained from it, so it is not shown.
+        let scene = !args.input.is_dir();
+        let psnr = if scene { format!(", orbit PSNR {:.2} dB", r.orbit_psnr) } else { String::new() };
         eprintln!(
-            "{}: {} Gaussians (of {}), SH degree {}, {} bytes{per_gaussian}",
+            "{}: {} Gaussians (of {}), SH degree {}, {} bytes{per_gaussian}{psnr}",
             args.output.display(),
             r.gaussians,
             r.input_gaussians,
@@ -234,9 +251,11 @@ pub fn run(args: Args) -> crate::Result<()> {
         );
         if let Some(t) = &r.target {
             // A dataset's target reads the held-out views, a scene's the orbit views.
-            let heldout = t.probes.iter().find(|p| p.lambda == r.lambda && p.bytes == r.file_bytes).filter(|_| args.input.is_dir());
+            let heldout = t.probes.iter().find(|p| p.lambda == r.lambda && p.bytes == r.file_bytes).filter(|_| !scene);
             let (psnr, measure) = heldout.map_or((r.orbit_psnr, "orbit"), |p| (p.psnr, "held-out"));
             eprintln!("λ = {} ({measure} PSNR {psnr:.2} dB), chosen among {} encodes", r.lambda, t.probes.len());
+        } else if scene && r.orbit_psnr < LOW_PSNR_DB {
+            eprintln!("{}", low_psnr_note(r.lambda));
         }
         super::warn_truncated(r.train.as_ref().map_or(0, |t| t.truncated_frames));
     }
