@@ -238,9 +238,15 @@ pub fn run(args: Args) -> crate::Result<()> {
             n => format!(" ({:.2} bytes/Gaussian)", r.file_bytes as f64 / n as f64),
         };
         // A scene's orbit PSNR is against the input, what `eval --reference INPUT --orbit 8`
-        // reads; a dataset's is against the scene trained from it, so it is not shown.
+        // reads; a dataset's against the scene trained from it, so a dataset shows the coded
+        // file's held-out PSNR instead, what `eval OUTPUT DATASET` reads.
         let scene = !args.input.is_dir();
-        let psnr = if scene { format!(", orbit PSNR {:.2} dB", r.orbit_psnr) } else { String::new() };
+        let heldout = r.series.iter().rev().find(|p| p.trial == "coded").and_then(|p| p.heldout_psnr);
+        let psnr = match heldout {
+            _ if scene => format!(", orbit PSNR {:.2} dB", r.orbit_psnr),
+            Some(h) => format!(", held-out PSNR {h:.2} dB"),
+            None => String::new(),
+        };
         eprintln!(
             "{}: {} Gaussians (of {}), SH degree {}, {} bytes{per_gaussian}{psnr}",
             args.output.display(),
