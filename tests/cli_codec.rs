@@ -494,34 +494,29 @@ fn encode_init_codes_a_trained_scene_against_the_dataset() {
 #[test]
 fn encode_states_the_orbit_psnr_and_notes_a_low_one() {
     let dir = tempfile::tempdir().unwrap();
-    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
-    let out = dir.path().join("t.gsc");
-    let run = |lambda: &str| {
-        let o = gscodec(&["encode", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--lambda", lambda]);
+    let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
+    let (input, out) = (tiny.join("truth.ply"), dir.path().join("t.gsc"));
+    let (input, tiny, out) = (input.to_str().unwrap(), tiny.to_str().unwrap(), out.to_str().unwrap());
+    // encode's stderr, and the dB it states after `label`.
+    let encode = |args: &[&str], label: &str| -> (String, f64) {
+        let o = gscodec(&[&["encode", "-o", out], args].concat());
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        String::from_utf8_lossy(&o.stderr).into_owned()
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        let at = err.find(label).unwrap_or_else(|| panic!("no {label} in: {err}")) + label.len();
+        let db = err[at..].split(' ').next().unwrap().parse().unwrap();
+        (err, db)
     };
-    let psnr = |err: &str| -> f64 {
-        let at = err.find("orbit PSNR ").unwrap_or_else(|| panic!("no PSNR in: {err}")) + "orbit PSNR ".len();
-        err[at..].split(' ').next().unwrap().parse().unwrap()
+    let eval = |args: &[&str]| -> f64 {
+        let o = gscodec(&[&["eval", out], args, &["--json"]].concat());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice::<serde_json::Value>(&o.stdout).unwrap()["psnr"].as_f64().unwrap()
     };
-    let fine = run("20");
-    let o = gscodec(&["eval", out.to_str().unwrap(), "--reference", input.to_str().unwrap(), "--orbit", "8", "--json"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let eval: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert!((psnr(&fine) - eval["psnr"].as_f64().unwrap()).abs() < 0.006, "{fine} vs eval {eval}");
-    assert!(psnr(&fine) >= 30.0 && !fine.contains("note:"), "{fine}");
-    let coarse = run("100000");
-    assert!(psnr(&coarse) < 30.0 && coarse.contains("note: orbit PSNR below 30 dB at λ 100000"), "{coarse}");
-    let dataset = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny");
-    let o = gscodec(&["encode", dataset.to_str().unwrap(), "-o", out.to_str().unwrap(), "--iters", "20", "--lambda", "100000"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    let at = err.find("held-out PSNR ").unwrap_or_else(|| panic!("no held-out PSNR in: {err}")) + "held-out PSNR ".len();
-    let heldout: f64 = err[at..].split(' ').next().unwrap().parse().unwrap();
-    let o = gscodec(&["eval", out.to_str().unwrap(), dataset.to_str().unwrap(), "--json"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let eval: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert!((heldout - eval["psnr"].as_f64().unwrap()).abs() < 0.006, "{err} vs eval {eval}");
+    let (fine, db) = encode(&[input, "--lambda", "20"], "orbit PSNR ");
+    assert!((db - eval(&["--reference", input, "--orbit", "8"])).abs() < 0.006, "{fine}");
+    assert!(db >= 30.0 && !fine.contains("note:"), "{fine}");
+    let (coarse, db) = encode(&[input, "--lambda", "100000"], "orbit PSNR ");
+    assert!(db < 30.0 && coarse.contains("note: orbit PSNR below 30 dB at λ 100000"), "{coarse}");
+    let (err, db) = encode(&[tiny, "--iters", "20", "--lambda", "100000"], "held-out PSNR ");
+    assert!((db - eval(&[tiny])).abs() < 0.006, "{err}");
     assert!(!err.contains("orbit PSNR") && !err.contains("note:"), "{err}");
 }
