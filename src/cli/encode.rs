@@ -241,11 +241,10 @@ pub fn run(args: Args) -> crate::Result<()> {
         // reads; a dataset's against the scene trained from it, so a dataset shows the coded
         // file's held-out PSNR instead, what `eval OUTPUT DATASET` reads.
         let scene = !args.input.is_dir();
-        let heldout = r.series.iter().rev().find(|p| p.trial == "coded").and_then(|p| p.heldout_psnr);
-        let psnr = match heldout {
-            _ if scene => format!(", orbit PSNR {:.2} dB", r.orbit_psnr),
-            Some(h) => format!(", held-out PSNR {h:.2} dB"),
-            None => String::new(),
+        let psnr = if scene {
+            format!(", orbit PSNR {:.2} dB", r.orbit_psnr)
+        } else {
+            r.heldout_psnr().map_or(String::new(), |h| format!(", held-out PSNR {h:.2} dB"))
         };
         eprintln!(
             "{}: {} Gaussians (of {}), SH degree {}, {} bytes{per_gaussian}{psnr}",

@@ -198,7 +198,7 @@ impl Encoder {
         }
         // The series ends with the file written: the anchor file on the held-out views.
         let mut series = e.report.series;
-        if let (Some(ds), Some(coded)) = (dataset, series.iter_mut().rev().find(|p| p.trial == "coded")) {
+        if let (Some(ds), Some(coded)) = (dataset, series.iter_mut().rev().find(|p| p.trial == report::CODED)) {
             let psnr = crate::metrics::view::mean_psnr_ssim(&a.decoded, &ds.split(Split::Test), ds.background)?.map(|m| m.0);
             *coded = SeriesPoint {
                 wall_s: coded.wall_s + start.elapsed().as_secs_f64(),
@@ -637,7 +637,7 @@ impl Encoder {
             if let Some((psnr, _)) = crate::metrics::view::mean_psnr_ssim(&decoded, &ds.split(Split::Test), ds.background)? {
                 series.push(SeriesPoint {
                     iteration: iters,
-                    trial: "coded".into(),
+                    trial: report::CODED.into(),
                     wall_s: start.elapsed().as_secs_f64(),
                     estimated_bits: Some(8.0 * bytes.len() as f64),
                     d: None,

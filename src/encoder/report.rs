@@ -23,6 +23,10 @@ pub struct EncodeStages {
     pub total_s: f64,
 }
 
+/// The [`SeriesPoint::trial`] of the series' last point: the file written (a dataset: on its
+/// held-out images).
+pub const CODED: &str = "coded";
+
 /// One point of the encode's time series: an RD-search trial, a training evaluation, the
 /// learned steps or the coded result.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -125,4 +129,12 @@ pub struct EncodeReport {
     pub anchor: Option<crate::anchor::AnchorReport>,
     /// With `--profile auto`: the explicit file's size and PSNR, the other candidate.
     pub explicit_alternative: Option<(usize, f64)>,
+}
+
+impl EncodeReport {
+    /// The written file's PSNR on a dataset's held-out images (what `eval OUT DATASET` reads):
+    /// the [`CODED`] point's; `None` for a scene.
+    pub fn heldout_psnr(&self) -> Option<f64> {
+        self.series.iter().rev().find(|p| p.trial == CODED).and_then(|p| p.heldout_psnr)
+    }
 }
