@@ -283,7 +283,7 @@ pub fn subsample_into<T: Real>(x: &[T], h: usize, w: usize, oy: usize, ox: usize
     }
 }
 
-fn subsample_adjoint_into<T: Real>(g: &[T], w2: usize, oy: usize, ox: usize, w: usize, out: &mut [T]) {
+pub fn subsample_adjoint_into<T: Real>(g: &[T], w2: usize, oy: usize, ox: usize, w: usize, out: &mut [T]) {
     let h = out.len() / w.max(1);
     for (j, row) in g.chunks_exact(w2.max(1)).enumerate() {
         for (i, v) in row.iter().enumerate() {
@@ -296,7 +296,7 @@ fn subsample_adjoint_into<T: Real>(g: &[T], w2: usize, oy: usize, ox: usize, w: 
 }
 
 /// `K * x` sampled at even rows and columns (zero padding).
-fn blur_subsample_into<T: Real>(x: &[T], h: usize, w: usize, out: &mut [T]) {
+pub fn blur_subsample_into<T: Real>(x: &[T], h: usize, w: usize, out: &mut [T]) {
     let (h2, w2) = (half(h), half(w));
     let (q, hf, zero) = (T::c(0.25), T::c(0.5), T::zero());
     // horizontal pass at even columns for every row, then vertical at even rows
@@ -318,7 +318,7 @@ fn blur_subsample_into<T: Real>(x: &[T], h: usize, w: usize, out: &mut [T]) {
 
 /// Adjoint of [`blur_subsample_into`]: fine sample y gets ½·g[y/2] when even, else
 /// ¼·(g[(y−1)/2] + g[(y+1)/2]) (the second read as 0 past the end), separably in both directions.
-fn blur_subsample_adjoint_into<T: Real>(g: &[T], h2: usize, w2: usize, h: usize, w: usize, out: &mut [T]) {
+pub fn blur_subsample_adjoint_into<T: Real>(g: &[T], h2: usize, w2: usize, h: usize, w: usize, out: &mut [T]) {
     let (q, hf, zero) = (T::c(0.25), T::c(0.5), T::zero());
     let mut tmp = vec![T::zero(); h * w2];
     let coarse = |j: usize| &g[j * w2..(j + 1) * w2];

@@ -21,7 +21,9 @@
 
 use rayon::prelude::*;
 
-use super::tensor::{blur_into, Real, Tensor};
+use super::tensor::{
+    blur_into, blur_subsample_adjoint_into, blur_subsample_into, half, subsample_adjoint_into, subsample_into, Real, Tensor,
+};
 
 /// Number of low-pass levels above the pointwise level 0.
 pub const NUM_LEVELS: usize = 5;
@@ -108,74 +110,63 @@ impl<T: Real> Plan<T> {
     }
 }
 
-/// Local means and (raw, unclamped) variances of one array at the levels its plan needs.
-struct Moments<T> {
-    mean: Vec<Option<Tensor<T>>>,
-    var: Vec<Option<Tensor<T>>>,
+/// Height and width of the maps of level `k` of an `h × w` array (levels 0 and 1 at full
+/// resolution, each further level at half the one before, rounded up).
+fn level_dims(h: usize, w: usize, k: usize) -> (usize, usize) {
+    (1..k).fold((h, w), |(h, w), _| (half(h), half(w)))
 }
 
 fn squares<T: Real>(x: &[T]) -> Vec<T> {
     x.iter().map(|&v| v * v).collect()
 }
 
-/// One level's statistics of every plane: `(K * x, K * q, K * q − (K * x)²)`, with `q = x²` squared
-/// plane by plane when `q` is `None` (level 1, whose running arrays are the array itself).
-fn level_stats<T: Real>(x: &Tensor<T>, q: Option<&Tensor<T>>) -> (Tensor<T>, Tensor<T>, Tensor<T>) {
-    let (mut m, mut p, mut v) = (Tensor::zeros(x.c, x.h, x.w), Tensor::zeros(x.c, x.h, x.w), Tensor::zeros(x.c, x.h, x.w));
-    let n = x.plane_len();
-    if n > 0 {
-        m.data.par_chunks_mut(n).zip(p.data.par_chunks_mut(n)).zip(v.data.par_chunks_mut(n)).enumerate().for_each(|(c, ((m, p), v))| {
-            let xs = x.plane(c);
-            blur_into(xs, x.h, x.w, m);
-            match q {
-                Some(q) => blur_into(q.plane(c), x.h, x.w, p),
-                None => blur_into(&squares(xs), x.h, x.w, p),
-            }
-            for ((v, &p), &m) in v.iter_mut().zip(p.iter()).zip(m.iter()) {
-                *v = p - m * m;
-            }
-        });
-    }
-    (m, p, v)
+/// Local means and (raw, unclamped) variances of one plane at the levels its plan needs.
+///
+/// WD's statistics never mix channels, so everything runs plane by plane: a plane's whole
+/// cascade, value and gradient stay in cache, and the planes of every array are the parallel tasks.
+struct PlaneMoments<T> {
+    mean: Vec<Option<Vec<T>>>,
+    var: Vec<Option<Vec<T>>>,
 }
 
-/// [`Tensor::blur_subsample`] of the running arrays `x` and `q` (`q = x²` when `None`).
-fn blur_subsample_pair<T: Real>(x: &Tensor<T>, q: Option<&Tensor<T>>) -> (Tensor<T>, Tensor<T>) {
-    let q = match q {
-        Some(q) => q.blur_subsample(),
-        None => Tensor { data: squares(&x.data), ..*x }.blur_subsample(),
-    };
-    (x.blur_subsample(), q)
-}
-
-fn moments<T: Real>(x: &Tensor<T>, plan: &Plan<T>) -> Moments<T> {
+fn plane_moments<T: Real>(x: &[T], h: usize, w: usize, plan: &Plan<T>) -> PlaneMoments<T> {
     let top = plan.max_level();
     let mut mean = vec![None; NUM_LEVELS + 1];
     let mut var = vec![None; NUM_LEVELS + 1];
-    // The running arrays entering the level; None before level 1 (x itself and its square).
-    let mut run: Option<(Tensor<T>, Tensor<T>)> = None;
+    let zero = T::zero();
+    // The running arrays entering level k (x itself and its square before level 1), h × w.
+    let x2 = if top > 0 { squares(x) } else { Vec::new() };
+    let mut run: Option<(Vec<T>, Vec<T>)> = None;
+    let (mut h, mut w) = (h, w);
     for k in 1..=top {
         let (rx, rq) = match &run {
-            Some((a, b)) => (a, Some(b)),
-            None => (x, None),
+            Some((a, b)) => (a.as_slice(), b.as_slice()),
+            None => (x, x2.as_slice()),
         };
+        let (h2, w2) = (half(h), half(w));
         if plan.weights[k].is_none() {
-            // Only the subsampled running arrays are needed from this level.
-            run = Some(blur_subsample_pair(rx, rq));
-            continue;
+            // Only the blurred and subsampled running arrays are needed from this level.
+            let (mut a, mut b) = (vec![zero; h2 * w2], vec![zero; h2 * w2]);
+            blur_subsample_into(rx, h, w, &mut a);
+            blur_subsample_into(rq, h, w, &mut b);
+            run = Some((a, b));
+        } else {
+            let (mut m, mut p) = (vec![zero; h * w], vec![zero; h * w]);
+            blur_into(rx, h, w, &mut m);
+            blur_into(rq, h, w, &mut p);
+            let v: Vec<T> = p.iter().zip(&m).map(|(&p, &m)| p - m * m).collect();
+            if k < top {
+                let (mut a, mut b) = (vec![zero; h2 * w2], vec![zero; h2 * w2]);
+                subsample_into(&m, h, w, 0, 0, &mut a);
+                subsample_into(&p, h, w, 0, 0, &mut b);
+                run = Some((a, b));
+            }
+            mean[k] = Some(m);
+            var[k] = Some(v);
         }
-        let (m, p, v) = level_stats(rx, rq);
-        if k < top {
-            run = Some((m.subsample(0, 0), p.subsample(0, 0)));
-        }
-        var[k] = Some(v);
-        mean[k] = Some(m);
+        (h, w) = (h2, w2);
     }
-    Moments { mean, var }
-}
-
-fn clamped_sqrt<T: Real>(v: &Tensor<T>) -> Tensor<T> {
-    Tensor { data: v.data.iter().map(|&v| v.max(T::zero()).sqrt()).collect(), ..*v }
+    PlaneMoments { mean, var }
 }
 
 /// The reference side of one array: its plan and the statistics WD compares against.
@@ -197,21 +188,39 @@ pub struct Reference<T> {
     pub arrays: Vec<ArrayReference<T>>,
 }
 
+/// `(array, plane)` for every plane of every array, the unit of parallel work.
+fn planes_of<T: Real>(arrays: &[Tensor<T>]) -> Vec<(usize, usize)> {
+    arrays.iter().enumerate().flat_map(|(a, t)| (0..t.c).map(move |c| (a, c))).collect()
+}
+
 impl<T: Real> Reference<T> {
     /// Statistics of the reference feature arrays of an `img_h × img_w` image.
     pub fn new(features: &[Tensor<T>], sigma: &Sigma, img_h: usize, img_w: usize) -> Self {
+        let plans: Vec<Plan<T>> = features.iter().map(|f| Plan::new(sigma, img_h, img_w, f.h, f.w)).collect();
+        let moments: Vec<PlaneMoments<T>> = planes_of(features)
+            .into_par_iter()
+            .map(|(a, c)| plane_moments(features[a].plane(c), features[a].h, features[a].w, &plans[a]))
+            .collect();
+        let mut moments = moments.into_iter();
         let arrays = features
             .iter()
-            .map(|f| {
-                let plan = Plan::new(sigma, img_h, img_w, f.h, f.w);
-                let mo = moments(f, &plan);
-                ArrayReference {
-                    shape: (f.c, f.h, f.w),
-                    level0: plan.weights[0].is_some().then(|| f.clone()),
-                    mean: mo.mean,
-                    sd: mo.var.iter().map(|v| v.as_ref().map(clamped_sqrt)).collect(),
-                    plan,
+            .zip(plans)
+            .map(|(f, plan)| {
+                let planes: Vec<PlaneMoments<T>> = moments.by_ref().take(f.c).collect();
+                let stack = |k: usize, pick: &dyn Fn(&PlaneMoments<T>) -> &Option<Vec<T>>, map: fn(T) -> T| {
+                    plan.weights[k].as_ref().map(|_| {
+                        let (h, w) = level_dims(f.h, f.w, k);
+                        let data = planes.iter().flat_map(|p| pick(p).as_ref().expect("a needed level").iter().map(|&v| map(v))).collect();
+                        Tensor::from_vec(f.c, h, w, data)
+                    })
+                };
+                let mut mean = vec![None; NUM_LEVELS + 1];
+                let mut sd = vec![None; NUM_LEVELS + 1];
+                for k in 1..=NUM_LEVELS {
+                    mean[k] = stack(k, &|p| &p.mean[k], |v| v);
+                    sd[k] = stack(k, &|p| &p.var[k], |v| v.max(T::zero()).sqrt());
                 }
+                ArrayReference { shape: (f.c, f.h, f.w), level0: plan.weights[0].is_some().then(|| f.clone()), mean, sd, plan }
             })
             .collect();
         Reference { arrays }
@@ -242,15 +251,35 @@ impl<T: Real> Reference<T> {
 /// WD between rendered feature arrays and a reference.
 pub fn distortion<T: Real>(reference: &Reference<T>, rendered: &[Tensor<T>]) -> f64 {
     check(reference, rendered);
-    reference.arrays.iter().zip(rendered).map(|(r, x)| array_value(r, x, &moments(x, &r.plan))).sum()
+    let sums: Vec<LevelSums> = planes_of(rendered)
+        .into_par_iter()
+        .map(|(a, c)| {
+            let (r, x) = (&reference.arrays[a], &rendered[a]);
+            plane_value(r, c, x.plane(c), &plane_moments(x.plane(c), x.h, x.w, &r.plan))
+        })
+        .collect();
+    value_of(reference, &sums)
 }
 
 /// WD and its gradient with respect to every rendered feature array.
 pub fn distortion_and_grad<T: Real>(reference: &Reference<T>, rendered: &[Tensor<T>]) -> (f64, Vec<Tensor<T>>) {
     check(reference, rendered);
-    let parts: Vec<(f64, Tensor<T>)> = reference.arrays.iter().zip(rendered).map(|(r, x)| array_value_and_grad(r, x)).collect();
-    let value = parts.iter().map(|p| p.0).sum();
-    (value, parts.into_iter().map(|p| p.1).collect())
+    let mut grads: Vec<Tensor<T>> = rendered.iter().map(|x| Tensor::zeros(x.c, x.h, x.w)).collect();
+    let mut tasks: Vec<(usize, usize, &mut [T])> = Vec::new();
+    for (a, g) in grads.iter_mut().enumerate() {
+        let n = g.plane_len().max(1);
+        tasks.extend(g.data.chunks_mut(n).enumerate().map(|(c, out)| (a, c, out)));
+    }
+    let sums: Vec<LevelSums> = tasks
+        .into_par_iter()
+        .map(|(a, c, out)| {
+            let (r, x) = (&reference.arrays[a], &rendered[a]);
+            let mo = plane_moments(x.plane(c), x.h, x.w, &r.plan);
+            plane_grad(r, c, x, &mo, out);
+            plane_value(r, c, x.plane(c), &mo)
+        })
+        .collect();
+    (value_of(reference, &sums), grads)
 }
 
 /// WD between two lists of feature arrays of an `img_h × img_w` image (no caching).
@@ -265,113 +294,124 @@ fn check<T: Real>(reference: &Reference<T>, rendered: &[Tensor<T>]) {
     }
 }
 
-/// `Σ_c Σ_p w(p) f(c, p)` summed in f64, divided by the element count.
-fn weighted_mean<T: Real>(w: &Tensor<T>, c: usize, f: impl Fn(usize) -> T + Sync) -> f64 {
-    let n = w.data.len();
-    let total: f64 = (0..c)
-        .into_par_iter()
-        .map(|ch| w.data.iter().enumerate().map(|(i, &wi)| if wi > T::zero() { (wi * f(ch * n + i)).f64() } else { 0.0 }).sum::<f64>())
-        .sum();
-    total / (c * n) as f64
+/// One plane's `Σ_p w(p) map(p)` per level, summed in f64.
+type LevelSums = [f64; NUM_LEVELS + 1];
+
+/// `Σ_p w(p)·t(p)` in f64 over the positively weighted samples, each product in `T`: eight
+/// interleaved partial sums (so that it vectorises), added in a fixed order.
+fn weighted_sum<T: Real>(w: &[T], terms: impl Iterator<Item = T>) -> f64 {
+    let mut lanes = [0.0f64; 8];
+    let mut terms = terms;
+    for ws in w.chunks(8) {
+        for (lane, (&wi, t)) in lanes.iter_mut().zip(ws.iter().zip(terms.by_ref())) {
+            *lane += if wi > T::zero() { (wi * t).f64() } else { 0.0 };
+        }
+    }
+    lanes.iter().sum()
 }
 
-fn array_value<T: Real>(r: &ArrayReference<T>, x: &Tensor<T>, mo: &Moments<T>) -> f64 {
-    let mut value = 0.0;
+fn plane_value<T: Real>(r: &ArrayReference<T>, c: usize, x: &[T], mo: &PlaneMoments<T>) -> LevelSums {
+    let mut sums = [0.0; NUM_LEVELS + 1];
     if let (Some(w), Some(f)) = (&r.plan.weights[0], &r.level0) {
-        value += weighted_mean(w, x.c, |i| {
-            let d = x.data[i] - f.data[i];
-            d * d
-        });
+        sums[0] = weighted_sum(
+            &w.data,
+            x.iter().zip(f.plane(c)).map(|(&a, &b)| {
+                let d = a - b;
+                d * d
+            }),
+        );
     }
     for k in 1..=NUM_LEVELS {
         let Some(w) = &r.plan.weights[k] else { continue };
         let (m, v) = (mo.mean[k].as_ref().unwrap(), mo.var[k].as_ref().unwrap());
-        let (mr, sr) = (r.mean[k].as_ref().unwrap(), r.sd[k].as_ref().unwrap());
-        value += weighted_mean(w, x.c, |i| {
-            let dm = m.data[i] - mr.data[i];
-            let ds = v.data[i].max(T::zero()).sqrt() - sr.data[i];
-            dm * dm + ds * ds
-        });
+        let (mr, sr) = (r.mean[k].as_ref().unwrap().plane(c), r.sd[k].as_ref().unwrap().plane(c));
+        sums[k] = weighted_sum(
+            &w.data,
+            m.iter().zip(v).zip(mr.iter().zip(sr)).map(|((&m, &v), (&mr, &sr))| {
+                let dm = m - mr;
+                let ds = v.max(T::zero()).sqrt() - sr;
+                dm * dm + ds * ds
+            }),
+        );
+    }
+    sums
+}
+
+/// Σ over levels of the mean over (channels, pixels) of the weighted maps; the planes' sums in
+/// plane order, so the value does not depend on the thread count.
+fn value_of<T: Real>(reference: &Reference<T>, sums: &[LevelSums]) -> f64 {
+    let mut planes = sums.iter();
+    let mut value = 0.0;
+    for r in &reference.arrays {
+        let mine: Vec<&LevelSums> = planes.by_ref().take(r.shape.0).collect();
+        for (k, w) in r.plan.weights.iter().enumerate() {
+            if let Some(w) = w {
+                value += mine.iter().map(|s| s[k]).sum::<f64>() / (r.shape.0 * w.data.len()) as f64;
+            }
+        }
     }
     value
 }
 
-fn array_value_and_grad<T: Real>(r: &ArrayReference<T>, x: &Tensor<T>) -> (f64, Tensor<T>) {
-    let mo = moments(x, &r.plan);
-    let value = array_value(r, x, &mo);
+/// Gradient of WD with respect to plane `c` of the rendered array `x`, into `out`.
+fn plane_grad<T: Real>(r: &ArrayReference<T>, c: usize, x: &Tensor<T>, mo: &PlaneMoments<T>, out: &mut [T]) {
     let top = r.plan.max_level();
-    let two = T::c(2.0);
+    let (two, zero) = (T::c(2.0), T::zero());
     let limit = T::c(SQRT_GRAD_LIMIT);
-
-    // Gradients w.r.t. the running arrays x_k, q_k entering level k + 1 (k = top - 1 .. 0).
-    let mut gx: Option<Tensor<T>> = None;
-    let mut gq: Option<Tensor<T>> = None;
-    // Shapes of the level inputs: level k's maps live at the resolution of x_{k-1}.
-    let mut shapes = vec![(x.h, x.w)];
-    for _ in 1..top {
-        let (h, w) = *shapes.last().unwrap();
-        shapes.push((h.div_ceil(2), w.div_ceil(2)));
-    }
+    // Gradients w.r.t. the running arrays x_k, q_k entering level k + 1 (k = top - 1 .. 0);
+    // level k's maps live at the resolution of x_{k-1}.
+    let mut g: Option<(Vec<T>, Vec<T>)> = None;
     for k in (1..=top).rev() {
-        let (h, w) = shapes[k - 1];
+        let (h, w) = level_dims(x.h, x.w, k);
+        let (h2, w2) = (half(h), half(w));
         let Some(wk) = &r.plan.weights[k] else {
             // Level k only fed the next level: fused adjoint of blur + subsample.
-            let (a, b) = (gx.take().expect("a higher level"), gq.take().expect("a higher level"));
-            gx = Some(a.blur_subsample_adjoint(h, w));
-            gq = Some(b.blur_subsample_adjoint(h, w));
+            let (a, b) = g.take().expect("a higher level");
+            let (mut ga, mut gb) = (vec![zero; h * w], vec![zero; h * w]);
+            blur_subsample_adjoint_into(&a, h2, w2, h, w, &mut ga);
+            blur_subsample_adjoint_into(&b, h2, w2, h, w, &mut gb);
+            g = Some((ga, gb));
             continue;
         };
-        let (mut gm, mut gp) = match (gx.take(), gq.take()) {
-            (Some(a), Some(b)) => (a.subsample_adjoint(h, w, 0, 0), b.subsample_adjoint(h, w, 0, 0)),
-            _ => (Tensor::zeros(x.c, h, w), Tensor::zeros(x.c, h, w)),
-        };
-        {
-            let (m, v) = (mo.mean[k].as_ref().unwrap(), mo.var[k].as_ref().unwrap());
-            let (mr, sr) = (r.mean[k].as_ref().unwrap(), r.sd[k].as_ref().unwrap());
-            let n = h * w;
-            let scale = two / T::c((x.c * n) as f64);
-            gm.data.par_chunks_mut(n).zip(gp.data.par_chunks_mut(n)).enumerate().for_each(|(c, (gm, gp))| {
-                for i in 0..n {
-                    let wi = wk.data[i];
-                    if wi <= T::zero() {
-                        continue;
-                    }
-                    let j = c * n + i;
-                    let (mj, vj) = (m.data[j], v.data[j]);
-                    let vc = vj.max(T::zero());
-                    let s = vc.sqrt();
-                    let g_s = scale * wi * (s - sr.data[j]);
-                    let g_vc = g_s * (T::c(0.5) / s).min(limit);
-                    // Clamp at 0: pass the gradient where inactive, or where it is negative.
-                    let g_v = if vj >= T::zero() || g_vc < T::zero() { g_vc } else { T::zero() };
-                    gm[i] = gm[i] + scale * wi * (mj - mr.data[j]) - two * mj * g_v;
-                    gp[i] = gp[i] + g_v;
-                }
-            });
+        let (mut gm, mut gp) = (vec![zero; h * w], vec![zero; h * w]);
+        if let Some((a, b)) = g.take() {
+            subsample_adjoint_into(&a, w2, 0, 0, w, &mut gm);
+            subsample_adjoint_into(&b, w2, 0, 0, w, &mut gp);
         }
-        gx = Some(gm.blur());
-        gq = Some(gp.blur());
+        let (m, v) = (mo.mean[k].as_ref().unwrap(), mo.var[k].as_ref().unwrap());
+        let (mr, sr) = (r.mean[k].as_ref().unwrap().plane(c), r.sd[k].as_ref().unwrap().plane(c));
+        let scale = two / T::c((x.c * h * w) as f64);
+        let half_ = T::c(0.5);
+        for (((gm, gp), &wi), (((&mj, &vj), &mrj), &srj)) in
+            gm.iter_mut().zip(gp.iter_mut()).zip(&wk.data).zip(m.iter().zip(v).zip(mr).zip(sr))
+        {
+            if wi <= zero {
+                continue;
+            }
+            let vc = vj.max(zero);
+            let s = vc.sqrt();
+            let g_s = scale * wi * (s - srj);
+            let g_vc = g_s * (half_ / s).min(limit);
+            // Clamp at 0: pass the gradient where inactive, or where it is negative.
+            let g_v = if vj >= zero || g_vc < zero { g_vc } else { zero };
+            *gm = *gm + scale * wi * (mj - mrj) - two * mj * g_v;
+            *gp = *gp + g_v;
+        }
+        let (mut a, mut b) = (vec![zero; h * w], vec![zero; h * w]);
+        blur_into(&gm, h, w, &mut a);
+        blur_into(&gp, h, w, &mut b);
+        g = Some((a, b));
     }
 
-    let mut grad = Tensor::zeros(x.c, x.h, x.w);
-    let n = x.h * x.w;
-    let w0 = r.plan.weights[0].as_ref().zip(r.level0.as_ref());
-    let scale0 = two / T::c((x.c * n).max(1) as f64);
-    grad.data.par_chunks_mut(n.max(1)).enumerate().for_each(|(c, g)| {
-        for i in 0..g.len() {
-            let j = c * n + i;
-            let xj = x.data[j];
-            let mut v = T::zero();
-            if let (Some(gx), Some(gq)) = (&gx, &gq) {
-                v = gx.data[j] + two * xj * gq.data[j];
-            }
-            if let Some((w, f)) = w0 {
-                v = v + scale0 * w.data[i] * (xj - f.data[j]);
-            }
-            g[i] = v;
-        }
-    });
-    (value, grad)
+    let xs = x.plane(c);
+    match &g {
+        Some((gx, gq)) => out.iter_mut().zip(xs).zip(gx.iter().zip(gq)).for_each(|((o, &xj), (&a, &b))| *o = a + two * xj * b),
+        None => out.fill(zero),
+    }
+    if let (Some(w), Some(f)) = (&r.plan.weights[0], &r.level0) {
+        let scale0 = two / T::c((x.c * xs.len()).max(1) as f64);
+        out.iter_mut().zip(xs).zip(w.data.iter().zip(f.plane(c))).for_each(|((o, &xj), (&wi, &fj))| *o = *o + scale0 * wi * (xj - fj));
+    }
 }
 
 /// `jax.image.resize(x, (oh, ow), "linear", antialias=True)` of one row-major plane: a

@@ -54,10 +54,14 @@ pub fn taps() -> ([f64; 2 * RADIUS + 1], [f64; 2 * RADIUS + 1], [f64; 2 * RADIUS
 
 /// Separable correlation with zero padding: `out[y][x] = Σ ky[j] kx[i] in[y+j−r][x+i−r]`.
 fn correlate<T: Real>(x: &[T], h: usize, w: usize, kx: &[T], ky: &[T]) -> Vec<T> {
+    correlate_columns(&correlate_rows(x, h, w, kx), h, w, ky)
+}
+
+/// The horizontal pass of [`correlate`]: each row on a zero-padded copy, a tap at a time over the
+/// row (no bounds checks, vectorises; each sample's taps are still summed in order from 0).
+fn correlate_rows<T: Real>(x: &[T], h: usize, w: usize, kx: &[T]) -> Vec<T> {
     let r = kx.len() / 2;
     let mut tmp = vec![T::zero(); h * w];
-    // Horizontal pass on a zero-padded copy of each row, a tap at a time over the row (no bounds
-    // checks, vectorises; each sample's taps are still summed in order from 0).
     let mut padded = vec![T::zero(); w + 2 * r];
     for y in 0..h {
         padded[r..r + w].copy_from_slice(&x[y * w..(y + 1) * w]);
@@ -68,6 +72,12 @@ fn correlate<T: Real>(x: &[T], h: usize, w: usize, kx: &[T], ky: &[T]) -> Vec<T>
             }
         }
     }
+    tmp
+}
+
+/// The vertical pass of [`correlate`] over whole rows of the horizontal pass's output.
+fn correlate_columns<T: Real>(tmp: &[T], h: usize, w: usize, ky: &[T]) -> Vec<T> {
+    let r = ky.len() / 2;
     let mut out = vec![T::zero(); h * w];
     for y in 0..h {
         for (k, &t) in ky.iter().enumerate() {
@@ -84,11 +94,24 @@ fn correlate<T: Real>(x: &[T], h: usize, w: usize, kx: &[T], ky: &[T]) -> Vec<T>
     out
 }
 
-/// The five basis filters (kx, ky): Gx, Gy, Gxx, Gxy, Gyy.
-fn basis<T: Real>() -> [(Vec<T>, Vec<T>); 5] {
+/// The 1-D kernels g, g′, g″ of [`taps`] in `T`.
+fn kernels<T: Real>() -> [Vec<T>; 3] {
     let (g, d1, d2) = taps();
     let v = |a: &[f64]| a.iter().map(|&x| T::c(x)).collect::<Vec<T>>();
-    [(v(&d1), v(&g)), (v(&g), v(&d1)), (v(&d2), v(&g)), (v(&d1), v(&d1)), (v(&g), v(&d2))]
+    [v(&g), v(&d1), v(&d2)]
+}
+
+/// The five basis filters Gx, Gy, Gxx, Gxy, Gyy as (horizontal, vertical) indices into
+/// [`kernels`].
+const BASIS: [(usize, usize); 5] = [(1, 0), (0, 1), (2, 0), (1, 1), (0, 2)];
+
+/// The five basis responses of one stage: [`correlate`] with each [`BASIS`] filter, the
+/// horizontal pass done once per kernel (three instead of five, the same values).
+fn basis_responses<T: Real>(y: &[T], h: usize, w: usize) -> [Vec<T>; 5] {
+    let kernels = kernels::<T>();
+    let rows: Vec<Vec<T>> = kernels.par_iter().map(|k| correlate_rows(y, h, w, k)).collect();
+    let resp: Vec<Vec<T>> = BASIS.par_iter().map(|&(kx, ky)| correlate_columns(&rows[kx], h, w, &kernels[ky])).collect();
+    resp.try_into().unwrap_or_else(|_| unreachable!("five basis filters"))
 }
 
 /// Steering coefficients: odd θ = (cos θ, sin θ) over (Gx, Gy); even θ = (cos²θ, 2 cosθ sinθ,
@@ -162,7 +185,7 @@ struct Tape<T> {
 
 impl<T: Real> Backward<T> for Tape<T> {
     fn backward(self: Box<Self>, grads: &[Tensor<T>]) -> Tensor<T> {
-        let bank = basis::<T>();
+        let kernels = kernels::<T>();
         let mut g_luma: Option<Tensor<T>> = None;
         for s in (0..STAGES).rev() {
             let (h, w) = self.shapes[s];
@@ -172,12 +195,12 @@ impl<T: Real> Backward<T> for Tape<T> {
             };
             let gb = rectify_adjoint(&self.stages[s], &grads[s + 1]);
             // Adjoint of correlation = correlation with the reversed kernels.
-            let parts: Vec<Vec<T>> = bank
+            let parts: Vec<Vec<T>> = BASIS
                 .par_iter()
                 .zip(gb.par_iter())
-                .map(|((kx, ky), g)| {
-                    let rx: Vec<T> = kx.iter().rev().cloned().collect();
-                    let ry: Vec<T> = ky.iter().rev().cloned().collect();
+                .map(|(&(kx, ky), g)| {
+                    let rx: Vec<T> = kernels[kx].iter().rev().cloned().collect();
+                    let ry: Vec<T> = kernels[ky].iter().rev().cloned().collect();
                     correlate(g, h, w, &rx, &ry)
                 })
                 .collect();
@@ -209,7 +232,6 @@ impl<T: Real> FeatureSpace<T> for Pyramid {
         let third = T::c(1.0 / 3.0);
         let luma: Vec<T> = (0..n).map(|i| third * (norm.data[i] + norm.data[n + i] + norm.data[2 * n + i])).collect();
         let mut y = Tensor::from_vec(1, norm.h, norm.w, luma);
-        let bank = basis::<T>();
         let mut shapes = Vec::with_capacity(STAGES);
         let mut stages = Vec::with_capacity(STAGES);
         for s in 0..STAGES {
@@ -217,8 +239,7 @@ impl<T: Real> FeatureSpace<T> for Pyramid {
                 y = y.lowpass2();
             }
             let (h, w) = (y.h, y.w);
-            let resp: Vec<Vec<T>> = bank.par_iter().map(|(kx, ky)| correlate(&y.data, h, w, kx, ky)).collect();
-            let resp: [Vec<T>; 5] = resp.try_into().expect("five basis filters");
+            let resp = basis_responses(&y.data, h, w);
             shapes.push((h, w));
             stages.push(rectify(&resp, h, w));
         }
