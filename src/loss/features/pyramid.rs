@@ -132,17 +132,20 @@ fn rectify<T: Real>(resp: &[Vec<T>; 5], h: usize, w: usize) -> Tensor<T> {
     let st = steering();
     let gain = T::c(GAIN);
     let mut out = Tensor::zeros(STAGE_CHANNELS, h, w);
-    out.data.par_chunks_mut(n.max(1)).enumerate().for_each(|(ch, o)| {
-        let (orient, phase, sign) = (ch / 4, (ch / 2) % 2, ch % 2);
+    // Channels 2j and 2j + 1 are the two half-waves of one steered response: steer once.
+    out.data.par_chunks_mut((2 * n).max(1)).enumerate().for_each(|(pair, o)| {
+        let (orient, phase) = (pair / 2, pair % 2);
         let (odd, even) = st[orient];
-        let sgn = if sign == 0 { gain } else { -gain };
-        for i in 0..o.len() {
-            let r = if phase == 0 {
-                T::c(odd[0]) * resp[0][i] + T::c(odd[1]) * resp[1][i]
-            } else {
-                T::c(even[0]) * resp[2][i] + T::c(even[1]) * resp[3][i] + T::c(even[2]) * resp[4][i]
-            };
-            o[i] = (sgn * r).max(T::zero());
+        let r: Vec<T> = if phase == 0 {
+            let (a, b) = (T::c(odd[0]), T::c(odd[1]));
+            resp[0].iter().zip(&resp[1]).map(|(&x, &y)| a * x + b * y).collect()
+        } else {
+            let (a, b, c) = (T::c(even[0]), T::c(even[1]), T::c(even[2]));
+            resp[2].iter().zip(&resp[3]).zip(&resp[4]).map(|((&x, &y), &z)| a * x + b * y + c * z).collect()
+        };
+        let (pos, neg) = o.split_at_mut(n);
+        for (sgn, o) in [(gain, pos), (-gain, neg)] {
+            o.iter_mut().zip(&r).for_each(|(o, &r)| *o = (sgn * r).max(T::zero()));
         }
     });
     out
