@@ -17,7 +17,9 @@
 //!
 //! Speed-ups (the paper's, exact): levels whose weight is zero everywhere are never computed (the
 //! cascade stops at the highest needed level), and the reference side's statistics are computed
-//! once into a [`Reference`] that callers may cache.
+//! once into a [`Reference`] that callers may cache. Every plane (channel) of every array is
+//! computed on its own, start to finish, as one parallel task: the statistics never mix channels,
+//! so a plane's cascade, value and gradient stay in cache (the same arithmetic in the same order).
 
 use rayon::prelude::*;
 
