@@ -166,6 +166,27 @@ fn matches_naive_formula_with_all_levels_computed() {
     }
 }
 
+/// WD runs plane by plane over every array at once: the arrays' values and gradients do not
+/// depend on which other arrays are in the list (an array without pixels included).
+#[test]
+fn arrays_are_independent_and_empty_arrays_add_nothing() {
+    let mut rng = Rng::new(11);
+    let shapes = [(3, 20, 17), (2, 0, 5), (4, 10, 9)];
+    let a: Vec<Tensor<f64>> = shapes.iter().map(|&(c, h, w)| random_tensor(&mut rng, c, h, w)).collect();
+    let b: Vec<Tensor<f64>> = shapes.iter().map(|&(c, h, w)| random_tensor(&mut rng, c, h, w)).collect();
+    let sigma = Sigma::Constant(4.0);
+    let (value, grads) = wd::distortion_and_grad(&Reference::new(&a, &sigma, 20, 17), &b);
+    let mut sum = 0.0;
+    for i in [0, 2] {
+        let (v, g) = wd::distortion_and_grad(&Reference::new(&a[i..=i], &sigma, 20, 17), &b[i..=i]);
+        assert_eq!(g[0], grads[i], "array {i}'s gradient");
+        sum += v;
+    }
+    assert!(grads[1].data.is_empty());
+    assert!((value - sum).abs() <= 1e-14 * sum, "{value} vs {sum}");
+    assert_eq!(wd::distortion(&Reference::new(&a, &sigma, 20, 17), &b), value);
+}
+
 #[test]
 fn downscaled_arrays_get_smaller_sigma_and_zero_levels_are_skipped() {
     // On a 64×64 image, ℓ = log2 σ less each array's log2 downscale factor, relu'd. σ = 4: the

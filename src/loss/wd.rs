@@ -269,8 +269,11 @@ pub fn distortion_and_grad<T: Real>(reference: &Reference<T>, rendered: &[Tensor
     let mut grads: Vec<Tensor<T>> = rendered.iter().map(|x| Tensor::zeros(x.c, x.h, x.w)).collect();
     let mut tasks: Vec<(usize, usize, &mut [T])> = Vec::new();
     for (a, g) in grads.iter_mut().enumerate() {
-        let n = g.plane_len().max(1);
-        tasks.extend(g.data.chunks_mut(n).enumerate().map(|(c, out)| (a, c, out)));
+        match g.plane_len() {
+            // One task per plane, as in `planes_of`, even for planes without pixels.
+            0 => tasks.extend((0..g.c).map(|c| (a, c, &mut [][..]))),
+            n => tasks.extend(g.data.chunks_mut(n).enumerate().map(|(c, out)| (a, c, out))),
+        }
     }
     let sums: Vec<LevelSums> = tasks
         .into_par_iter()
