@@ -209,18 +209,23 @@ impl<T: Real> Reference<T> {
             .zip(plans)
             .map(|(f, plan)| {
                 let planes: Vec<PlaneMoments<T>> = moments.by_ref().take(f.c).collect();
-                let stack = |k: usize, pick: &dyn Fn(&PlaneMoments<T>) -> &Option<Vec<T>>, map: fn(T) -> T| {
-                    plan.weights[k].as_ref().map(|_| {
-                        let (h, w) = level_dims(f.h, f.w, k);
-                        let data = planes.iter().flat_map(|p| pick(p).as_ref().expect("a needed level").iter().map(|&v| map(v))).collect();
-                        Tensor::from_vec(f.c, h, w, data)
-                    })
+                // One level of every plane, stacked into the array's tensor at that level.
+                let stack = |k: usize, level: &dyn Fn(&PlaneMoments<T>) -> &Option<Vec<T>>| {
+                    let (h, w) = level_dims(f.h, f.w, k);
+                    Tensor::from_vec(
+                        f.c,
+                        h,
+                        w,
+                        planes.iter().flat_map(|p| level(p).as_ref().expect("a needed level").iter().copied()).collect(),
+                    )
                 };
                 let mut mean = vec![None; NUM_LEVELS + 1];
                 let mut sd = vec![None; NUM_LEVELS + 1];
-                for k in 1..=NUM_LEVELS {
-                    mean[k] = stack(k, &|p| &p.mean[k], |v| v);
-                    sd[k] = stack(k, &|p| &p.var[k], |v| v.max(T::zero()).sqrt());
+                for k in (1..=NUM_LEVELS).filter(|&k| plan.weights[k].is_some()) {
+                    mean[k] = Some(stack(k, &|p| &p.mean[k]));
+                    let mut s = stack(k, &|p| &p.var[k]);
+                    s.data.iter_mut().for_each(|v| *v = v.max(T::zero()).sqrt());
+                    sd[k] = Some(s);
                 }
                 ArrayReference { shape: (f.c, f.h, f.w), level0: plan.weights[0].is_some().then(|| f.clone()), mean, sd, plan }
             })
@@ -304,9 +309,8 @@ type LevelSums = [f64; NUM_LEVELS + 1];
 
 /// `Σ_p w(p)·t(p)` in f64 over the positively weighted samples, each product in `T`: eight
 /// interleaved partial sums (so that it vectorises), added in a fixed order.
-fn weighted_sum<T: Real>(w: &[T], terms: impl Iterator<Item = T>) -> f64 {
+fn weighted_sum<T: Real>(w: &[T], mut terms: impl Iterator<Item = T>) -> f64 {
     let mut lanes = [0.0f64; 8];
-    let mut terms = terms;
     for ws in w.chunks(8) {
         for (lane, (&wi, t)) in lanes.iter_mut().zip(ws.iter().zip(terms.by_ref())) {
             *lane += if wi > T::zero() { (wi * t).f64() } else { 0.0 };
