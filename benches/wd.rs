@@ -35,7 +35,7 @@ fn bench(c: &mut Criterion) {
     g.sample_size(10);
     g.bench_function("l1ssim", |b| b.iter(|| wdr::l_orig(&rendered, &target)));
     // Iteration 1 (1-based) of a run without warm-up, so WD-R itself is timed.
-    let mut pyr = WdrLoss::new(Box::new(Pyramid), 0);
+    let mut pyr = WdrLoss::new(Box::new(Pyramid::LUMA), 0);
     pyr.loss_and_grad(&rendered, &target, 0, 1);
     g.bench_function("wdr_pyramid", |b| b.iter(|| pyr.loss_and_grad(&rendered, &target, 0, 1)));
     let mut vgg = WdrLoss::new(Box::new(Vgg16::<f32>::random(&VGG16_CHANNELS, 1)), 0);
@@ -62,7 +62,7 @@ fn bench_iteration(c: &mut Criterion) {
     let mut group = c.benchmark_group("train_iteration_200x200_10k");
     group.sample_size(10);
     let losses: Vec<(&str, Box<dyn ImageLoss>)> =
-        vec![("l1ssim", Box::new(gscodec::loss::L1Ssim::default())), ("wdr_pyramid", Box::new(WdrLoss::new(Box::new(Pyramid), 0)))];
+        vec![("l1ssim", Box::new(gscodec::loss::L1Ssim::default())), ("wdr_pyramid", Box::new(WdrLoss::new(Box::new(Pyramid::LUMA), 0)))];
     for (name, mut loss) in losses {
         let mut params = random_splats(n, 1, 2).with_sh_degree(3);
         params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));

@@ -22,20 +22,20 @@ fn main() {
     let (h, w) = (200, 200);
     let img = |p: f32| Tensor::<f32>::from_vec(3, h, w, (0..3 * h * w).map(|i| 0.5 + 0.3 * ((i as f32) * 0.37 + p).sin()).collect());
     let (a, b) = (img(0.0), img(0.5));
-    let r = Reference::new(&Pyramid.features(&a), &Sigma::Constant(sigma), h, w);
-    let ex = Pyramid.extract(&b);
+    let r = Reference::new(&Pyramid::LUMA.features(&a), &Sigma::Constant(sigma), h, w);
+    let ex = Pyramid::LUMA.extract(&b);
     let (_, grads) = wd::distortion_and_grad(&r, &ex.arrays);
     let to_image = |t: &Tensor<f32>| gscodec::decoder::Image { width: w as u32, height: h as u32, data: t.to_interleaved_f32() };
     let (ia, ib) = (to_image(&a), to_image(&b));
     let parts: [(&str, &dyn Fn()); 4] = [
         ("extract", &|| {
-            std::hint::black_box(Pyramid.extract(&b));
+            std::hint::black_box(Pyramid::LUMA.extract(&b));
         }),
         ("wd", &|| {
             std::hint::black_box(wd::distortion_and_grad(&r, &ex.arrays));
         }),
         ("backward", &|| {
-            std::hint::black_box(Pyramid.extract(&b).tape.backward(&grads));
+            std::hint::black_box(Pyramid::LUMA.extract(&b).tape.backward(&grads));
         }),
         ("lorig", &|| {
             std::hint::black_box(gscodec::loss::wdr::l_orig(&ia, &ib));

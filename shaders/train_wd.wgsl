@@ -5,8 +5,9 @@
 // Every kernel is one elementwise op over planes in one f32 `arena` (offsets in floats, given by
 // the op's uniform), so the host lays out features, statistics and gradients once per image
 // size. `refs` holds the reference view's cached statistics. Prepended by the host (from the
-// CPU code): TG / TD1 / TD2 (7 taps of g, g', g''), ODD / EVEN (steering), GAIN, MEAN / STD
-// (ImageNet), NORMALISE_VIEWS, SUMS_AT / SUMS / STRIPES (the layout of acc's sums).
+// CPU code): TG / TD1 / TD2 (7 taps of g, g', g''), ODD / EVEN (steering), SIG (the signals'
+// channel weights), GAIN, MEAN / STD (ImageNet), NORMALISE_VIEWS, SUMS_AT / SUMS / STRIPES (the
+// layout of acc's sums).
 //
 // acc: [0] d_WD of this iteration, [1] Σ(∇L_orig)², [2] Σ(∇d_WD + β∇L_orig)², [3] γ,
 // [4] Σ‖∇L_orig‖, [5] Σ‖∇(d_WD + β L_orig)‖, [6] views measured (f32 bit patterns); from [SUMS_AT],
@@ -553,6 +554,47 @@ fn input_adj(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let gy = (1.0 / 3.0) * arena[op.src2 + i];
     for (var c = 0u; c < 3u; c++) {
         arena[op.dst + 3u * i + c] = (arena[op.src + c * n + i] + gy) / STD[c];
+    }
+}
+
+// An opponent colour signal SIG[c] (pyramid.rs SIGNALS) of the normalised image (3 planes at src)
+// into dst.
+@compute @workgroup_size(256)
+fn feat_signal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = index(gid, nwg);
+    let n = op.count;
+    if (i >= n) {
+        return;
+    }
+    let k = SIG[op.c];
+    arena[op.dst + i] = k.x * arena[op.src + i] + k.y * arena[op.src + n + i] + k.z * arena[op.src + 2u * n + i];
+}
+
+// A stage without oriented responses: the coarser stage's gradient (aux, UP) through the stride-2
+// low-pass alone, into dst.
+@compute @workgroup_size(256)
+fn lowpass2_adj(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = index(gid, nwg);
+    if (i >= op.count) {
+        return;
+    }
+    let x = i32(i % op.w);
+    let y = i32(i / op.w);
+    arena[op.dst + i] = 0.5 * scat_row(y, x) + 0.25 * (scat_row(y - 1, x) + scat_row(y + 1, x));
+}
+
+// Adds signal SIG[c]'s gradient (src2) to the image gradient (dst, interleaved; after input_adj).
+@compute @workgroup_size(256)
+fn input_adj_signal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = index(gid, nwg);
+    let n = op.count;
+    if (i >= n) {
+        return;
+    }
+    let k = SIG[op.c];
+    let g = arena[op.src2 + i];
+    for (var c = 0u; c < 3u; c++) {
+        arena[op.dst + 3u * i + c] += k[c] * g / STD[c];
     }
 }
 

@@ -500,15 +500,18 @@ fn assert_value(what: &str, gpu: f64, cpu: f64) {
 #[test]
 fn wd_value_and_gradient_match_cpu() {
     let Some(gpu) = device() else { return };
-    for sigma in [4.0, 2.0] {
-        for (seed, (w, h)) in [(0u64, (37u32, 29u32)), (1, (64, 64)), (2, (23, 40))] {
-            let (r, t) = image_pair(seed, w, h);
-            let (cv, cg) = WdDistortion::new(Box::new(Pyramid)).with_sigma(Sigma::Constant(sigma)).value_and_grad(&r, &t, None);
-            // `wd` with γ = 1 past its warm-up is d_WD itself.
-            let loss = GpuLoss::new(LossKind::Wd, &FeatureSpec::Pyramid, Some(1.0), Some(sigma));
-            let (gv, gg) = gpu::training_loss_and_grad(&gpu, &r, &t, &loss, 1, 1).unwrap();
-            assert_value(&format!("σ {sigma} {w}x{h} d_WD"), gv, cv);
-            assert_close(&format!("σ {sigma} {w}x{h} d(d_WD)/dimage"), &gg, &cg);
+    for (bank, spec) in [(Pyramid::LUMA, FeatureSpec::Pyramid), (Pyramid::COLOUR, FeatureSpec::PyramidColour)] {
+        for sigma in [4.0, 2.0] {
+            for (seed, (w, h)) in [(0u64, (37u32, 29u32)), (1, (64, 64)), (2, (23, 40))] {
+                let (r, t) = image_pair(seed, w, h);
+                let (cv, cg) = WdDistortion::new(Box::new(bank)).with_sigma(Sigma::Constant(sigma)).value_and_grad(&r, &t, None);
+                // `wd` with γ = 1 past its warm-up is d_WD itself.
+                let loss = GpuLoss::new(LossKind::Wd, &spec, Some(1.0), Some(sigma));
+                let (gv, gg) = gpu::training_loss_and_grad(&gpu, &r, &t, &loss, 1, 1).unwrap();
+                let what = format!("{spec} σ {sigma} {w}x{h}");
+                assert_value(&format!("{what} d_WD"), gv, cv);
+                assert_close(&format!("{what} d(d_WD)/dimage"), &gg, &cg);
+            }
         }
     }
 }
@@ -520,7 +523,7 @@ fn wdr_loss_and_gradient_match_cpu() {
     let Some(gpu) = device() else { return };
     let (r, t) = image_pair(7, 37, 29);
     for gamma in [Some(0.03), None] {
-        let mut cpu = WdrLoss::new(Box::new(Pyramid), 1);
+        let mut cpu = WdrLoss::new(Box::new(Pyramid::LUMA), 1);
         if let Some(g) = gamma {
             cpu = cpu.with_fixed_gamma(g);
         }
@@ -537,7 +540,7 @@ fn wdr_loss_and_gradient_match_cpu() {
     for (share, iter, warm) in [(None, 5, true), (None, 30, true), (None, 31, false), (Some(1.0), 100, true)] {
         let loss = loss.with_warmup(share);
         let (gv, gg) = gpu::training_loss_and_grad(&gpu, &r, &t, &loss, 100, iter).unwrap();
-        let mut cpu = WdrLoss::new(Box::new(Pyramid), 100);
+        let mut cpu = WdrLoss::new(Box::new(Pyramid::LUMA), 100);
         cpu.warmup = wdr::warmup_iters(100, share.unwrap_or(wdr::WARMUP_FRACTION));
         let (cv, cg) = cpu.loss_and_grad(&r, &t, 0, iter);
         assert_value(&format!("WD-R, iteration {iter}"), gv, cv);
@@ -577,16 +580,23 @@ fn wdr_training_matches_cpu_psnr() {
 /// The WD stage's memory: one view's cached reference statistics hold, with σ = 4, the means and
 /// standard deviations of level 2 of the 3 + 16 full-resolution channels (at ½ resolution) and of
 /// level 1 of the 16 ½-resolution channels, and the 16 + 16 channels at ¼ and ⅛ (level 0):
-/// 750,000 floats at 200² (3.0 MB), 18.75 M at 1000² (75 MB).
+/// 750,000 floats at 200² (3.0 MB), 18.75 M at 1000² (75 MB). `pyramid-colour` adds, per
+/// opponent signal, level 1 of its ½-resolution stage and its ¼ and ⅛ stages: 2 × 370,000 more
+/// at 200².
 #[test]
 fn wd_stage_memory_per_view() {
-    for ((w, h), want) in [((200u32, 200u32), 750_000u64 * 4), ((1000, 1000), 18_750_000 * 4)] {
-        let (arena, reference) = gpu::wd::WdStage::memory(w, h, 4.0);
+    for (colour, (w, h), want) in [
+        (false, (200u32, 200u32), 750_000u64 * 4),
+        (false, (1000, 1000), 18_750_000 * 4),
+        (true, (200, 200), 1_490_000 * 4),
+        (true, (1000, 1000), 37_250_000 * 4),
+    ] {
+        let (arena, reference) = gpu::wd::WdStage::memory(w, h, 4.0, colour);
         eprintln!(
-            "{w}x{h}: WD working memory {:.1} MB, reference statistics {:.1} MB per view",
+            "{w}x{h}, colour {colour}: WD working memory {:.1} MB, reference statistics {:.1} MB per view",
             arena as f64 / 1e6,
             reference as f64 / 1e6
         );
-        assert_eq!(reference, want, "{w}x{h}");
+        assert_eq!(reference, want, "{w}x{h}, colour {colour}");
     }
 }

@@ -22,6 +22,7 @@ fn fake(loss: &str, lambda: f64, scale: f64) -> PointResult {
         iters: None,
         seed: 0,
         retrain_iters: 0,
+        wd_features: None,
         wd_sigma: None,
         wd_warmup: None,
         search_distortion: SearchDistortion::Mse,
@@ -303,6 +304,7 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
         // as the fake results (and every result from before retraining existed)
         retrain_iters: Some(0),
         coding_breakdown: false,
+        features: gscodec::loss::FeatureSpec::Pyramid,
         wd_sigma: None,
         // the share results from before --wd-warmup existed were trained with
         wd_warmup: Some(0.1),
@@ -331,6 +333,18 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(s2.is_done(&wdr) && !default_warmup.is_done(&wdr) && !w5.is_done(&wdr) && w5.is_done(&l1));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.3), ..fake("wdr", 2.0, 1.0) });
     assert!(default_warmup.is_done(&wdr) && !w5.is_done(&wdr));
+    // the feature space likewise: a result without one was trained in `pyramid`
+    let colour = Plan { features: gscodec::loss::FeatureSpec::PyramidColour, ..default_warmup.clone() };
+    assert!(!colour.is_done(&wdr) && colour.is_done(&l1));
+    assert!(colour.point_command(&wdr).join(" ").contains("--features pyramid-colour"));
+    assert!(!default_warmup.point_command(&wdr).join(" ").contains("--features"));
+    assert_eq!(colour.settings()["features"], "pyramid-colour");
+    let r = PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.3), ..fake("wdr", 2.0, 1.0) };
+    write_point(tmp.path(), &PointResult { wd_features: Some("pyramid-colour".into()), ..r.clone() });
+    assert!(colour.is_done(&wdr) && !default_warmup.is_done(&wdr));
+    assert_eq!(colour.encoder_config(&wdr).unwrap().loss.features, gscodec::loss::FeatureSpec::PyramidColour);
+    write_point(tmp.path(), &PointResult { wd_features: Some("pyramid".into()), ..r });
+    assert!(default_warmup.is_done(&wdr) && !colour.is_done(&wdr));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.5), ..fake("wdr", 2.0, 1.0) });
     assert!(w5.is_done(&wdr) && !default_warmup.is_done(&wdr) && !s2.is_done(&wdr));
     // a result from before --seeds existed was trained with seed 0; another seed's point is

@@ -195,9 +195,9 @@ fn downscaled_arrays_get_smaller_sigma_and_zero_levels_are_skipped() {
     let expected = [(4.0, [2, 2, 1, 0, 0]), (2.0, [1, 1, 0, 0, 0])];
     let mut rng = Rng::new(3);
     let img = random_image::<f64>(&mut rng, 64, 64);
-    let feats = Pyramid.features(&img);
+    let feats = Pyramid::LUMA.features(&img);
     let other = random_image::<f64>(&mut rng, 64, 64);
-    let fo = Pyramid.features(&other);
+    let fo = Pyramid::LUMA.features(&other);
     for (sigma, want_levels) in expected {
         let r = Reference::new(&feats, &Sigma::Constant(sigma), 64, 64);
         assert_eq!(feats.len(), 5);
@@ -255,8 +255,8 @@ fn identity_nonnegativity_and_pointwise_limit() {
     let a = random_image::<f64>(&mut rng, 24, 20);
     let b = random_image::<f64>(&mut rng, 24, 20);
     for sigma in [Sigma::Constant(4.0), Sigma::Constant(1.5), Sigma::map(3, 2, &[1.0, 2.0, 4.0, 8.0, 3.0, 0.5])] {
-        assert_eq!(wd_of(&Pyramid, &a, &a, &sigma), 0.0);
-        assert!(wd_of(&Pyramid, &a, &b, &sigma) > 0.0);
+        assert_eq!(wd_of(&Pyramid::LUMA, &a, &a, &sigma), 0.0);
+        assert!(wd_of(&Pyramid::LUMA, &a, &b, &sigma) > 0.0);
     }
     for seed in 0..20 {
         let mut r = Rng::new(100 + seed);
@@ -265,7 +265,7 @@ fn identity_nonnegativity_and_pointwise_limit() {
         assert!(wd::wd(std::slice::from_ref(&x), &[y], &Sigma::Constant(1.0 + r.uniform_f64() * 20.0), x.h, 9) >= 0.0);
     }
     // σ → 0: the pointwise mean squared feature difference, summed over arrays.
-    let (fa, fb) = (Pyramid.features(&a), Pyramid.features(&b));
+    let (fa, fb) = (Pyramid::LUMA.features(&a), Pyramid::LUMA.features(&b));
     let pointwise: f64 = fa
         .iter()
         .zip(&fb)
@@ -323,12 +323,12 @@ fn texture_property_phase_shift_is_close_blur_is_far() {
         };
         let sigma = Sigma::Constant(4.0);
         let (l2_shift, l2_blur) = (mse(&a, &shifted), mse(&a, &blurred));
-        let (wd_shift, wd_blur) = (wd_of(&Pyramid, &a, &shifted, &sigma), wd_of(&Pyramid, &a, &blurred, &sigma));
+        let (wd_shift, wd_blur) = (wd_of(&Pyramid::LUMA, &a, &shifted, &sigma), wd_of(&Pyramid::LUMA, &a, &blurred, &sigma));
         // Pixel-wise, the shifted texture is the worse copy; WD ranks it the better one.
         assert!(l2_shift > 2.0 * l2_blur, "stripes={stripes}: L2 shift {l2_shift} blur {l2_blur}");
         assert!(wd_shift < 0.5 * wd_blur, "stripes={stripes}: WD shift {wd_shift} blur {wd_blur}");
         // And the shifted texture is far pointwise (σ → 0) but close under WD.
-        let pointwise = wd_of(&Pyramid, &a, &shifted, &Sigma::Constant(0.0));
+        let pointwise = wd_of(&Pyramid::LUMA, &a, &shifted, &Sigma::Constant(0.0));
         assert!(wd_shift < 0.25 * pointwise, "stripes={stripes}: WD {wd_shift} vs pointwise {pointwise}");
     }
 }
@@ -386,14 +386,67 @@ fn gradient_through_pyramid_matches_finite_differences() {
     let (h, w) = (21, 18);
     let target = random_image::<f64>(&mut rng, h, w);
     let x = random_image::<f64>(&mut rng, h, w);
-    for sigma in [Sigma::Constant(4.0), Sigma::Constant(2.0)] {
-        let r = Reference::new(&Pyramid.features(&target), &sigma, h, w);
-        let ex = Pyramid.extract(&x);
-        let (_, grads) = wd::distortion_and_grad(&r, &ex.arrays);
-        let g = ex.tape.backward(&grads);
-        let idx = some_indices(&mut rng, x.data.len(), 16);
-        check_grad(&x, &g, &idx, 1e-6, 1e-6, &|t| wd::distortion(&r, &Pyramid.features(t)));
+    for bank in [Pyramid::LUMA, Pyramid::COLOUR] {
+        for sigma in [Sigma::Constant(4.0), Sigma::Constant(2.0)] {
+            let r = Reference::new(&bank.features(&target), &sigma, h, w);
+            let ex = bank.extract(&x);
+            let (_, grads) = wd::distortion_and_grad(&r, &ex.arrays);
+            let g = ex.tape.backward(&grads);
+            let idx = some_indices(&mut rng, x.data.len(), 16);
+            check_grad(&x, &g, &idx, 1e-6, 1e-6, &|t| wd::distortion(&r, &bank.features(t)));
+        }
     }
+}
+
+/// `pyramid-colour` is `pyramid`'s arrays, bit for bit, then 16 oriented channels of each
+/// opponent signal at the ½, ¼ and ⅛ stages: those of the red–green signal are zero on an image
+/// whose normalised red and green channels are equal, and respond to an edge between two
+/// colours of equal luminance, which `pyramid` cannot see.
+#[test]
+fn pyramid_colour_adds_opponent_signals_after_the_luminance() {
+    let (h, w) = (32, 30);
+    let mut rng = Rng::new(8);
+    let img = random_image::<f64>(&mut rng, h, w);
+    let (luma, colour) = (Pyramid::LUMA.features(&img), Pyramid::COLOUR.features(&img));
+    assert_eq!(colour.len(), 5 + 6);
+    for (a, b) in luma.iter().zip(&colour) {
+        assert_eq!(a.data, b.data);
+    }
+    let shapes: Vec<(usize, usize, usize)> = colour[5..].iter().map(|t| (t.c, t.h, t.w)).collect();
+    let stages = [(16, 16, 15), (16, 8, 8), (16, 4, 4)];
+    assert_eq!(shapes, [stages, stages].concat());
+    let name = |p: Pyramid| FeatureSpace::<f64>::name(&p);
+    assert_eq!((name(Pyramid::LUMA), name(Pyramid::COLOUR)), ("pyramid", "pyramid-colour"));
+
+    // Normalised red = green (sRGB g = m_g + s_g·(r − m_r)/s_r, to rounding): no red–green
+    // response.
+    let std = gscodec::loss::features::IMAGENET_STD;
+    let mean = gscodec::loss::features::IMAGENET_MEAN;
+    let mut equal = img.clone();
+    let n = h * w;
+    for i in 0..n {
+        equal.data[n + i] = mean[1] + std[1] * (equal.data[i] - mean[0]) / std[0];
+    }
+    let f = Pyramid::COLOUR.features(&equal);
+    assert!(f[5..8].iter().all(|t| t.data.iter().all(|&v| v < 1e-12)));
+    assert!(f[8..].iter().any(|t| t.data.iter().any(|&v| v > 0.0)));
+
+    // Left half one colour, right half another, at equal normalised luminance (the mean of the
+    // normalised channels): the luminance bank sees a flat image, the colour bank an edge.
+    let mut edge = Tensor::<f64>::zeros(3, h, w);
+    let (left, right) = ([0.2, 0.0, -0.2], [-0.2, 0.0, 0.2]);
+    for y in 0..h {
+        for x in 0..w {
+            let v = if x < w / 2 { left } else { right };
+            for c in 0..3 {
+                edge.data[c * n + y * w + x] = mean[c] + std[c] * v[c];
+            }
+        }
+    }
+    let f = Pyramid::COLOUR.features(&edge);
+    let energy = |t: &Tensor<f64>| t.data.iter().map(|v| v * v).sum::<f64>();
+    assert!(f[1..5].iter().all(|t| energy(t) < 1e-20), "{:?}", f[1..5].iter().map(energy).collect::<Vec<_>>());
+    assert!(f[5..].iter().all(|t| energy(t) > 1e-3), "{:?}", f[5..].iter().map(energy).collect::<Vec<_>>());
 }
 
 /// A safetensors file of VGG-16 layout with the given output widths and random weights.
@@ -494,7 +547,7 @@ fn wdr_matches_its_formula(rng: &mut Rng, x: &Tensor<f64>, target: &Tensor<f64>,
     let (h, w) = (x.h, x.w);
     let (ti, xi) = (to_image(target), to_image(x));
     let total = 1000;
-    let mut loss = WdrLoss::new(Box::new(Pyramid), total).with_fixed_gamma(wdr::DEFAULT_GAMMA_WDR);
+    let mut loss = WdrLoss::new(Box::new(Pyramid::LUMA), total).with_fixed_gamma(wdr::DEFAULT_GAMMA_WDR);
     if let Some(s) = sigma {
         loss = loss.with_sigma(Sigma::Constant(s));
     }
@@ -506,9 +559,9 @@ fn wdr_matches_its_formula(rng: &mut Rng, x: &Tensor<f64>, target: &Tensor<f64>,
     // after: γ(d_WD + β L_orig), checked against f64 finite differences of that formula
     let (l, g) = loss.loss_and_grad(&xi, &ti, 0, 301);
     let sigma = Sigma::Constant(sigma.unwrap_or(wd::DEFAULT_SIGMA));
-    let r = Reference::new(&Pyramid.features(target), &sigma, h, w);
+    let r = Reference::new(&Pyramid::LUMA.features(target), &sigma, h, w);
     let f = |t: &Tensor<f64>| {
-        let d = wd::distortion(&r, &Pyramid.features(t));
+        let d = wd::distortion(&r, &Pyramid::LUMA.features(t));
         wdr::DEFAULT_GAMMA_WDR * (d + wdr::BETA * wdr::l_orig(&to_image(t), &ti).0)
     };
     assert!((l - f(x)).abs() < 1e-5 * l, "{sigma:?}: {l} vs {}", f(x));
@@ -540,7 +593,7 @@ fn wdr_normalised_gamma_matches_the_l1ssim_gradient_scale_then_freezes() {
         })
         .collect();
     let l2 = |g: &[f32]| g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
-    let mut loss = WdrLoss::new(Box::new(Pyramid), 100);
+    let mut loss = WdrLoss::new(Box::new(Pyramid::LUMA), 100);
     assert!(loss.normalise && !loss.gamma_settled());
     // warm-up iterations do not touch γ
     loss.loss_and_grad(&views[0].0, &views[0].1, 0, 0);
@@ -550,7 +603,7 @@ fn wdr_normalised_gamma_matches_the_l1ssim_gradient_scale_then_freezes() {
     let (l, g) = loss.loss_and_grad(x, t, 0, loss.warmup + 1);
     let (lo, go) = wdr::l_orig(x, t);
     assert!((l2(&g) / l2(&go) - 1.0).abs() < 1e-5, "{} vs {}", l2(&g), l2(&go));
-    let mut plain = WdDistortion::new(Box::new(Pyramid));
+    let mut plain = WdDistortion::new(Box::new(Pyramid::LUMA));
     let (d, gd) = plain.value_and_grad(x, t, None);
     assert!((l - loss.gamma * (d + wdr::BETA * lo)).abs() < 1e-9 * l);
     // γ is the ratio of the summed norms over NORMALISE_VIEWS views, then frozen
@@ -573,7 +626,7 @@ fn wdr_normalised_gamma_matches_the_l1ssim_gradient_scale_then_freezes() {
     }
     assert!(loss.gamma_settled());
     // a fixed γ is never changed
-    let mut fixed = WdrLoss::new(Box::new(Pyramid), 100).with_fixed_gamma(0.5);
+    let mut fixed = WdrLoss::new(Box::new(Pyramid::LUMA), 100).with_fixed_gamma(0.5);
     fixed.loss_and_grad(x, t, 0, 50);
     assert_eq!(fixed.gamma, 0.5);
 }
@@ -587,7 +640,7 @@ fn constant_images_and_flat_regions_give_finite_gradients() {
     let mut half = textured.clone();
     half.data[..(3 * w * h / 2) as usize].iter_mut().for_each(|v| *v = 0.3);
     let net = Vgg16::<f32>::from_safetensors(&vgg_bytes(&NARROW, 2)).unwrap();
-    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid), Box::new(net)];
+    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid::LUMA), Box::new(net)];
     for space in spaces {
         let mut d = WdDistortion::new(space);
         for (a, b) in [
@@ -612,7 +665,7 @@ fn cached_equals_uncached_exactly() {
     let other_target = to_image(&random_image::<f64>(&mut rng, 30, 26));
     let x = to_image(&random_image::<f64>(&mut rng, 30, 26));
     let net = Vgg16::<f32>::from_safetensors(&vgg_bytes(&NARROW, 3)).unwrap();
-    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid), Box::new(net)];
+    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid::LUMA), Box::new(net)];
     for space in spaces {
         let mut d = WdDistortion::new(space);
         let uncached = d.value_and_grad(&x, &target, None);
@@ -670,7 +723,7 @@ fn loss_options_parse_and_fail_cleanly() {
     // the σ given is the σ trained with: `wd` at γ = 1 past its warm-up is d_WD at that σ
     let mut rng = Rng::new(12);
     let (a, b) = (to_image(&random_image::<f64>(&mut rng, 24, 20)), to_image(&random_image::<f64>(&mut rng, 24, 20)));
-    let d = |s: f64| WdDistortion::new(Box::new(Pyramid)).with_sigma(Sigma::Constant(s)).value(&a, &b, None);
+    let d = |s: f64| WdDistortion::new(Box::new(Pyramid::LUMA)).with_sigma(Sigma::Constant(s)).value(&a, &b, None);
     for (args, sigma) in
         [(vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-sigma", "2"], 2.0), (vec!["x", "--loss", "wd", "--wd-gamma", "1"], 4.0)]
     {
@@ -713,9 +766,9 @@ fn sigma_maps_resize_like_the_reference() {
     let mut rng = Rng::new(88);
     let a = random_image::<f64>(&mut rng, 40, 30);
     let b = random_image::<f64>(&mut rng, 40, 30);
-    let c = wd_of(&Pyramid, &a, &b, &Sigma::Constant(4.0));
+    let c = wd_of(&Pyramid::LUMA, &a, &b, &Sigma::Constant(4.0));
     for (h, w) in [(40, 30), (7, 5), (80, 61)] {
-        let m = wd_of(&Pyramid, &a, &b, &Sigma::map(h, w, &vec![4.0; h * w]));
+        let m = wd_of(&Pyramid::LUMA, &a, &b, &Sigma::map(h, w, &vec![4.0; h * w]));
         assert!((m - c).abs() < 1e-12 * c, "{h}x{w}: {m} vs {c}");
     }
     // linear, antialiased resize: halving averages pairs with weights ¼ ¾ ¾ ¼ (triangle of

@@ -5,6 +5,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 use crate::encoder::{Backend, SearchDistortion};
+use crate::loss::FeatureSpec;
 use crate::sweep::results::{bd_report, read_results, write_outputs};
 use crate::sweep::{jobs, run_group, Input, Plan, DEFAULT_LAMBDAS, DEFAULT_LOSSES};
 use crate::{Error, Result};
@@ -38,6 +39,10 @@ pub struct Args {
     /// gives where coding loses the held-out PSNR.
     #[arg(long)]
     pub coding_breakdown: bool,
+    /// Feature space of `wd` / `wdr`: `pyramid`, `pyramid-colour` or `vgg16=PATH` (`encode
+    /// --features`).
+    #[arg(long, default_value = "pyramid", value_name = "pyramid|pyramid-colour|vgg16=PATH")]
+    pub features: FeatureSpec,
     /// Pooling scale σ of `wd` / `wdr` (1 ≤ S ≤ 32) [default: 4].
     #[arg(long = "wd-sigma", value_name = "S")]
     pub wd_sigma: Option<f64>,
@@ -99,6 +104,7 @@ pub fn run(args: Args) -> Result<()> {
         retrain_iters: args.retrain_iters,
         coding_breakdown: args.coding_breakdown,
         seeds: if args.seeds.is_empty() { vec![0] } else { args.seeds.clone() },
+        features: args.features.clone(),
         wd_sigma: args.wd_sigma,
         wd_warmup: args.wd_warmup,
         search_distortion: args.search_distortion,

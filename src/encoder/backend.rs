@@ -125,6 +125,11 @@ impl LossSpec {
         (self.kind != LossKind::L1ssim).then(|| self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA))
     }
 
+    /// WD's feature space for reports (`pyramid`, …) for `wd` / `wdr`, None for `l1ssim`.
+    pub fn reported_features(&self) -> Option<String> {
+        (self.kind != LossKind::L1ssim).then(|| self.features.to_string())
+    }
+
     /// The same loss with the warm-up share `share` where `--wd-warmup` was not given (`wd` /
     /// `wdr`; `l1ssim` has none).
     pub fn with_default_warmup(self, share: f64) -> LossSpec {

@@ -653,6 +653,7 @@ impl Encoder {
             init: None,
             lambda: self.config.lambda,
             loss: train.as_ref().map(|_| self.config.loss.name()),
+            wd_features: train.as_ref().and_then(|_| self.config.loss.reported_features()),
             wd_sigma: train.as_ref().and_then(|_| self.config.loss.reported_sigma()),
             wd_warmup: train.as_ref().and_then(|_| self.config.loss.reported_warmup()),
             iters,

@@ -59,6 +59,9 @@ pub struct EncodeReport {
     pub lambda: Lambda,
     /// Training distortion, when the encode trained.
     pub loss: Option<&'static str>,
+    /// WD's feature space (`--features`), when the encode trained with `wd` / `wdr`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wd_features: Option<String>,
     /// WD's uniform pooling scale σ (`--wd-sigma`), when the encode trained with `wd` / `wdr`.
     pub wd_sigma: Option<f64>,
     /// WD's warm-up share (`--wd-warmup`), when the encode trained with `wd` / `wdr`.

@@ -361,6 +361,7 @@ impl Encoder {
                 // What made the scene it codes: the fine-tuning's, when it ran.
                 let report = EncodeReport {
                     loss: r.loss,
+                    wd_features: r.wd_features,
                     wd_sigma: r.wd_sigma,
                     wd_warmup: r.wd_warmup,
                     iters: r.iters,

@@ -308,5 +308,5 @@ pub fn l_orig(rendered: &Image, target: &Image) -> (f64, Vec<f32>) {
 
 /// d_WD in the default feature space (`pyramid`, σ = 4) between two images, for metrics.
 pub fn wd_metric(rendered: &Image, target: &Image) -> f64 {
-    WdDistortion::new(Box::new(super::features::pyramid::Pyramid)).value(rendered, target, None)
+    WdDistortion::new(Box::new(super::features::pyramid::Pyramid::LUMA)).value(rendered, target, None)
 }

@@ -236,7 +236,7 @@ impl<'a> Evaluator<'a> {
                     refs.par_iter()
                         .zip(&pixel_scale)
                         .map(|(r, s)| {
-                            let feats = Pyramid.features(&Tensor::from_image(r));
+                            let feats = Pyramid::LUMA.features(&Tensor::from_image(r));
                             Reference::new(&feats, &Sigma::Constant(sigma * s), r.height as usize, r.width as usize)
                         })
                         .collect()
@@ -320,7 +320,7 @@ impl<'a> Evaluator<'a> {
         let r = &self.refs[v];
         let mse = crate::metrics::mse(r, frame);
         let loss = self.loss.as_ref().map_or(0.0, |l| {
-            let wd = l.wd.get(v).map_or(0.0, |reference| wd::distortion(reference, &Pyramid.features(&Tensor::from_image(frame))));
+            let wd = l.wd.get(v).map_or(0.0, |reference| wd::distortion(reference, &Pyramid::LUMA.features(&Tensor::from_image(frame))));
             wd + if l.l_orig > 0.0 { l.l_orig * L1Ssim::default().value(frame, r) } else { 0.0 }
         });
         Measured { mse, loss }
@@ -1052,8 +1052,9 @@ mod tests {
                 let l = f
                     .iter()
                     .map(|(r, d)| {
-                        let wd = sigma
-                            .map_or(0.0, |s| WdDistortion::new(Box::new(Pyramid)).with_sigma(Sigma::Constant(s * 0.5)).value(d, r, None));
+                        let wd = sigma.map_or(0.0, |s| {
+                            WdDistortion::new(Box::new(Pyramid::LUMA)).with_sigma(Sigma::Constant(s * 0.5)).value(d, r, None)
+                        });
                         wd + weight * l_orig(d, r).0
                     })
                     .sum::<f64>()

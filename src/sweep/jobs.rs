@@ -83,6 +83,7 @@ mod tests {
             seeds: vec![0],
             retrain_iters: None,
             coding_breakdown: false,
+            features: crate::loss::FeatureSpec::default(),
             wd_sigma: None,
             wd_warmup: None,
             search_distortion: crate::encoder::SearchDistortion::Mse,

@@ -25,7 +25,7 @@ use crate::cli::render::View;
 use crate::encoder::{Backend, EncodeReport, Encoder, EncoderConfig, Lambda, LossSpec, SearchDistortion};
 use crate::io::atomic::write_bytes_atomic;
 use crate::io::{Dataset, Split};
-use crate::loss::LossKind;
+use crate::loss::{FeatureSpec, LossKind};
 use crate::{Error, Result};
 use results::{PointResult, TimelinePoint, RESULT_FILE};
 
@@ -87,6 +87,8 @@ pub struct Plan {
     pub retrain_iters: Option<usize>,
     /// `encode --coding-breakdown` (dataset input).
     pub coding_breakdown: bool,
+    /// `encode --features` (WD's feature space).
+    pub features: FeatureSpec,
     /// `encode --wd-sigma` (None: the default σ).
     pub wd_sigma: Option<f64>,
     /// `encode --wd-warmup` (None: the default share).
@@ -123,9 +125,9 @@ impl Plan {
     }
 
     /// Whether a point has a result file from the same settings (`--iters`, `--seed`,
-    /// `--retrain-iters`, `--search-distortion`, `--max-gaussians`, `--init`, and `--wd-sigma` and
-    /// `--wd-warmup` for `wd` / `wdr`); a result from other settings, or an unreadable one, is
-    /// redone.
+    /// `--retrain-iters`, `--search-distortion`, `--max-gaussians`, `--init`, and `--features`,
+    /// `--wd-sigma` and `--wd-warmup` for `wd` / `wdr`); a result from other settings, or an
+    /// unreadable one, is redone.
     pub fn is_done(&self, p: &Point) -> bool {
         let Ok(r) = results::read_result(&self.point_dir(p).join(RESULT_FILE)) else { return false };
         // Results written before σ and the warm-up were options were trained at σ = 4 with the
@@ -133,6 +135,7 @@ impl Plan {
         let wd = r.loss != "l1ssim";
         let done_sigma = r.wd_sigma.or_else(|| wd.then_some(crate::loss::wd::DEFAULT_SIGMA));
         let done_warmup = r.wd_warmup.or_else(|| wd.then_some(crate::loss::wdr::PAPER_WARMUP_FRACTION));
+        let done_features = r.wd_features.clone().or_else(|| wd.then(|| FeatureSpec::Pyramid.to_string()));
         // No budget given is the trainer's default one.
         let default_budget = crate::train::TrainConfig::default().max_gaussians;
         r.iters == self.iters
@@ -141,7 +144,9 @@ impl Plan {
             && r.search_distortion == self.search_distortion
             && r.max_gaussians.unwrap_or(default_budget) == self.max_gaussians.unwrap_or(default_budget)
             && r.init == self.init_name()
-            && self.loss_spec(p).is_ok_and(|s| s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup)
+            && self.loss_spec(p).is_ok_and(|s| {
+                s.reported_sigma() == done_sigma && s.reported_warmup() == done_warmup && s.reported_features() == done_features
+            })
     }
 
     /// `--init` as recorded in results and settings.
@@ -203,6 +208,7 @@ impl Plan {
             "iters": self.iters,
             "seeds": self.seeds,
             "retrain_iters": self.retrain_iters_applied(),
+            "features": self.features.to_string(),
             "wd_sigma": self.wd_sigma.unwrap_or(crate::loss::wd::DEFAULT_SIGMA),
             "wd_warmup": self.wd_warmup_applied(),
             "search_distortion": self.search_distortion,
@@ -273,6 +279,9 @@ impl Plan {
         if p.seed != 0 {
             c.extend(["--seeds".into(), p.seed.to_string()]);
         }
+        if self.features != FeatureSpec::default() {
+            c.extend(["--features".into(), self.features.to_string()]);
+        }
         if let Some(s) = self.wd_sigma {
             c.extend(["--wd-sigma".into(), s.to_string()]);
         }
@@ -313,7 +322,8 @@ impl Plan {
     /// An unknown loss (exit 2); [`Plan::validate`] rules it out.
     pub fn loss_spec(&self, p: &Point) -> Result<LossSpec> {
         let kind = <LossKind as ValueEnum>::from_str(&p.loss, true).map_err(|e| Error::input(Path::new("--loss"), e))?;
-        Ok(LossSpec { kind, wd_sigma: self.wd_sigma, ..LossSpec::default() }.with_default_warmup(self.wd_warmup_applied()))
+        let features = self.features.clone();
+        Ok(LossSpec { kind, features, wd_sigma: self.wd_sigma, ..LossSpec::default() }.with_default_warmup(self.wd_warmup_applied()))
     }
 
     /// The warm-up share the `wd` / `wdr` points train with: `--wd-warmup`, else the encoder's
@@ -459,6 +469,7 @@ fn record_point(input: &Input, plan: &Plan, p: &Point, mut out: crate::encoder::
         iters: plan.iters,
         seed: p.seed,
         retrain_iters: plan.retrain_iters_applied(),
+        wd_features: spec.reported_features(),
         wd_sigma: spec.reported_sigma(),
         wd_warmup: spec.reported_warmup(),
         search_distortion: plan.search_distortion,
@@ -504,6 +515,7 @@ mod tests {
             seeds: vec![0],
             retrain_iters: None,
             coding_breakdown: false,
+            features: FeatureSpec::default(),
             wd_sigma: None,
             wd_warmup: None,
             search_distortion: SearchDistortion::Mse,

@@ -47,6 +47,10 @@ pub struct PointResult {
     /// results written before retraining existed).
     #[serde(default)]
     pub retrain_iters: usize,
+    /// WD's feature space (`--features`) of a `wd` / `wdr` point; None for `l1ssim`, and in
+    /// results written before it was an option (`pyramid` then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wd_features: Option<String>,
     /// WD's σ (`--wd-sigma`) of a `wd` / `wdr` point; None for `l1ssim`, and in results written
     /// before σ was an option (σ = 4 then).
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -1,7 +1,7 @@
 //! Feature spaces WD compares images in: each turns an sRGB image into a list of C × H × W
 //! arrays and can carry the gradient back from those arrays to the image.
 //!
-//! * [`pyramid::Pyramid`] (`pyramid`, default): weight-free oriented filter bank.
+//! * [`pyramid::Pyramid`] (`pyramid`, `pyramid-colour`): weight-free oriented filter banks.
 //! * [`vgg16::Vgg16`] (`vgg16=PATH`): the paper's VGG-16 features from a safetensors file.
 
 pub mod pyramid;
@@ -65,11 +65,13 @@ pub fn normalize_adjoint<T: Real>(grad: &mut Tensor<T>) {
     }
 }
 
-/// Which feature space to use, as given on the command line (`pyramid` or `vgg16=PATH`).
+/// Which feature space to use, as given on the command line (`pyramid`, `pyramid-colour` or
+/// `vgg16=PATH`).
 #[derive(Clone, Debug, PartialEq, Eq, Default)]
 pub enum FeatureSpec {
     #[default]
     Pyramid,
+    PyramidColour,
     Vgg16(PathBuf),
 }
 
@@ -78,8 +80,9 @@ impl FromStr for FeatureSpec {
     fn from_str(s: &str) -> Result<Self, String> {
         match s.split_once('=') {
             None if s == "pyramid" => Ok(FeatureSpec::Pyramid),
+            None if s == "pyramid-colour" => Ok(FeatureSpec::PyramidColour),
             Some(("vgg16", path)) if !path.is_empty() => Ok(FeatureSpec::Vgg16(PathBuf::from(path))),
-            _ => Err(format!("unknown feature space `{s}` (expected `pyramid` or `vgg16=PATH`)")),
+            _ => Err(format!("unknown feature space `{s}` (expected `pyramid`, `pyramid-colour` or `vgg16=PATH`)")),
         }
     }
 }
@@ -88,6 +91,7 @@ impl std::fmt::Display for FeatureSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             FeatureSpec::Pyramid => write!(f, "pyramid"),
+            FeatureSpec::PyramidColour => write!(f, "pyramid-colour"),
             FeatureSpec::Vgg16(p) => write!(f, "vgg16={}", p.display()),
         }
     }
@@ -100,7 +104,8 @@ impl FeatureSpec {
     /// [`crate::Error::input`] naming the weights file when it cannot be read or is not a VGG-16.
     pub fn build(&self) -> crate::Result<Box<dyn FeatureSpace<f32>>> {
         Ok(match self {
-            FeatureSpec::Pyramid => Box::new(pyramid::Pyramid),
+            FeatureSpec::Pyramid => Box::new(pyramid::Pyramid::LUMA),
+            FeatureSpec::PyramidColour => Box::new(pyramid::Pyramid::COLOUR),
             FeatureSpec::Vgg16(path) => Box::new(vgg16::Vgg16::<f32>::load(path)?),
         })
     }

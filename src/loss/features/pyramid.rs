@@ -6,6 +6,9 @@
 //! first (odd phase) and second (even phase) derivatives of a Gaussian, steered to 0°, 45°, 90°
 //! and 135° (Freeman & Adelson's steerable G1/G2 basis), each split into its positive and
 //! negative half-wave (`relu(r)`, `relu(−r)`), scaled by [`GAIN`].
+//!
+//! `pyramid-colour` ([`Pyramid::COLOUR`]) adds the same 16 responses of two opponent colour
+//! signals (red–green, yellow–blue) at the ½, ¼ and ⅛ stages, after the luminance's arrays.
 
 use rayon::prelude::*;
 
@@ -28,9 +31,28 @@ pub const ORIENTATIONS: [f64; 4] = [0.0, 45.0, 90.0, 135.0];
 /// Channels per stage array: 4 orientations × (odd, even) × (positive, negative).
 pub const STAGE_CHANNELS: usize = 16;
 
-/// The weight-free feature space.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Pyramid;
+/// The weight-free feature space: the luminance bank (`pyramid`), or with the opponent colour
+/// signals too (`pyramid-colour`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Pyramid {
+    pub colour: bool,
+}
+
+impl Pyramid {
+    /// `pyramid`: oriented responses of the luminance only.
+    pub const LUMA: Pyramid = Pyramid { colour: false };
+    /// `pyramid-colour`: also of the two opponent colour signals.
+    pub const COLOUR: Pyramid = Pyramid { colour: true };
+
+    /// The signals the bank analyses, in the order of their arrays.
+    pub fn signals(&self) -> &'static [Signal] {
+        if self.colour {
+            &SIGNALS
+        } else {
+            &SIGNALS[..1]
+        }
+    }
+}
 
 /// 1-D taps of g, g′ and g″ (Gaussian, σ = [`FILTER_SIGMA`]), normalised so that the
 /// derivative filters measure slope and curvature: Σ t·g′(t) = 1 (correlation) gives
@@ -180,44 +202,76 @@ fn rectify_adjoint<T: Real>(out: &Tensor<T>, grad: &Tensor<T>) -> [Vec<T>; 5] {
     parts.try_into().unwrap_or_else(|_| unreachable!("five basis filters"))
 }
 
-struct Tape<T> {
-    /// Luminance shape per stage and the stage arrays (their signs give the relu masks).
-    shapes: Vec<(usize, usize)>,
-    stages: Vec<Tensor<T>>,
+/// A grey-level signal the bank analyses: a linear combination of the normalised image's
+/// channels, and the first stage whose oriented responses are features (finer stages only
+/// low-pass it on the way).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Signal {
+    pub coef: [f64; 3],
+    pub first: usize,
 }
 
-impl<T: Real> Backward<T> for Tape<T> {
-    fn backward(self: Box<Self>, grads: &[Tensor<T>]) -> Tensor<T> {
+/// The luminance (the mean of the normalised channels, at every stage), then the opponent colour
+/// signals red–green and yellow–blue from the ½-resolution stage on: chromatic contrast
+/// sensitivity falls off at lower spatial frequencies than luminance's, as in FLIP's and
+/// S-CIELAB's colour filters.
+pub const SIGNALS: [Signal; 3] = [
+    Signal { coef: [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0], first: 0 },
+    Signal { coef: [0.5, -0.5, 0.0], first: 1 },
+    Signal { coef: [0.25, 0.25, -0.5], first: 1 },
+];
+
+struct Tape<T> {
+    /// Per signal: its shape at every stage and its stage arrays from `first` on (their signs
+    /// give the relu masks).
+    signals: Vec<(Signal, Vec<(usize, usize)>, Vec<Tensor<T>>)>,
+}
+
+impl<T: Real> Tape<T> {
+    /// Gradient w.r.t. one signal at full resolution from its stage arrays' gradients.
+    fn signal_adjoint(first: usize, shapes: &[(usize, usize)], stages: &[Tensor<T>], grads: &[Tensor<T>]) -> Tensor<T> {
         let kernels = kernels::<T>();
         let mut g_luma: Option<Tensor<T>> = None;
         for s in (0..STAGES).rev() {
-            let (h, w) = self.shapes[s];
+            let (h, w) = shapes[s];
             let mut gy = match g_luma.take() {
                 Some(g) => g.lowpass2_adjoint(h, w),
                 None => Tensor::zeros(1, h, w),
             };
-            let gb = rectify_adjoint(&self.stages[s], &grads[s + 1]);
-            // Adjoint of correlation = correlation with the reversed kernels.
-            let parts: Vec<Vec<T>> = BASIS
-                .par_iter()
-                .zip(gb.par_iter())
-                .map(|(&(kx, ky), g)| {
-                    let rx: Vec<T> = kernels[kx].iter().rev().cloned().collect();
-                    let ry: Vec<T> = kernels[ky].iter().rev().cloned().collect();
-                    correlate(g, h, w, &rx, &ry)
-                })
-                .collect();
-            for p in parts {
-                gy.data.iter_mut().zip(p).for_each(|(a, b)| *a = *a + b);
+            if s >= first {
+                let gb = rectify_adjoint(&stages[s - first], &grads[s - first]);
+                // Adjoint of correlation = correlation with the reversed kernels.
+                let parts: Vec<Vec<T>> = BASIS
+                    .par_iter()
+                    .zip(gb.par_iter())
+                    .map(|(&(kx, ky), g)| {
+                        let rx: Vec<T> = kernels[kx].iter().rev().cloned().collect();
+                        let ry: Vec<T> = kernels[ky].iter().rev().cloned().collect();
+                        correlate(g, h, w, &rx, &ry)
+                    })
+                    .collect();
+                for p in parts {
+                    gy.data.iter_mut().zip(p).for_each(|(a, b)| *a = *a + b);
+                }
             }
             g_luma = Some(gy);
         }
-        let gy = g_luma.expect("at least one stage");
+        g_luma.expect("at least one stage")
+    }
+}
+
+impl<T: Real> Backward<T> for Tape<T> {
+    fn backward(self: Box<Self>, grads: &[Tensor<T>]) -> Tensor<T> {
         let mut grad = grads[0].clone();
         let n = grad.plane_len();
-        let third = T::c(1.0 / 3.0);
-        for c in 0..3 {
-            grad.data[c * n..(c + 1) * n].iter_mut().zip(&gy.data).for_each(|(a, &b)| *a = *a + third * b);
+        let mut at = 1;
+        for (signal, shapes, stages) in &self.signals {
+            let gy = Self::signal_adjoint(signal.first, shapes, stages, &grads[at..at + stages.len()]);
+            at += stages.len();
+            for c in 0..3 {
+                let k = T::c(signal.coef[c]);
+                grad.data[c * n..(c + 1) * n].iter_mut().zip(&gy.data).for_each(|(a, &b)| *a = *a + k * b);
+            }
         }
         normalize_adjoint(&mut grad);
         grad
@@ -226,29 +280,42 @@ impl<T: Real> Backward<T> for Tape<T> {
 
 impl<T: Real> FeatureSpace<T> for Pyramid {
     fn name(&self) -> &'static str {
-        "pyramid"
+        if self.colour {
+            "pyramid-colour"
+        } else {
+            "pyramid"
+        }
     }
 
     fn extract(&self, image: &Tensor<T>) -> Extracted<T> {
         let norm = normalize(image);
         let n = norm.plane_len();
-        let third = T::c(1.0 / 3.0);
-        let luma: Vec<T> = (0..n).map(|i| third * (norm.data[i] + norm.data[n + i] + norm.data[2 * n + i])).collect();
-        let mut y = Tensor::from_vec(1, norm.h, norm.w, luma);
-        let mut shapes = Vec::with_capacity(STAGES);
-        let mut stages = Vec::with_capacity(STAGES);
-        for s in 0..STAGES {
-            if s > 0 {
-                y = y.lowpass2();
+        let mut arrays = vec![norm.clone()];
+        let mut tape = Vec::new();
+        for &signal in self.signals() {
+            let k = signal.coef.map(T::c);
+            let (r, g, b) = (&norm.data[..n], &norm.data[n..2 * n], &norm.data[2 * n..]);
+            let y: Vec<T> = if k[0] == k[1] && k[1] == k[2] {
+                (0..n).map(|i| k[0] * (r[i] + g[i] + b[i])).collect() // the luminance's own rounding
+            } else {
+                (0..n).map(|i| k[0] * r[i] + k[1] * g[i] + k[2] * b[i]).collect()
+            };
+            let mut y = Tensor::from_vec(1, norm.h, norm.w, y);
+            let mut shapes = Vec::with_capacity(STAGES);
+            let mut stages = Vec::with_capacity(STAGES);
+            for s in 0..STAGES {
+                if s > 0 {
+                    y = y.lowpass2();
+                }
+                let (h, w) = (y.h, y.w);
+                shapes.push((h, w));
+                if s >= signal.first {
+                    stages.push(rectify(&basis_responses(&y.data, h, w), h, w));
+                }
             }
-            let (h, w) = (y.h, y.w);
-            let resp = basis_responses(&y.data, h, w);
-            shapes.push((h, w));
-            stages.push(rectify(&resp, h, w));
+            arrays.extend(stages.iter().cloned());
+            tape.push((signal, shapes, stages));
         }
-        let mut arrays = Vec::with_capacity(STAGES + 1);
-        arrays.push(norm);
-        arrays.extend(stages.iter().cloned());
-        Extracted { arrays, tape: Box::new(Tape { shapes, stages }) }
+        Extracted { arrays, tape: Box::new(Tape { signals: tape }) }
     }
 }

@@ -56,13 +56,23 @@ pub struct GpuLoss {
     /// Share of the iterations trained with L1-SSIM before `wd` / `wdr` (None:
     /// [`crate::loss::wdr::WARMUP_FRACTION`]).
     pub wd_warmup: Option<f64>,
-    /// WD in VGG-16 features (refused: the GPU has only the built-in `pyramid` bank).
+    /// WD in VGG-16 features (refused: the GPU has only the built-in `pyramid` banks).
     pub vgg_features: bool,
+    /// WD in `pyramid-colour` (else `pyramid`).
+    pub colour: bool,
 }
 
 impl Default for GpuLoss {
     fn default() -> Self {
-        GpuLoss { kind: LossKind::L1ssim, ssim_weight: 0.2, wd_gamma: None, wd_sigma: None, wd_warmup: None, vgg_features: false }
+        GpuLoss {
+            kind: LossKind::L1ssim,
+            ssim_weight: 0.2,
+            wd_gamma: None,
+            wd_sigma: None,
+            wd_warmup: None,
+            vgg_features: false,
+            colour: false,
+        }
     }
 }
 
@@ -75,7 +85,14 @@ impl From<LossKind> for GpuLoss {
 impl GpuLoss {
     /// The loss `--loss`, `--features`, `--wd-gamma` and `--wd-sigma` describe.
     pub fn new(kind: LossKind, features: &FeatureSpec, wd_gamma: Option<f64>, wd_sigma: Option<f64>) -> Self {
-        GpuLoss { kind, wd_gamma, wd_sigma, vgg_features: matches!(features, FeatureSpec::Vgg16(_)), ..Default::default() }
+        GpuLoss {
+            kind,
+            wd_gamma,
+            wd_sigma,
+            vgg_features: matches!(features, FeatureSpec::Vgg16(_)),
+            colour: *features == FeatureSpec::PyramidColour,
+            ..Default::default()
+        }
     }
 
     /// The same loss with the warm-up share `--wd-warmup` (None: the default).
@@ -91,7 +108,7 @@ impl GpuLoss {
         }
         if self.vgg_features {
             return Err(Error::Input(
-                "GPU training computes WD only in the built-in `pyramid` features; --features vgg16=… runs on the CPU backend (--backend cpu)".into(),
+                "GPU training computes WD only in the built-in `pyramid` and `pyramid-colour` features; --features vgg16=… runs on the CPU backend (--backend cpu)".into(),
             ));
         }
         if let Some(s) = self.wd_sigma {
@@ -104,6 +121,11 @@ impl GpuLoss {
             Some(g) if !(g.is_finite() && g > 0.0) => Err(Error::Input(format!("--wd-gamma must be a positive number, got {g}"))),
             _ => Ok(()),
         }
+    }
+
+    /// The WD stage's configuration of a `kind` run of `iters` iterations.
+    fn wd_config(&self, kind: LossKind, iters: usize) -> wd::WdConfig {
+        wd::WdConfig { colour: self.colour, ..wd::WdConfig::new(kind, self.wd_gamma, self.wd_sigma, self.wd_warmup, iters) }
     }
 
     /// Short name for the report (`l1ssim`, `wd`, `wdr`).
@@ -177,7 +199,7 @@ pub fn training_loss_and_grad(
     let tgt = gpu.storage_init("target", bytemuck::cast_slice(&target.data));
     let mut stage = match loss.kind {
         LossKind::L1ssim => None,
-        kind => Some(wd::WdStage::new(gpu, wd::WdConfig::new(kind, loss.wd_gamma, loss.wd_sigma, loss.wd_warmup, iters), w, h)?),
+        kind => Some(wd::WdStage::new(gpu, loss.wd_config(kind, iters), w, h)?),
     };
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     s.loss(&mut enc, &tgt, loss.ssim_weight);
@@ -348,8 +370,7 @@ pub fn train_with(
     };
     // The WD stage, one per image size (laid out on first use); reference statistics are cached
     // by training-view index, so a streamed target works as well.
-    let wd_config =
-        (loss.kind != LossKind::L1ssim).then(|| wd::WdConfig::new(loss.kind, loss.wd_gamma, loss.wd_sigma, loss.wd_warmup, cfg.iters));
+    let wd_config = (loss.kind != LossKind::L1ssim).then(|| loss.wd_config(loss.kind, cfg.iters));
     let mut wd_stages: Vec<wd::WdStage> = Vec::new();
     let log_every = (cfg.iters / 500).max(1);
     let mut n = session.scene.n;

@@ -1,7 +1,8 @@
-//! WD and WD-R on the GPU (built-in `pyramid` features): the feature bank, the WD statistics and
-//! level weights, their backward down to the image, and the `wd` / `wdr` combination with γ
-//! (fixed, or measured after the warm-up as [`crate::loss::wdr::WdrLoss`] does), formula by
-//! formula as `crate::loss::{wd, wdr, features::pyramid}`, the CPU oracle (`shaders/train_wd.wgsl`).
+//! WD and WD-R on the GPU (built-in `pyramid` and `pyramid-colour` features): the feature bank,
+//! the WD statistics and level weights, their backward down to the image, and the `wd` / `wdr`
+//! combination with γ (fixed, or measured after the warm-up as [`crate::loss::wdr::WdrLoss`]
+//! does), formula by formula as `crate::loss::{wd, wdr, features::pyramid}`, the CPU oracle
+//! (`shaders/train_wd.wgsl`).
 //!
 //! Layout: per image size, one f32 arena holds the level weights (from [`Plan`], uploaded once),
 //! the rendered image's feature arrays, their local moments and every gradient; a fixed list of
@@ -88,12 +89,15 @@ enum K {
     BasisAdjH,
     BasisAdjV,
     InputAdj,
+    FeatSignal,
+    Lowpass2Adj,
+    InputAdjSignal,
     Norms,
     Scalars,
     Combine,
 }
 
-const KERNELS: [&str; 18] = [
+const KERNELS: [&str; 21] = [
     "feat_input",
     "lowpass2",
     "basis_h",
@@ -109,6 +113,9 @@ const KERNELS: [&str; 18] = [
     "basis_adj_h",
     "basis_adj_v",
     "input_adj",
+    "feat_signal",
+    "lowpass2_adj",
+    "input_adj_signal",
     "norms",
     "scalars",
     "combine",
@@ -127,6 +134,8 @@ pub struct WdConfig {
     pub warmup: usize,
     /// Budget of the reference cache in bytes.
     pub cache_bytes: u64,
+    /// The `pyramid-colour` bank (opponent colour signals besides the luminance).
+    pub colour: bool,
 }
 
 impl WdConfig {
@@ -135,7 +144,7 @@ impl WdConfig {
     pub fn new(kind: LossKind, gamma: Option<f64>, sigma: Option<f64>, warmup: Option<f64>, iters: usize) -> Self {
         let sigma = sigma.unwrap_or(DEFAULT_SIGMA);
         let warmup = wdr::warmup_iters(iters, warmup.unwrap_or(wdr::WARMUP_FRACTION));
-        WdConfig { kind, gamma, sigma, warmup, cache_bytes: DEFAULT_CACHE_BYTES }
+        WdConfig { kind, gamma, sigma, warmup, cache_bytes: DEFAULT_CACHE_BYTES, colour: false }
     }
 
     fn normalise(&self) -> bool {
@@ -176,6 +185,11 @@ fn constants_wgsl() -> String {
         "EVEN",
         "vec3<f32>",
         &st.iter().map(|(_, e)| format!("vec3<f32>({}, {}, {})", f(e[0]), f(e[1]), f(e[2]))).collect::<Vec<_>>(),
+    );
+    s += &wgsl_array(
+        "SIG",
+        "vec3<f32>",
+        &pyramid::SIGNALS.map(|g| format!("vec3<f32>({}, {}, {})", f(g.coef[0]), f(g.coef[1]), f(g.coef[2]))),
     );
     s += &wgsl_array("MEAN", "f32", &IMAGENET_MEAN.map(f));
     s += &wgsl_array("STD", "f32", &IMAGENET_STD.map(f));
@@ -302,14 +316,22 @@ struct RefBuf {
     filled: bool,
 }
 
+/// One signal of the bank ([`pyramid::SIGNALS`]): its index there, its first stage with
+/// oriented responses, its feature arrays' first index, and its values and gradient per stage.
+struct SignalLayout {
+    index: usize,
+    first: usize,
+    array: usize,
+    values: Vec<u32>,
+    grads: Vec<u32>,
+}
+
 /// Where everything of one image size lives: arena and reference offsets (floats).
 struct Layout {
-    /// (channels, height, width) of the feature arrays.
-    shapes: Vec<(usize, usize, usize)>,
+    /// (height, width) of each stage.
+    stages: Vec<(usize, usize)>,
     arrays: Vec<Array>,
-    /// Luminance and its gradient per stage.
-    luma: Vec<u32>,
-    gluma: Vec<u32>,
+    signals: Vec<SignalLayout>,
     /// Scratch: 3 and 5 planes at full resolution.
     t3: u32,
     gb5: u32,
@@ -322,22 +344,25 @@ struct Layout {
 }
 
 impl Layout {
-    /// A uniform `sigma` and the `pyramid` arrays of a `width × height` image.
-    fn new(width: u32, height: u32, sigma: f64) -> Layout {
+    /// A uniform `sigma` and the `pyramid` (or `pyramid-colour`) arrays of a `width × height`
+    /// image.
+    fn new(width: u32, height: u32, sigma: f64, colour: bool) -> Layout {
         let (ww, hh) = (width as usize, height as usize);
         let sigma = Sigma::Constant(sigma);
         let mut a = Alloc::default();
         let mut r = Alloc::default();
         let mut weights: Vec<(u32, Vec<f32>)> = Vec::new();
 
-        // Feature arrays: the normalised image, then 4 stages of 16 channels.
+        // Feature arrays: the normalised image, then per signal its stages of 16 channels.
+        let mut stages = vec![(hh, ww)];
+        for s in 1..pyramid::STAGES {
+            stages.push((half(stages[s - 1].0), half(stages[s - 1].1)));
+        }
         let mut shapes = vec![(3, hh, ww)];
-        let (mut sh, mut sw) = (hh, ww);
-        for s in 0..pyramid::STAGES {
-            if s > 0 {
-                (sh, sw) = (half(sh), half(sw));
-            }
-            shapes.push((pyramid::STAGE_CHANNELS, sh, sw));
+        let mut signal_at = Vec::new();
+        for (index, g) in (pyramid::Pyramid { colour }).signals().iter().enumerate() {
+            signal_at.push((index, g.first, shapes.len()));
+            shapes.extend(stages[g.first..].iter().map(|&(h, w)| (pyramid::STAGE_CHANNELS, h, w)));
         }
         let mut arrays: Vec<Array> = Vec::new();
         for &(c, h, w) in &shapes {
@@ -374,10 +399,18 @@ impl Layout {
             arrays.push(Array { c, h, w, feat, grad, top, level0, levels });
         }
         let n0 = hh * ww;
-        let luma: Vec<u32> = shapes[1..].iter().map(|&(_, h, w)| a.take(h * w)).collect();
-        let gluma: Vec<u32> = shapes[1..].iter().map(|&(_, h, w)| a.take(h * w)).collect();
+        let signals = signal_at
+            .into_iter()
+            .map(|(index, first, array)| SignalLayout {
+                index,
+                first,
+                array,
+                values: stages.iter().map(|&(h, w)| a.take(h * w)).collect(),
+                grads: stages.iter().map(|&(h, w)| a.take(h * w)).collect(),
+            })
+            .collect();
         let (t3, gb5, gw) = (a.take(3 * n0), a.take(5 * n0), a.take(3 * n0));
-        Layout { shapes, arrays, luma, gluma, t3, gb5, gw, weights, arena_floats: a.0, ref_floats: r.0 }
+        Layout { stages, arrays, signals, t3, gb5, gw, weights, arena_floats: a.0, ref_floats: r.0 }
     }
 }
 
@@ -414,8 +447,8 @@ impl WdStage {
     /// # Errors
     /// An input error when the arena or one view's statistics exceed what the adapter binds.
     pub fn new(gpu: &Gpu, config: WdConfig, width: u32, height: u32) -> Result<WdStage> {
-        let Layout { shapes, arrays, luma, gluma, t3, gb5, gw, weights, arena_floats, ref_floats } =
-            Layout::new(width, height, config.sigma);
+        let Layout { stages, arrays, signals, t3, gb5, gw, weights, arena_floats, ref_floats } =
+            Layout::new(width, height, config.sigma, config.colour);
         let n0 = width as usize * height as usize;
         gpu.fits("the WD arena", arena_floats * 4)?;
         gpu.fits("one view's WD reference statistics", ref_floats * 4)?;
@@ -437,30 +470,39 @@ impl WdStage {
 
         // Features of the image bound as `image` and the moments of every array.
         let mut features = Vec::new();
-        features.push(op(K::FeatInput, OpU { dst: arrays[0].feat, dst2: luma[0], count: u32_(n0), ..Default::default() }));
-        for s in 0..pyramid::STAGES {
-            let (_, h, w) = shapes[s + 1];
-            if s > 0 {
-                let (_, ph, pw) = shapes[s];
-                features.push(op(
-                    K::Lowpass2,
-                    OpU {
-                        h: u32_(ph),
-                        w: u32_(pw),
-                        oh: u32_(h),
-                        ow: u32_(w),
-                        oy: u32_(same_offset(ph)),
-                        ox: u32_(same_offset(pw)),
-                        src: luma[s - 1],
-                        dst: luma[s],
-                        count: u32_(h * w),
-                        ..Default::default()
-                    },
-                ));
+        let stage =
+            |s: usize| OpU { h: u32_(stages[s].0), w: u32_(stages[s].1), count: u32_(stages[s].0 * stages[s].1), ..Default::default() };
+        for g in &signals {
+            features.push(if g.index == 0 {
+                op(K::FeatInput, OpU { dst: arrays[0].feat, dst2: g.values[0], count: u32_(n0), ..Default::default() })
+            } else {
+                op(K::FeatSignal, OpU { c: u32_(g.index), src: arrays[0].feat, dst: g.values[0], count: u32_(n0), ..Default::default() })
+            });
+            for s in 0..pyramid::STAGES {
+                let (h, w) = stages[s];
+                if s > 0 {
+                    let (ph, pw) = stages[s - 1];
+                    features.push(op(
+                        K::Lowpass2,
+                        OpU {
+                            h: u32_(ph),
+                            w: u32_(pw),
+                            oh: u32_(h),
+                            ow: u32_(w),
+                            oy: u32_(same_offset(ph)),
+                            ox: u32_(same_offset(pw)),
+                            src: g.values[s - 1],
+                            dst: g.values[s],
+                            count: u32_(h * w),
+                            ..Default::default()
+                        },
+                    ));
+                }
+                if s >= g.first {
+                    features.push(op(K::BasisH, OpU { src: g.values[s], dst: t3, ..stage(s) }));
+                    features.push(op(K::BasisV, OpU { src: t3, dst: arrays[g.array + s - g.first].feat, ..stage(s) }));
+                }
             }
-            let base = OpU { h: u32_(h), w: u32_(w), count: u32_(h * w), ..Default::default() };
-            features.push(op(K::BasisH, OpU { src: luma[s], dst: t3, ..base }));
-            features.push(op(K::BasisV, OpU { src: t3, dst: arrays[s + 1].feat, ..base }));
         }
         for ar in &arrays {
             for k in 1..=ar.top {
@@ -563,21 +605,31 @@ impl WdStage {
                 },
             ));
         }
-        for s in (0..pyramid::STAGES).rev() {
-            let (_, h, w) = shapes[s + 1];
-            let base = OpU { h: u32_(h), w: u32_(w), count: u32_(h * w), ..Default::default() };
-            let ar = &arrays[s + 1];
-            fwd_bwd.push(op(K::RectifyAdj, OpU { src: ar.feat, src2: ar.grad, dst: gb5, ..base }));
-            fwd_bwd.push(op(K::BasisAdjH, OpU { src: gb5, dst: t3, ..base }));
-            let up = if s + 1 < pyramid::STAGES {
-                let (_, ch, cw) = shapes[s + 2];
-                OpU { aux: gluma[s + 1], oh: u32_(ch), ow: u32_(cw), oy: u32_(same_offset(h)), ox: u32_(same_offset(w)), flags: UP, ..base }
+        for g in &signals {
+            for s in (0..pyramid::STAGES).rev() {
+                let (h, w) = stages[s];
+                let up = if s + 1 < pyramid::STAGES {
+                    let (ch, cw) = stages[s + 1];
+                    let (oy, ox) = (u32_(same_offset(h)), u32_(same_offset(w)));
+                    OpU { aux: g.grads[s + 1], oh: u32_(ch), ow: u32_(cw), oy, ox, flags: UP, ..stage(s) }
+                } else {
+                    stage(s)
+                };
+                if s < g.first {
+                    fwd_bwd.push(op(K::Lowpass2Adj, OpU { dst: g.grads[s], ..up }));
+                    continue;
+                }
+                let ar = &arrays[g.array + s - g.first];
+                fwd_bwd.push(op(K::RectifyAdj, OpU { src: ar.feat, src2: ar.grad, dst: gb5, ..stage(s) }));
+                fwd_bwd.push(op(K::BasisAdjH, OpU { src: gb5, dst: t3, ..stage(s) }));
+                fwd_bwd.push(op(K::BasisAdjV, OpU { src: t3, dst: g.grads[s], ..up }));
+            }
+            fwd_bwd.push(if g.index == 0 {
+                op(K::InputAdj, OpU { src: arrays[0].grad, src2: g.grads[0], dst: gw, count: u32_(n0), ..Default::default() })
             } else {
-                base
-            };
-            fwd_bwd.push(op(K::BasisAdjV, OpU { src: t3, dst: gluma[s], ..up }));
+                op(K::InputAdjSignal, OpU { c: u32_(g.index), src2: g.grads[0], dst: gw, count: u32_(n0), ..Default::default() })
+            });
         }
-        fwd_bwd.push(op(K::InputAdj, OpU { src: arrays[0].grad, src2: gluma[0], dst: gw, count: u32_(n0), ..Default::default() }));
 
         let wdr = if config.kind == LossKind::Wdr { WDR } else { 0 };
         let beta = BETA as f32;
@@ -630,8 +682,8 @@ impl WdStage {
 
     /// GPU memory of the stage for `width × height` images at a uniform `sigma`: (working
     /// memory of the stage, reference statistics of one cached view), in bytes.
-    pub fn memory(width: u32, height: u32, sigma: f64) -> (u64, u64) {
-        let l = Layout::new(width, height, sigma);
+    pub fn memory(width: u32, height: u32, sigma: f64, colour: bool) -> (u64, u64) {
+        let l = Layout::new(width, height, sigma, colour);
         (l.arena_floats * 4, l.ref_floats * 4)
     }
 
