@@ -38,6 +38,9 @@ fn bench(c: &mut Criterion) {
     let mut pyr = WdrLoss::new(Box::new(Pyramid::LUMA), 0);
     pyr.loss_and_grad(&rendered, &target, 0, 1);
     g.bench_function("wdr_pyramid", |b| b.iter(|| pyr.loss_and_grad(&rendered, &target, 0, 1)));
+    let mut colour = WdrLoss::new(Box::new(Pyramid::COLOUR), 0);
+    colour.loss_and_grad(&rendered, &target, 0, 1);
+    g.bench_function("wdr_pyramid_colour", |b| b.iter(|| colour.loss_and_grad(&rendered, &target, 0, 1)));
     let mut vgg = WdrLoss::new(Box::new(Vgg16::<f32>::random(&VGG16_CHANNELS, 1)), 0);
     vgg.loss_and_grad(&rendered, &target, 0, 1);
     g.bench_function("wdr_vgg16", |b| b.iter(|| vgg.loss_and_grad(&rendered, &target, 0, 1)));
@@ -61,8 +64,11 @@ fn bench_iteration(c: &mut Criterion) {
     let frame = &ds.frames[0];
     let mut group = c.benchmark_group("train_iteration_200x200_10k");
     group.sample_size(10);
-    let losses: Vec<(&str, Box<dyn ImageLoss>)> =
-        vec![("l1ssim", Box::new(gscodec::loss::L1Ssim::default())), ("wdr_pyramid", Box::new(WdrLoss::new(Box::new(Pyramid::LUMA), 0)))];
+    let losses: Vec<(&str, Box<dyn ImageLoss>)> = vec![
+        ("l1ssim", Box::new(gscodec::loss::L1Ssim::default())),
+        ("wdr_pyramid", Box::new(WdrLoss::new(Box::new(Pyramid::LUMA), 0))),
+        ("wdr_pyramid_colour", Box::new(WdrLoss::new(Box::new(Pyramid::COLOUR), 0))),
+    ];
     for (name, mut loss) in losses {
         let mut params = random_splats(n, 1, 2).with_sh_degree(3);
         params.log_scales.iter_mut().for_each(|l| *l = l.map(|v| v - shrink));
