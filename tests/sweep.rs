@@ -333,11 +333,12 @@ fn a_point_of_another_wd_sigma_or_warmup_is_redone() {
     assert!(s2.is_done(&wdr) && !default_warmup.is_done(&wdr) && !w5.is_done(&wdr) && w5.is_done(&l1));
     write_point(tmp.path(), &PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.3), ..fake("wdr", 2.0, 1.0) });
     assert!(default_warmup.is_done(&wdr) && !w5.is_done(&wdr));
-    // the feature space likewise: a result without one was trained in `pyramid`
+    // the feature space likewise: a result without one was trained in `pyramid`, which is no
+    // longer the default (jobs name it; the default they leave out)
     let colour = Plan { features: gscodec::loss::FeatureSpec::PyramidColour, ..default_warmup.clone() };
     assert!(!colour.is_done(&wdr) && colour.is_done(&l1));
-    assert!(colour.point_command(&wdr).join(" ").contains("--features pyramid-colour"));
-    assert!(!default_warmup.point_command(&wdr).join(" ").contains("--features"));
+    assert!(!colour.point_command(&wdr).join(" ").contains("--features"));
+    assert!(default_warmup.point_command(&wdr).join(" ").contains("--features pyramid "));
     assert_eq!(colour.settings()["features"], "pyramid-colour");
     let r = PointResult { wd_sigma: Some(2.0), wd_warmup: Some(0.3), ..fake("wdr", 2.0, 1.0) };
     write_point(tmp.path(), &PointResult { wd_features: Some("pyramid-colour".into()), ..r.clone() });

@@ -640,7 +640,7 @@ fn constant_images_and_flat_regions_give_finite_gradients() {
     let mut half = textured.clone();
     half.data[..(3 * w * h / 2) as usize].iter_mut().for_each(|v| *v = 0.3);
     let net = Vgg16::<f32>::from_safetensors(&vgg_bytes(&NARROW, 2)).unwrap();
-    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid::LUMA), Box::new(net)];
+    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid::LUMA), Box::new(Pyramid::COLOUR), Box::new(net)];
     for space in spaces {
         let mut d = WdDistortion::new(space);
         for (a, b) in [
@@ -665,7 +665,7 @@ fn cached_equals_uncached_exactly() {
     let other_target = to_image(&random_image::<f64>(&mut rng, 30, 26));
     let x = to_image(&random_image::<f64>(&mut rng, 30, 26));
     let net = Vgg16::<f32>::from_safetensors(&vgg_bytes(&NARROW, 3)).unwrap();
-    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid::LUMA), Box::new(net)];
+    let spaces: Vec<Box<dyn FeatureSpace<f32>>> = vec![Box::new(Pyramid::LUMA), Box::new(Pyramid::COLOUR), Box::new(net)];
     for space in spaces {
         let mut d = WdDistortion::new(space);
         let uncached = d.value_and_grad(&x, &target, None);
@@ -703,10 +703,14 @@ fn loss_options_parse_and_fail_cleanly() {
     assert_eq!(e.exit_code(), 2);
     assert!(e.to_string().contains("/nonexistent/w.safetensors"), "{e}");
     assert!(Cli::try_parse_from(["x", "--features", "alexnet"]).is_err());
+    let c = Cli::try_parse_from(["x", "--features", "pyramid-colour"]).unwrap();
+    assert_eq!(c.loss.features, FeatureSpec::PyramidColour);
+    assert_eq!(c.loss.features.build().unwrap().name(), "pyramid-colour");
     assert!(Cli::try_parse_from(["x", "--features", "vgg16="]).is_err());
     assert!(Cli::try_parse_from(["x", "--loss", "lpips"]).is_err());
     let d = Cli::try_parse_from(["x"]).unwrap();
-    assert_eq!((d.loss.loss, d.loss.features.clone()), (None, FeatureSpec::Pyramid));
+    assert_eq!((d.loss.loss, d.loss.features.clone()), (None, FeatureSpec::PyramidColour));
+    assert_eq!(d.loss.features.build().unwrap().name(), "pyramid-colour");
     assert_eq!(build_loss(&d.loss, 10, LossKind::L1ssim).unwrap().name(), "l1ssim");
     assert_eq!(build_loss(&d.loss, 10, LossKind::Wdr).unwrap().name(), "wdr");
     let g = Cli::try_parse_from(["x", "--loss", "wd", "--wd-gamma=-1"]).unwrap();
@@ -720,10 +724,11 @@ fn loss_options_parse_and_fail_cleanly() {
         assert_eq!(e.exit_code(), 2);
         assert!(e.to_string().contains(&format!("--wd-sigma {bad}: must be in [1, 32]")), "{e}");
     }
-    // the σ given is the σ trained with: `wd` at γ = 1 past its warm-up is d_WD at that σ
+    // the σ given is the σ trained with: `wd` at γ = 1 past its warm-up is d_WD at that σ (in
+    // the default features)
     let mut rng = Rng::new(12);
     let (a, b) = (to_image(&random_image::<f64>(&mut rng, 24, 20)), to_image(&random_image::<f64>(&mut rng, 24, 20)));
-    let d = |s: f64| WdDistortion::new(Box::new(Pyramid::LUMA)).with_sigma(Sigma::Constant(s)).value(&a, &b, None);
+    let d = |s: f64| WdDistortion::new(Box::new(Pyramid::COLOUR)).with_sigma(Sigma::Constant(s)).value(&a, &b, None);
     for (args, sigma) in
         [(vec!["x", "--loss", "wd", "--wd-gamma", "1", "--wd-sigma", "2"], 2.0), (vec!["x", "--loss", "wd", "--wd-gamma", "1"], 4.0)]
     {

@@ -39,9 +39,9 @@ pub struct Args {
     /// gives where coding loses the held-out PSNR.
     #[arg(long)]
     pub coding_breakdown: bool,
-    /// Feature space of `wd` / `wdr`: `pyramid`, `pyramid-colour` or `vgg16=PATH` (`encode
+    /// Feature space of `wd` / `wdr`: `pyramid-colour`, `pyramid` or `vgg16=PATH` (`encode
     /// --features`).
-    #[arg(long, default_value = "pyramid", value_name = "pyramid|pyramid-colour|vgg16=PATH")]
+    #[arg(long, default_value = "pyramid-colour", value_name = "pyramid-colour|pyramid|vgg16=PATH")]
     pub features: FeatureSpec,
     /// Pooling scale σ of `wd` / `wdr` (1 ≤ S ≤ 32) [default: 4].
     #[arg(long = "wd-sigma", value_name = "S")]

@@ -55,10 +55,11 @@ pub struct LossArgs {
     /// Training distortion (default: `l1ssim` for `train`, `wdr` for `encode`).
     #[arg(long, value_enum)]
     pub loss: Option<LossKind>,
-    /// Feature space of WD: `pyramid` (built in: oriented responses of the luminance),
-    /// `pyramid-colour` (built in: also of two opponent colour signals, see docs/wd.md) or
-    /// `vgg16=PATH` (VGG-16 weights as safetensors, see scripts/export_vgg16.py; CPU only).
-    #[arg(long, default_value = "pyramid", value_name = "pyramid|pyramid-colour|vgg16=PATH")]
+    /// Feature space of WD: `pyramid-colour` (built in: oriented responses of the luminance and
+    /// of two opponent colour signals, see docs/wd.md), `pyramid` (built in: of the luminance
+    /// only) or `vgg16=PATH` (VGG-16 weights as safetensors, see scripts/export_vgg16.py; CPU
+    /// only).
+    #[arg(long, default_value = "pyramid-colour", value_name = "pyramid-colour|pyramid|vgg16=PATH")]
     pub features: FeatureSpec,
     /// Global scale γ of `wd` / `wdr` (default: 0.03 / normalised to L1-SSIM's gradient scale,
     /// see docs/wd.md).

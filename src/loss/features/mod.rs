@@ -69,8 +69,9 @@ pub fn normalize_adjoint<T: Real>(grad: &mut Tensor<T>) {
 /// `vgg16=PATH`).
 #[derive(Clone, Debug, PartialEq, Eq, Default)]
 pub enum FeatureSpec {
-    #[default]
     Pyramid,
+    /// The default since session 44 (docs/wd.md §35).
+    #[default]
     PyramidColour,
     Vgg16(PathBuf),
 }
