@@ -212,9 +212,9 @@ pub struct Signal {
 }
 
 /// The luminance (the mean of the normalised channels, at every stage), then the opponent colour
-/// signals red–green and yellow–blue from the ½-resolution stage on: chromatic contrast
-/// sensitivity falls off at lower spatial frequencies than luminance's, as in FLIP's and
-/// S-CIELAB's colour filters.
+/// signals red–green and yellow–blue from the ½-resolution stage on: human sensitivity to
+/// chromatic contrast falls off at lower spatial frequencies than to luminance contrast
+/// (Mullen 1985), which colour difference measures model with wider chroma filters (S-CIELAB).
 pub const SIGNALS: [Signal; 3] = [
     Signal { coef: [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0], first: 0 },
     Signal { coef: [0.5, -0.5, 0.0], first: 1 },
@@ -231,10 +231,10 @@ impl<T: Real> Tape<T> {
     /// Gradient w.r.t. one signal at full resolution from its stage arrays' gradients.
     fn signal_adjoint(first: usize, shapes: &[(usize, usize)], stages: &[Tensor<T>], grads: &[Tensor<T>]) -> Tensor<T> {
         let kernels = kernels::<T>();
-        let mut g_luma: Option<Tensor<T>> = None;
+        let mut coarser: Option<Tensor<T>> = None;
         for s in (0..STAGES).rev() {
             let (h, w) = shapes[s];
-            let mut gy = match g_luma.take() {
+            let mut gy = match coarser.take() {
                 Some(g) => g.lowpass2_adjoint(h, w),
                 None => Tensor::zeros(1, h, w),
             };
@@ -254,9 +254,9 @@ impl<T: Real> Tape<T> {
                     gy.data.iter_mut().zip(p).for_each(|(a, b)| *a = *a + b);
                 }
             }
-            g_luma = Some(gy);
+            coarser = Some(gy);
         }
-        g_luma.expect("at least one stage")
+        coarser.expect("at least one stage")
     }
 }
 
@@ -290,7 +290,6 @@ impl<T: Real> FeatureSpace<T> for Pyramid {
     fn extract(&self, image: &Tensor<T>) -> Extracted<T> {
         let norm = normalize(image);
         let n = norm.plane_len();
-        let mut arrays = vec![norm.clone()];
         let mut tape = Vec::new();
         for &signal in self.signals() {
             let k = signal.coef.map(T::c);
@@ -313,8 +312,11 @@ impl<T: Real> FeatureSpace<T> for Pyramid {
                     stages.push(rectify(&basis_responses(&y.data, h, w), h, w));
                 }
             }
-            arrays.extend(stages.iter().cloned());
             tape.push((signal, shapes, stages));
+        }
+        let mut arrays = vec![norm];
+        for (_, _, stages) in &tape {
+            arrays.extend(stages.iter().cloned());
         }
         Extracted { arrays, tape: Box::new(Tape { signals: tape }) }
     }

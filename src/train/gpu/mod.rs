@@ -71,7 +71,7 @@ impl Default for GpuLoss {
             wd_sigma: None,
             wd_warmup: None,
             vgg_features: false,
-            colour: false,
+            colour: FeatureSpec::default() == FeatureSpec::PyramidColour,
         }
     }
 }

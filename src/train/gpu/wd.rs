@@ -18,7 +18,7 @@ use crate::loss::features::{pyramid, IMAGENET_MEAN, IMAGENET_STD};
 use crate::loss::tensor::{half, same_offset};
 use crate::loss::wd::{Plan, Sigma, DEFAULT_SIGMA, NUM_LEVELS};
 use crate::loss::wdr::{self, BETA, DEFAULT_GAMMA_WD, DEFAULT_GAMMA_WDR, NORMALISE_VIEWS};
-use crate::loss::LossKind;
+use crate::loss::{FeatureSpec, LossKind};
 use crate::{Error, Result};
 
 const SHADER: &str = include_str!("../../../shaders/train_wd.wgsl");
@@ -134,17 +134,19 @@ pub struct WdConfig {
     pub warmup: usize,
     /// Budget of the reference cache in bytes.
     pub cache_bytes: u64,
-    /// The `pyramid-colour` bank (opponent colour signals besides the luminance).
+    /// The `pyramid-colour` bank (opponent colour signals besides the luminance), else `pyramid`.
     pub colour: bool,
 }
 
 impl WdConfig {
     /// The config of a `kind` run of `iters` iterations (the warm-up of [`wdr::warmup_iters`]
-    /// with the share `warmup`, None: [`wdr::WARMUP_FRACTION`]); `sigma` None is [`DEFAULT_SIGMA`].
+    /// with the share `warmup`, None: [`wdr::WARMUP_FRACTION`]); `sigma` None is
+    /// [`DEFAULT_SIGMA`]; in the default features ([`FeatureSpec::default`]).
     pub fn new(kind: LossKind, gamma: Option<f64>, sigma: Option<f64>, warmup: Option<f64>, iters: usize) -> Self {
         let sigma = sigma.unwrap_or(DEFAULT_SIGMA);
         let warmup = wdr::warmup_iters(iters, warmup.unwrap_or(wdr::WARMUP_FRACTION));
-        WdConfig { kind, gamma, sigma, warmup, cache_bytes: DEFAULT_CACHE_BYTES, colour: false }
+        let colour = FeatureSpec::default() == FeatureSpec::PyramidColour;
+        WdConfig { kind, gamma, sigma, warmup, cache_bytes: DEFAULT_CACHE_BYTES, colour }
     }
 
     fn normalise(&self) -> bool {
