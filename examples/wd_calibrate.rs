@@ -2,7 +2,7 @@
 //! mean ratio ‖∇d_WD‖ / ‖∇(β·L_orig)‖ ≈ 1.6 during training) for a blurred "rendering" of each
 //! view, in a feature space.
 //!
-//! `cargo run --release --example wd_calibrate -- ../shared/data/lego-200 [pyramid|vgg16=PATH]`
+//! `cargo run --release --example wd_calibrate -- ../shared/data/lego-200 [pyramid-colour|pyramid|vgg16=PATH]`
 
 use gscodec::decoder::Image;
 use gscodec::loss::features::FeatureSpec;
