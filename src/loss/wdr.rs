@@ -306,7 +306,8 @@ pub fn l_orig(rendered: &Image, target: &Image) -> (f64, Vec<f32>) {
     L1Ssim::default().eval(rendered, target)
 }
 
-/// d_WD in the default feature space (`pyramid`, σ = 4) between two images, for metrics.
+/// d_WD in `pyramid` (the luminance bank) at σ = 4 between two images, for metrics: the same
+/// measure whatever features a run trained with.
 pub fn wd_metric(rendered: &Image, target: &Image) -> f64 {
     WdDistortion::new(Box::new(super::features::pyramid::Pyramid::LUMA)).value(rendered, target, None)
 }

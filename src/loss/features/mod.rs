@@ -99,6 +99,11 @@ impl std::fmt::Display for FeatureSpec {
 }
 
 impl FeatureSpec {
+    /// Whether this is the `pyramid-colour` bank.
+    pub fn colour(&self) -> bool {
+        *self == FeatureSpec::PyramidColour
+    }
+
     /// Builds the feature space (loads VGG weights when asked).
     ///
     /// # Errors

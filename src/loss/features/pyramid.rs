@@ -13,7 +13,7 @@
 use rayon::prelude::*;
 
 use super::{normalize, normalize_adjoint, Backward, Extracted, FeatureSpace};
-use crate::loss::tensor::{Real, Tensor};
+use crate::loss::tensor::{half, Real, Tensor};
 
 /// Number of filter-bank stages.
 pub const STAGES: usize = 4;
@@ -222,18 +222,19 @@ pub const SIGNALS: [Signal; 3] = [
 ];
 
 struct Tape<T> {
-    /// Per signal: its shape at every stage and its stage arrays from `first` on (their signs
-    /// give the relu masks).
-    signals: Vec<(Signal, Vec<(usize, usize)>, Vec<Tensor<T>>)>,
+    /// Every signal's shape at each stage.
+    shapes: Vec<(usize, usize)>,
+    /// Per signal: its stage arrays from `first` on (their signs give the relu masks).
+    signals: Vec<(Signal, Vec<Tensor<T>>)>,
 }
 
 impl<T: Real> Tape<T> {
     /// Gradient w.r.t. one signal at full resolution from its stage arrays' gradients.
-    fn signal_adjoint(first: usize, shapes: &[(usize, usize)], stages: &[Tensor<T>], grads: &[Tensor<T>]) -> Tensor<T> {
+    fn signal_adjoint(&self, first: usize, stages: &[Tensor<T>], grads: &[Tensor<T>]) -> Tensor<T> {
         let kernels = kernels::<T>();
         let mut coarser: Option<Tensor<T>> = None;
         for s in (0..STAGES).rev() {
-            let (h, w) = shapes[s];
+            let (h, w) = self.shapes[s];
             let mut gy = match coarser.take() {
                 Some(g) => g.lowpass2_adjoint(h, w),
                 None => Tensor::zeros(1, h, w),
@@ -265,8 +266,8 @@ impl<T: Real> Backward<T> for Tape<T> {
         let mut grad = grads[0].clone();
         let n = grad.plane_len();
         let mut at = 1;
-        for (signal, shapes, stages) in &self.signals {
-            let gy = Self::signal_adjoint(signal.first, shapes, stages, &grads[at..at + stages.len()]);
+        for (signal, stages) in &self.signals {
+            let gy = self.signal_adjoint(signal.first, stages, &grads[at..at + stages.len()]);
             at += stages.len();
             for c in 0..3 {
                 let k = T::c(signal.coef[c]);
@@ -290,7 +291,9 @@ impl<T: Real> FeatureSpace<T> for Pyramid {
     fn extract(&self, image: &Tensor<T>) -> Extracted<T> {
         let norm = normalize(image);
         let n = norm.plane_len();
-        let mut tape = Vec::new();
+        let shapes: Vec<(usize, usize)> =
+            std::iter::successors(Some((norm.h, norm.w)), |&(h, w)| Some((half(h), half(w)))).take(STAGES).collect();
+        let mut signals = Vec::new();
         for &signal in self.signals() {
             let k = signal.coef.map(T::c);
             let (r, g, b) = (&norm.data[..n], &norm.data[n..2 * n], &norm.data[2 * n..]);
@@ -300,24 +303,21 @@ impl<T: Real> FeatureSpace<T> for Pyramid {
                 (0..n).map(|i| k[0] * r[i] + k[1] * g[i] + k[2] * b[i]).collect()
             };
             let mut y = Tensor::from_vec(1, norm.h, norm.w, y);
-            let mut shapes = Vec::with_capacity(STAGES);
             let mut stages = Vec::with_capacity(STAGES);
             for s in 0..STAGES {
                 if s > 0 {
                     y = y.lowpass2();
                 }
-                let (h, w) = (y.h, y.w);
-                shapes.push((h, w));
                 if s >= signal.first {
-                    stages.push(rectify(&basis_responses(&y.data, h, w), h, w));
+                    stages.push(rectify(&basis_responses(&y.data, y.h, y.w), y.h, y.w));
                 }
             }
-            tape.push((signal, shapes, stages));
+            signals.push((signal, stages));
         }
         let mut arrays = vec![norm];
-        for (_, _, stages) in &tape {
+        for (_, stages) in &signals {
             arrays.extend(stages.iter().cloned());
         }
-        Extracted { arrays, tape: Box::new(Tape { signals: tape }) }
+        Extracted { arrays, tape: Box::new(Tape { shapes, signals }) }
     }
 }

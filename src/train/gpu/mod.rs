@@ -71,7 +71,7 @@ impl Default for GpuLoss {
             wd_sigma: None,
             wd_warmup: None,
             vgg_features: false,
-            colour: FeatureSpec::default() == FeatureSpec::PyramidColour,
+            colour: FeatureSpec::default().colour(),
         }
     }
 }
@@ -90,7 +90,7 @@ impl GpuLoss {
             wd_gamma,
             wd_sigma,
             vgg_features: matches!(features, FeatureSpec::Vgg16(_)),
-            colour: *features == FeatureSpec::PyramidColour,
+            colour: features.colour(),
             ..Default::default()
         }
     }

@@ -145,8 +145,7 @@ impl WdConfig {
     pub fn new(kind: LossKind, gamma: Option<f64>, sigma: Option<f64>, warmup: Option<f64>, iters: usize) -> Self {
         let sigma = sigma.unwrap_or(DEFAULT_SIGMA);
         let warmup = wdr::warmup_iters(iters, warmup.unwrap_or(wdr::WARMUP_FRACTION));
-        let colour = FeatureSpec::default() == FeatureSpec::PyramidColour;
-        WdConfig { kind, gamma, sigma, warmup, cache_bytes: DEFAULT_CACHE_BYTES, colour }
+        WdConfig { kind, gamma, sigma, warmup, cache_bytes: DEFAULT_CACHE_BYTES, colour: FeatureSpec::default().colour() }
     }
 
     fn normalise(&self) -> bool {
