@@ -9,7 +9,7 @@ use super::layout::Group;
 use super::params::GroupParams;
 use super::tables::ChannelTable;
 use super::{ByteReader, ByteWriter};
-use crate::entropy::neighbour::Neighbour;
+use crate::entropy::neighbour::NeighbourDecoder;
 use crate::entropy::{context, in_context, Lookup, SymbolDecoder, SymbolEncoder, CONTEXTS};
 use crate::error::{DecodeError, Place};
 
@@ -89,8 +89,7 @@ impl Lane<'_> {
 struct NeighbourLane<'a> {
     j: usize,
     col: Option<usize>,
-    table: &'a Neighbour,
-    lookups: Vec<Lookup<'a>>,
+    table: NeighbourDecoder<'a>,
     prev: i32,
     scale: f32,
     d: SymbolDecoder<'a>,
@@ -104,7 +103,7 @@ impl NeighbourLane<'_> {
     #[inline(always)]
     fn decode(&mut self, row: &mut [f32], ints: &mut [i32]) {
         let lower = if self.j > 0 { ints[self.j - 1] } else { 0 };
-        let v = self.d.neighbour_value(self.table, &self.lookups, self.prev, lower).unwrap_or_else(|| {
+        let v = self.d.neighbour_value(&self.table, self.prev, lower).unwrap_or_else(|| {
             self.overflow = true;
             0
         });
@@ -160,8 +159,7 @@ pub(crate) fn decode_channels(
             ChannelTable::Neighbour(table) => neighbours.push(NeighbourLane {
                 j,
                 col,
-                table,
-                lookups: (0..table.contexts.len()).map(|c| table.table(c).lookup_table()).collect(),
+                table: NeighbourDecoder::new(table),
                 prev: table.start,
                 scale: scale[j],
                 d: stream_decoder(data, at)?,

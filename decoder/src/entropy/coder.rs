@@ -12,7 +12,7 @@ use constriction::stream::stack::{AnsCoder, DefaultAnsCoder};
 use constriction::stream::{Decode, Encode};
 use constriction::{CoderError, Stack};
 
-use super::neighbour::Neighbour;
+use super::neighbour::{Neighbour, NeighbourDecoder};
 use super::{symbol_of, ChannelTable, FreqTable, Lookup, PRECISION};
 use crate::bitstream::bytes::{unzigzag, zigzag};
 
@@ -155,10 +155,8 @@ impl<'a> SymbolDecoder<'a> {
     /// One value of a neighbour-context channel (SPEC §4.3) whose previous value is `prev` and
     /// value below `lower`; `None` when the prediction plus the difference leaves `i32`.
     #[inline(always)]
-    pub fn neighbour_value(&mut self, t: &Neighbour, lookups: &[Lookup<'_>], prev: i32, lower: i32) -> Option<i32> {
-        let c = t.context(prev, lower);
-        let mu = t.predict(c, prev);
-        let table = lookups[c];
+    pub fn neighbour_value(&mut self, t: &NeighbourDecoder<'_>, prev: i32, lower: i32) -> Option<i32> {
+        let (table, mu) = t.context(prev, lower);
         let s = self.symbol(table);
         if s + 1 == table.len() {
             Some(unzigzag(self.raw_bits(32)))

@@ -7,7 +7,7 @@
 //! Gaussian) fall among stored thresholds. A context costs three small numbers instead of a
 //! weight list, so a channel can afford many of them; every table is derived from integers.
 
-use super::FreqTable;
+use super::{FreqTable, Lookup};
 
 /// The window ratios `r_ρ · 2^16`, `ρ = 0..64` (SPEC §4.3): `round(2^16 · exp(−1/s_ρ))` with
 /// spreads `s_ρ = 2^((2ρ − 24)/9)` from 0.16 to 2,600 values, capped at 65,535.
@@ -157,5 +157,145 @@ impl Neighbour {
     #[inline(always)]
     pub fn value(&self, mu: i64, s: usize) -> Option<i32> {
         i32::try_from(mu + s as i64 - i64::from(self.reach)).ok()
+    }
+}
+
+/// The widest span of thresholds whose counts [`BucketTable`] keeps in a table (4 KB, built once
+/// per channel and chunk); wider ones are counted per value.
+const MAX_TABLE_SPAN: i64 = 1 << 12;
+
+/// `count of thresholds ≤ v`, times a factor, as a table over the thresholds' span (values
+/// below it count none, values above it all), or counted where the span is too wide.
+#[derive(Debug, Clone)]
+struct BucketTable {
+    min: i64,
+    counts: Vec<u8>,
+    thresholds: Vec<i32>,
+    factor: u8,
+}
+
+impl BucketTable {
+    fn new(thresholds: &[i32], factor: usize) -> BucketTable {
+        let count = |v: i64| thresholds.iter().filter(|&&t| v >= i64::from(t)).count() * factor;
+        let (min, max) = thresholds.iter().fold((i64::MAX, i64::MIN), |(a, b), &t| (a.min(t.into()), b.max(t.into())));
+        let counts = if thresholds.is_empty() || max - min + 2 > MAX_TABLE_SPAN {
+            Vec::new()
+        } else {
+            // Index i holds the value min − 1 + i, up to max.
+            (min - 1..=max).map(|v| count(v) as u8).collect()
+        };
+        BucketTable { min: min.saturating_sub(1), counts, thresholds: thresholds.to_vec(), factor: factor as u8 }
+    }
+
+    #[inline(always)]
+    fn get(&self, v: i32) -> usize {
+        if self.thresholds.is_empty() {
+            0
+        } else if self.counts.is_empty() {
+            self.thresholds.iter().filter(|&&t| v >= t).count() * usize::from(self.factor)
+        } else {
+            let i = (i64::from(v) - self.min).clamp(0, self.counts.len() as i64 - 1);
+            usize::from(self.counts[i as usize])
+        }
+    }
+}
+
+/// One context as the decoder runs it: its window's lookup and its prediction's parts.
+#[derive(Debug, Clone, Copy)]
+struct DecodeContext<'a> {
+    lookup: Lookup<'a>,
+    mix: i64,
+    /// `(4 − a)·centre + 2`.
+    offset: i64,
+}
+
+/// A mode-3 table prepared for decoding: the contexts found by table lookups instead of
+/// counting thresholds, each context's window and prediction side by side (the same values
+/// as [`Neighbour::context`] and [`Neighbour::predict`]).
+#[derive(Debug, Clone)]
+pub struct NeighbourDecoder<'a> {
+    prev: BucketTable,
+    lower: BucketTable,
+    contexts: Vec<DecodeContext<'a>>,
+    reach: i64,
+}
+
+impl<'a> NeighbourDecoder<'a> {
+    pub fn new(t: &'a Neighbour) -> NeighbourDecoder<'a> {
+        let contexts = (0..t.contexts.len())
+            .map(|c| {
+                let k = t.contexts[c];
+                let (mix, centre) = (i64::from(k.mix), i64::from(k.centre));
+                DecodeContext { lookup: t.table(c).lookup_table(), mix, offset: (i64::from(MAX_MIX) - mix) * centre + 2 }
+            })
+            .collect();
+        NeighbourDecoder {
+            prev: BucketTable::new(&t.prev_at, t.lower_at.len() + 1),
+            lower: BucketTable::new(&t.lower_at, 1),
+            contexts,
+            reach: i64::from(t.reach),
+        }
+    }
+
+    /// The window of the value after `prev` with `lower` below it, and its prediction.
+    #[inline(always)]
+    pub fn context(&self, prev: i32, lower: i32) -> (Lookup<'a>, i64) {
+        let c = self.contexts[self.prev.get(prev) + self.lower.get(lower)];
+        (c.lookup, (c.mix * i64::from(prev) + c.offset) >> 2)
+    }
+
+    /// The value of in-window symbol `s` predicted by `mu`; `None` outside `i32`.
+    #[inline(always)]
+    pub fn value(&self, mu: i64, s: usize) -> Option<i32> {
+        i32::try_from(mu + s as i64 - self.reach).ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The decoder's table lookups give the contexts and predictions of SPEC §4.3's definition,
+    /// for thresholds in any order (the format allows it), narrow and wide spans, and values at
+    /// and beyond the thresholds and `i32`'s ends.
+    #[test]
+    fn the_decoders_contexts_are_the_specs() {
+        let mut rng = crate::rng::Rng::new(0x5DEE_CE66_D1CE_4E5B);
+        for case in 0..400 {
+            let spread: i64 = [3, 40, 1000, 5000, 1 << 20, 1 << 31][case % 6];
+            let mut value = |m: i64| (rng.next_u64() % (2 * m as u64)) as i64 - m;
+            let mut thresholds =
+                |k: i64| -> Vec<i32> { (0..k.abs()).map(|_| value(spread).clamp(i32::MIN.into(), i32::MAX.into()) as i32).collect() };
+            let prev_at = thresholds(case as i64 % 16);
+            let lower_at = thresholds((case as i64 / 16) % 16);
+            let count = (prev_at.len() + 1) * (lower_at.len() + 1);
+            let mut rng2 = crate::rng::Rng::new(case as u64);
+            let contexts = (0..count)
+                .map(|_| {
+                    let r = rng2.next_u64();
+                    NeighbourContext { mix: (r % 5) as u8, centre: ((r >> 8) % 2001) as i32 - 1000, ratio: ((r >> 20) % 64) as u8 }
+                })
+                .collect();
+            let t = Neighbour::new(1 + (case as u32 % 40), 0, prev_at.clone(), lower_at.clone(), contexts);
+            let d = NeighbourDecoder::new(&t);
+            let probes: Vec<i32> =
+                prev_at
+                    .iter()
+                    .chain(&lower_at)
+                    .flat_map(|&x| [x.saturating_sub(1), x, x.saturating_add(1)])
+                    .chain([i32::MIN, i32::MIN + 1, -1, 0, 1, i32::MAX - 1, i32::MAX])
+                    .chain((0..20).map(|_| {
+                        ((rng2.next_u64() % (4 * spread) as u64) as i64 - 2 * spread).clamp(i32::MIN.into(), i32::MAX.into()) as i32
+                    }))
+                    .collect();
+            for &prev in &probes {
+                for &lower in probes.iter().step_by(3) {
+                    let c = t.context(prev, lower);
+                    let (lookup, mu) = d.context(prev, lower);
+                    assert_eq!(mu, t.predict(c, prev), "case {case}: prev {prev}, lower {lower}");
+                    assert!(std::ptr::eq(lookup.cdf, t.table(c).lookup_table().cdf), "case {case}: prev {prev}, lower {lower}");
+                }
+            }
+        }
     }
 }
