@@ -43,6 +43,41 @@ pub enum GpuError {
     Backend(String),
 }
 
+/// Installs on `device` a sink for its uncaptured errors: the slot holds the first error since
+/// it was last emptied. (The GPU trainer installs its own on the device it shares.)
+#[doc(hidden)]
+pub fn error_sink(device: &wgpu::Device) -> Arc<Mutex<Option<String>>> {
+    let errors: Arc<Mutex<Option<String>>> = Arc::new(Mutex::new(None));
+    let sink = errors.clone();
+    device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+        let mut slot = sink.lock().unwrap_or_else(|p| p.into_inner());
+        slot.get_or_insert_with(|| e.to_string());
+    }));
+    errors
+}
+
+/// A WGSL module of `src` after the shared definitions ([`crate::shaders::COMMON`]).
+#[doc(hidden)]
+pub fn shader_module(device: &wgpu::Device, name: &str, src: &str) -> wgpu::ShaderModule {
+    device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(name),
+        source: wgpu::ShaderSource::Wgsl(format!("{COMMON}\n{src}").into()),
+    })
+}
+
+/// The compute pipeline of entry point `entry` of `module`, its layout derived from the shader.
+#[doc(hidden)]
+pub fn compute_pipeline(device: &wgpu::Device, module: &wgpu::ShaderModule, entry: &str) -> wgpu::ComputePipeline {
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(entry),
+        layout: None,
+        module,
+        entry_point: Some(entry),
+        compilation_options: Default::default(),
+        cache: None,
+    })
+}
+
 /// Kernels and device of the wgpu renderer. Create once, render many frames.
 pub struct GpuRenderer {
     device: wgpu::Device,
@@ -202,28 +237,9 @@ impl GpuRenderer {
     /// Compiles the kernels on an existing device (the GPU trainer shares its device).
     #[doc(hidden)]
     pub fn from_device(device: wgpu::Device, queue: wgpu::Queue, info: wgpu::AdapterInfo, max_binding: u64) -> Result<Self, GpuError> {
-        let errors: Arc<Mutex<Option<String>>> = Arc::new(Mutex::new(None));
-        let sink = errors.clone();
-        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
-            let mut slot = sink.lock().unwrap_or_else(|p| p.into_inner());
-            slot.get_or_insert_with(|| e.to_string());
-        }));
-        let module = |name: &str, src: &str| {
-            device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(name),
-                source: wgpu::ShaderSource::Wgsl(format!("{COMMON}\n{src}").into()),
-            })
-        };
-        let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: None,
-                module: m,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
+        let errors = error_sink(&device);
+        let module = |name: &str, src: &str| shader_module(&device, name, src);
+        let pipeline = |m: &wgpu::ShaderModule, entry: &str| compute_pipeline(&device, m, entry);
         let project_m = module("project", PROJECT);
         let emit_m = module("emit", EMIT);
         let scan_m = module("scan", SCAN);

@@ -7,12 +7,12 @@
 
 use crate::{Error, Result};
 use gscodec_decoder::math::TILE;
-use gscodec_decoder::render::gpu::{block_on, map_wait, GpuRenderer};
+use gscodec_decoder::render::gpu::{block_on, compute_pipeline, error_sink, map_wait, shader_module, GpuRenderer};
 use gscodec_decoder::Camera;
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
-use gscodec_decoder::shaders::{COMMON, EMIT, PROJECT, RASTERIZE};
+use gscodec_decoder::shaders::{EMIT, PROJECT, RASTERIZE};
 const TRAIN_RASTER: &str = include_str!("../../../shaders/train_raster.wgsl");
 const TRAIN_PROJECT: &str = include_str!("../../../shaders/train_project.wgsl");
 const TRAIN_LOSS: &str = include_str!("../../../shaders/train_loss.wgsl");
@@ -199,28 +199,9 @@ impl Gpu {
         let renderer = GpuRenderer::from_device(device.clone(), queue.clone(), info.clone(), max_binding)
             .map_err(|e| Error::Failure(e.to_string()))?;
         // The renderer installed its error sink; ours replaces it and the renderer's check() is unused.
-        let errors: Arc<Mutex<Option<String>>> = Arc::new(Mutex::new(None));
-        let sink = errors.clone();
-        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
-            let mut slot = sink.lock().unwrap_or_else(|p| p.into_inner());
-            slot.get_or_insert_with(|| e.to_string());
-        }));
-        let module = |name: &str, src: &str| {
-            device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(name),
-                source: wgpu::ShaderSource::Wgsl(format!("{COMMON}\n{src}").into()),
-            })
-        };
-        let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: None,
-                module: m,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
+        let errors = error_sink(&device);
+        let module = |name: &str, src: &str| shader_module(&device, name, src);
+        let pipeline = |m: &wgpu::ShaderModule, entry: &str| compute_pipeline(&device, m, entry);
         let raster_src = if subgroups {
             TRAIN_RASTER.replace("SUBGROUP_ARGS", ", @builtin(subgroup_invocation_id) sg_lane: u32").replace(
                 "ACCUMULATE",
