@@ -163,9 +163,11 @@ pub fn map_wait(device: &wgpu::Device, staging: &wgpu::Buffer) -> Result<(), Str
     outcome.map_err(|e| format!("readback failed: {e}"))
 }
 
+/// The per-frame uniform of common.wgsl (`Frame`), shared with the GPU trainer.
+#[doc(hidden)]
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct FrameUniform {
+pub struct FrameUniform {
     rot: [[f32; 4]; 3],
     trans: [f32; 4],
     center: [f32; 4],
@@ -181,8 +183,31 @@ struct FrameUniform {
     n: u32,
 }
 
+impl FrameUniform {
+    /// The frame of `cam`: `n` Gaussians of `stride` f32 records, SH up to `degree`.
+    pub fn new(cam: &Camera, background: [f32; 3], degree: u8, stride: usize, n: usize) -> Self {
+        let r = cam.rotation;
+        FrameUniform {
+            rot: [r.x_axis.extend(0.0).to_array(), r.y_axis.extend(0.0).to_array(), r.z_axis.extend(0.0).to_array()],
+            trans: cam.translation.extend(0.0).to_array(),
+            center: cam.center().extend(0.0).to_array(),
+            focal: [cam.fx, cam.fy, cam.cx, cam.cy],
+            background: [background[0], background[1], background[2], 0.0],
+            znear: cam.znear,
+            width: cam.width,
+            height: cam.height,
+            tiles_x: cam.width.div_ceil(TILE),
+            tiles_y: cam.height.div_ceil(TILE),
+            degree: u32::from(degree),
+            stride: stride as u32,
+            n: n as u32,
+        }
+    }
+}
+
 /// Workgroup counts `(x, y)` covering `groups` with `x ≤ 65535`.
-fn dims(groups: u32) -> (u32, u32) {
+#[doc(hidden)]
+pub fn dims(groups: u32) -> (u32, u32) {
     if groups <= MAX_GROUPS {
         (groups.max(1), 1)
     } else {
@@ -584,23 +609,7 @@ impl GpuRenderer {
         self.fits("the tile table", tiles_x as u64 * tiles_y as u64 * 8)?;
         let mut host = [None; 5];
 
-        let r = cam.rotation;
-        let c = cam.center();
-        let frame = FrameUniform {
-            rot: [r.x_axis.extend(0.0).to_array(), r.y_axis.extend(0.0).to_array(), r.z_axis.extend(0.0).to_array()],
-            trans: cam.translation.extend(0.0).to_array(),
-            center: c.extend(0.0).to_array(),
-            focal: [cam.fx, cam.fy, cam.cx, cam.cy],
-            background: [opts.background[0], opts.background[1], opts.background[2], 0.0],
-            znear: cam.znear,
-            width: w,
-            height: h,
-            tiles_x,
-            tiles_y,
-            degree: degree as u32,
-            stride: scene.stride,
-            n,
-        };
+        let frame = FrameUniform::new(cam, opts.background, degree, scene.stride as usize, n as usize);
         let frame_buf = self.uniform(&frame);
         let projected = self.storage("projected", n as u64 * PROJECTED_BYTES);
         let counts = self.storage("tile counts", (n as u64 + 1) * 4);

@@ -6,9 +6,8 @@
 //! `shaders/train_*.wgsl`.
 
 use crate::{Error, Result};
-use gscodec_decoder::math::TILE;
 use gscodec_decoder::render::gpu::{block_on, compute_pipeline, error_sink, map_wait, shader_module, GpuRenderer};
-use gscodec_decoder::Camera;
+pub use gscodec_decoder::render::gpu::{dims, FrameUniform};
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
@@ -24,60 +23,10 @@ const TRAIN_COUNT: &str = include_str!("../../../shaders/train_count.wgsl");
 const PROJECTED_BYTES: u64 = 48;
 /// Screen-space gradient components per Gaussian (train_raster.wgsl's G2).
 pub const G2: usize = 9;
-const MAX_GROUPS: u32 = 65535;
 
 /// Floats per parameter record for SH degree `degree`: `[pos3, log_scale3, rot4, opacity, dc3, rest]`.
 pub fn stride_for(degree: u8) -> usize {
     14 + 3 * gscodec_decoder::math::sh_rest_coeffs(degree)
-}
-
-/// Workgroup counts `(x, y)` covering `groups` with `x ≤ 65535`.
-pub fn dims(groups: u32) -> (u32, u32) {
-    if groups <= MAX_GROUPS {
-        (groups.max(1), 1)
-    } else {
-        (MAX_GROUPS, groups.div_ceil(MAX_GROUPS))
-    }
-}
-
-/// The per-frame uniform of common.wgsl (`Frame`).
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct FrameUniform {
-    rot: [[f32; 4]; 3],
-    trans: [f32; 4],
-    center: [f32; 4],
-    focal: [f32; 4],
-    background: [f32; 4],
-    znear: f32,
-    width: u32,
-    height: u32,
-    tiles_x: u32,
-    tiles_y: u32,
-    degree: u32,
-    stride: u32,
-    n: u32,
-}
-
-impl FrameUniform {
-    pub fn new(cam: &Camera, background: [f32; 3], degree: u8, stride: usize, n: usize) -> Self {
-        let r = cam.rotation;
-        FrameUniform {
-            rot: [r.x_axis.extend(0.0).to_array(), r.y_axis.extend(0.0).to_array(), r.z_axis.extend(0.0).to_array()],
-            trans: cam.translation.extend(0.0).to_array(),
-            center: cam.center().extend(0.0).to_array(),
-            focal: [cam.fx, cam.fy, cam.cx, cam.cy],
-            background: [background[0], background[1], background[2], 0.0],
-            znear: cam.znear,
-            width: cam.width,
-            height: cam.height,
-            tiles_x: cam.width.div_ceil(TILE),
-            tiles_y: cam.height.div_ceil(TILE),
-            degree: degree as u32,
-            stride: stride as u32,
-            n: n as u32,
-        }
-    }
 }
 
 /// Adam hyper-parameters of one step (train_adam.wgsl's `AdamStep`).
