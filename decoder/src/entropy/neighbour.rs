@@ -167,15 +167,15 @@ const MAX_TABLE_SPAN: i64 = 1 << 12;
 /// `count of thresholds ≤ v`, times a factor, as a table over the thresholds' span (values
 /// below it count none, values above it all), or counted where the span is too wide.
 #[derive(Debug, Clone)]
-struct BucketTable {
+struct BucketTable<'a> {
     min: i64,
     counts: Vec<u8>,
-    thresholds: Vec<i32>,
+    thresholds: &'a [i32],
     factor: u8,
 }
 
-impl BucketTable {
-    fn new(thresholds: &[i32], factor: usize) -> BucketTable {
+impl<'a> BucketTable<'a> {
+    fn new(thresholds: &'a [i32], factor: usize) -> BucketTable<'a> {
         let count = |v: i64| thresholds.iter().filter(|&&t| v >= i64::from(t)).count() * factor;
         let (min, max) = thresholds.iter().fold((i64::MAX, i64::MIN), |(a, b), &t| (a.min(t.into()), b.max(t.into())));
         let counts = if thresholds.is_empty() || max - min + 2 > MAX_TABLE_SPAN {
@@ -184,7 +184,7 @@ impl BucketTable {
             // Index i holds the value min − 1 + i, up to max.
             (min - 1..=max).map(|v| count(v) as u8).collect()
         };
-        BucketTable { min: min.saturating_sub(1), counts, thresholds: thresholds.to_vec(), factor: factor as u8 }
+        BucketTable { min: min.saturating_sub(1), counts, thresholds, factor: factor as u8 }
     }
 
     #[inline(always)]
@@ -214,8 +214,8 @@ struct DecodeContext<'a> {
 /// as [`Neighbour::context`] and [`Neighbour::predict`]).
 #[derive(Debug, Clone)]
 pub struct NeighbourDecoder<'a> {
-    prev: BucketTable,
-    lower: BucketTable,
+    prev: BucketTable<'a>,
+    lower: BucketTable<'a>,
     contexts: Vec<DecodeContext<'a>>,
     reach: i64,
 }
