@@ -41,9 +41,13 @@ pub struct NeighbourContext {
 /// those `≤ lower`, `L = lower_at.len()` (SPEC §4.3).
 #[inline(always)]
 pub fn context(prev_at: &[i32], lower_at: &[i32], prev: i32, lower: i32) -> usize {
-    let bp = prev_at.iter().filter(|&&t| prev >= t).count();
-    let bl = lower_at.iter().filter(|&&t| lower >= t).count();
-    bp * (lower_at.len() + 1) + bl
+    at_or_below(prev_at, prev) * (lower_at.len() + 1) + at_or_below(lower_at, lower)
+}
+
+/// How many of `thresholds` are `≤ v`.
+#[inline(always)]
+fn at_or_below(thresholds: &[i32], v: i32) -> usize {
+    thresholds.iter().filter(|&&t| v >= t).count()
 }
 
 impl NeighbourContext {
@@ -176,13 +180,12 @@ struct BucketTable<'a> {
 
 impl<'a> BucketTable<'a> {
     fn new(thresholds: &'a [i32], factor: usize) -> BucketTable<'a> {
-        let count = |v: i64| thresholds.iter().filter(|&&t| v >= i64::from(t)).count() * factor;
         let (min, max) = thresholds.iter().fold((i64::MAX, i64::MIN), |(a, b), &t| (a.min(t.into()), b.max(t.into())));
         let counts = if thresholds.is_empty() || max - min + 2 > MAX_TABLE_SPAN {
             Vec::new()
         } else {
-            // Index i holds the value min − 1 + i, up to max.
-            (min - 1..=max).map(|v| count(v) as u8).collect()
+            // Index i holds the value min − 1 + i, up to max (min − 1 is below every threshold).
+            std::iter::once(0).chain((min..=max).map(|v| (at_or_below(thresholds, v as i32) * factor) as u8)).collect()
         };
         BucketTable { min: min.saturating_sub(1), counts, thresholds, factor: factor as u8 }
     }
@@ -192,7 +195,7 @@ impl<'a> BucketTable<'a> {
         if self.thresholds.is_empty() {
             0
         } else if self.counts.is_empty() {
-            self.thresholds.iter().filter(|&&t| v >= t).count() * usize::from(self.factor)
+            at_or_below(self.thresholds, v) * usize::from(self.factor)
         } else {
             let i = (i64::from(v) - self.min).clamp(0, self.counts.len() as i64 - 1);
             usize::from(self.counts[i as usize])
@@ -217,7 +220,7 @@ pub struct NeighbourDecoder<'a> {
     prev: BucketTable<'a>,
     lower: BucketTable<'a>,
     contexts: Vec<DecodeContext<'a>>,
-    reach: i64,
+    table: &'a Neighbour,
 }
 
 impl<'a> NeighbourDecoder<'a> {
@@ -233,7 +236,7 @@ impl<'a> NeighbourDecoder<'a> {
             prev: BucketTable::new(&t.prev_at, t.lower_at.len() + 1),
             lower: BucketTable::new(&t.lower_at, 1),
             contexts,
-            reach: i64::from(t.reach),
+            table: t,
         }
     }
 
@@ -244,10 +247,10 @@ impl<'a> NeighbourDecoder<'a> {
         (c.lookup, (c.mix * i64::from(prev) + c.offset) >> 2)
     }
 
-    /// The value of in-window symbol `s` predicted by `mu`; `None` outside `i32`.
+    /// The value of in-window symbol `s` predicted by `mu` ([`Neighbour::value`]).
     #[inline(always)]
     pub fn value(&self, mu: i64, s: usize) -> Option<i32> {
-        i32::try_from(mu + s as i64 - self.reach).ok()
+        self.table.value(mu, s)
     }
 }
 
@@ -266,8 +269,11 @@ mod tests {
             let mut value = |m: i64| (rng.next_u64() % (2 * m as u64)) as i64 - m;
             let mut thresholds =
                 |k: i64| -> Vec<i32> { (0..k.abs()).map(|_| value(spread).clamp(i32::MIN.into(), i32::MAX.into()) as i32).collect() };
-            let prev_at = thresholds(case as i64 % 16);
-            let lower_at = thresholds((case as i64 / 16) % 16);
+            let (mut prev_at, mut lower_at) = (thresholds(case as i64 % 16), thresholds((case as i64 / 16) % 16));
+            // Narrow spans at i32's ends.
+            if case % 50 == 7 {
+                (prev_at, lower_at) = (vec![i32::MIN + 2, i32::MIN, i32::MIN + 1], vec![i32::MAX - 3, i32::MAX]);
+            }
             let count = (prev_at.len() + 1) * (lower_at.len() + 1);
             let mut rng2 = crate::rng::Rng::new(case as u64);
             let contexts = (0..count)
