@@ -2,8 +2,9 @@
 //! quantised integer rows of one band (each row = the band's `C` channels of one Gaussian), so
 //! that a band can be stored as a codebook plus one index per Gaussian.
 //!
-//! Deterministic: k-means++ seeding with the project's [`Rng`], a fixed number of Lloyd
-//! iterations, training on a deterministic subsample of at most [`TRAIN_ROWS`] rows; the
+//! Deterministic: k-means++ seeding with the project's [`Rng`], at most [`ITERATIONS`] Lloyd
+//! iterations (fewer only when the centres stop moving, which leaves the codebook as it is),
+//! training on a deterministic subsample of at most [`TRAIN_ROWS`] rows; the
 //! assignments run in parallel (rayon, each row independent) and the centroid sums are
 //! accumulated sequentially in row order, so the codebook does not depend on the thread count.
 
@@ -60,16 +61,17 @@ impl Codebook {
 pub fn palette(chans: &[Vec<i32>]) -> Codebook {
     let c = chans.len();
     let n = chans.first().map_or(0, Vec::len);
-    let row = |i: usize| chans.iter().map(|ch| ch[i]).collect::<Vec<i32>>();
+    let all: Vec<i32> = (0..n).flat_map(|i| chans.iter().map(move |ch| ch[i])).collect();
+    let row = |i: usize| &all[i * c..][..c];
     let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by_key(|&i| row(i));
+    order.sort_by(|&a, &b| row(a).cmp(row(b)));
     let mut rows: Vec<i32> = Vec::new();
     let mut index = vec![0u32; n];
-    let mut last: Option<Vec<i32>> = None;
+    let mut last: Option<&[i32]> = None;
     for &i in &order {
         let r = row(i);
-        if last.as_ref() != Some(&r) {
-            rows.extend_from_slice(&r);
+        if last != Some(r) {
+            rows.extend_from_slice(r);
             last = Some(r);
         }
         index[i] = (rows.len() / c.max(1) - 1) as u32;
@@ -95,16 +97,124 @@ fn dist2_below(a: &[f32], b: &[f32], bound: f32) -> f32 {
     d
 }
 
-/// Centres (`K × c`, row-major) ordered along one direction, the axis, for [`Centres::nearest`].
+/// How many directions a [`Basis`] has: a point's coordinates along them are [`Coords`].
+const AXES: usize = 6;
+
+/// A point's coordinates along the directions of a [`Basis`], each summed in order in `f64`.
+type Coords = [f64; AXES];
+
+/// `AXES` orthonormal directions (zero vectors beyond the rows' `c` channels). The squared
+/// distance of two points' [`Coords`] is at most their squared distance, which lets a search
+/// pass over a centre for a few multiplications instead of `c`. The first direction is the one
+/// [`Centres`] sorts along.
+struct Basis {
+    axes: [Vec<f64>; AXES],
+}
+
+impl Basis {
+    /// The directions along which `rows` (`c` values each, those listed in `which`) vary most:
+    /// principal components by power iteration on their covariance, each kept orthogonal to the
+    /// ones before, sums in order (deterministic). The first starts from the channel of largest
+    /// variance (its unit vector where the rows do not vary), each later one from the channel
+    /// that the earlier directions leave most of, times its variance. The wider the centres
+    /// spread along them, the fewer [`Centres::nearest`] measures.
+    fn principal(rows: &[f32], c: usize, which: &[usize]) -> Basis {
+        let m = which.len().max(1) as f64;
+        let mut mean = vec![0.0f64; c];
+        for &i in which {
+            mean.iter_mut().zip(&rows[i * c..][..c]).for_each(|(s, &x)| *s += f64::from(x));
+        }
+        mean.iter_mut().for_each(|s| *s /= m);
+        let mut cov = vec![0.0f64; c * c];
+        for &i in which {
+            let r = &rows[i * c..][..c];
+            for a in 0..c {
+                let da = f64::from(r[a]) - mean[a];
+                for b in 0..c {
+                    cov[a * c + b] += da * (f64::from(r[b]) - mean[b]);
+                }
+            }
+        }
+        let mut axes: [Vec<f64>; AXES] = std::array::from_fn(|_| vec![0.0; c]);
+        for j in 0..AXES.min(c) {
+            let (done, rest) = axes.split_at_mut(j);
+            let orthogonal = |mut v: Vec<f64>| {
+                for u in done.iter() {
+                    let d: f64 = v.iter().zip(u).map(|(x, y)| x * y).sum();
+                    v.iter_mut().zip(u).for_each(|(x, y)| *x -= d * y);
+                }
+                v
+            };
+            let unit = |ch: usize| orthogonal((0..c).map(|b| f64::from(u8::from(b == ch))).collect());
+            let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            // The channel whose unit vector the earlier directions leave most of, by its variance
+            // (for the first direction: the widest channel); by what is left alone where no
+            // channel varies.
+            let score = |ch: usize, by_variance: bool| norm(&unit(ch)) * if by_variance { cov[ch * c + ch] } else { 1.0 };
+            let first = |by_variance: bool| (0..c).fold(0, |b, ch| if score(ch, by_variance) > score(b, by_variance) { ch } else { b });
+            let start = if score(first(true), true) > 0.0 { first(true) } else { first(false) };
+            let s = unit(start);
+            let n = norm(&s);
+            let mut v: Vec<f64> = s.into_iter().map(|x| x / n).collect();
+            for _ in 0..POWER_STEPS {
+                let w = orthogonal((0..c).map(|a| (0..c).map(|b| cov[a * c + b] * v[b]).sum()).collect());
+                let n = norm(&w);
+                if !(n > 0.0 && n.is_finite()) {
+                    break;
+                }
+                v = w.into_iter().map(|x| x / n).collect();
+            }
+            rest[0] = v;
+        }
+        Basis { axes }
+    }
+
+    /// `axis` (a unit vector) first, completed by the channels' unit vectors made orthogonal to
+    /// it and to one another (those that stay non-zero; zero vectors where too few do).
+    #[cfg(test)]
+    fn around(axis: &[f64]) -> Basis {
+        let c = axis.len();
+        let mut axes: [Vec<f64>; AXES] = std::array::from_fn(|_| vec![0.0; c]);
+        axes[0] = axis.to_vec();
+        let mut next = 1;
+        for ch in 0..c {
+            if next == AXES {
+                break;
+            }
+            let mut v: Vec<f64> = (0..c).map(|b| f64::from(u8::from(b == ch))).collect();
+            for u in &axes[..next] {
+                let d: f64 = v.iter().zip(u).map(|(x, y)| x * y).sum();
+                v.iter_mut().zip(u).for_each(|(x, y)| *x -= d * y);
+            }
+            let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if n > 0.1 {
+                axes[next] = v.into_iter().map(|x| x / n).collect();
+                next += 1;
+            }
+        }
+        Basis { axes }
+    }
+
+    /// `row`'s coordinates.
+    fn coords(&self, row: &[f32]) -> Coords {
+        std::array::from_fn(|j| project(row, &self.axes[j]))
+    }
+}
+
+/// The squared distance of two points' coordinates: at most the points' squared distance.
+fn below(a: &Coords, b: &Coords) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+/// Some of the centres `cen` (`K × c`, row-major), ordered along a [`Basis`]'s first direction,
+/// for [`Centres::nearest`].
 struct Centres<'a> {
     cen: &'a [f32],
     c: usize,
-    /// A unit vector: the keys are the centres' projections on it.
-    axis: &'a [f64],
-    /// Centre indices by their key (ties by index), those keys, and the centres in that order
-    /// (so that the search reads them in sequence).
+    /// The centres' indices by their first coordinate (ties by index), their coordinates in that
+    /// order, and the centres in that order (so that the search reads them in sequence).
     order: Vec<u32>,
-    keys: Vec<f64>,
+    keys: Vec<Coords>,
     sorted: Vec<f32>,
 }
 
@@ -113,39 +223,44 @@ fn project(row: &[f32], axis: &[f64]) -> f64 {
     row.iter().zip(axis).map(|(&x, &u)| f64::from(x) * u).sum()
 }
 
-/// How much a projection gap may exceed the distance through rounding, as a share: the gap and
-/// the unit axis are `f64` (relative error near 1e-15), the distance an `f32` sum of at most a few
-/// dozen terms (relative error below 1e-5); a centre is passed over only when its squared gap is
-/// this far above the best distance.
+/// How much a coordinate gap may exceed the distance through rounding, as a share: the gap and
+/// the unit axes are `f64` (relative error near 1e-15), the distance an `f32` sum of at most a
+/// few dozen terms (relative error below 1e-5); a centre is passed over only when its squared
+/// gap is this far above the best distance.
 const SLACK: f64 = 1e-4;
 
 impl<'a> Centres<'a> {
-    fn new(cen: &'a [f32], c: usize, axis: &'a [f64]) -> Centres<'a> {
-        let all: Vec<f64> = cen.chunks_exact(c).map(|r| project(r, axis)).collect();
-        let mut order: Vec<u32> = (0..all.len() as u32).collect();
-        order.sort_by(|&a, &b| all[a as usize].total_cmp(&all[b as usize]).then(a.cmp(&b)));
-        let keys = order.iter().map(|&k| all[k as usize]).collect();
+    /// The centres `which` of `cen`.
+    fn new(cen: &'a [f32], c: usize, basis: &Basis, which: Vec<u32>) -> Centres<'a> {
+        let mut keyed: Vec<(Coords, u32)> = which.into_iter().map(|k| (basis.coords(&cen[k as usize * c..][..c]), k)).collect();
+        keyed.sort_by(|a, b| a.0[0].total_cmp(&b.0[0]).then(a.1.cmp(&b.1)));
+        let (keys, order): (Vec<Coords>, Vec<u32>) = keyed.into_iter().unzip();
         let sorted = order.iter().flat_map(|&k| &cen[k as usize * c..][..c]).copied().collect();
-        Centres { cen, c, axis, order, keys, sorted }
+        Centres { cen, c, order, keys, sorted }
     }
 
     fn centre(&self, k: u32) -> &[f32] {
         &self.cen[k as usize * self.c..][..self.c]
     }
 
-    /// Index of the centre nearest to `row`, the first of equals. `hint` (any index) is measured
-    /// first, so that its distance bounds the others' sums from the start; the centres are
-    /// visited outwards from `row`'s projection on the axis, and a direction ends where the
-    /// squared gap between the projections — at most the squared distance, the axis being a unit
-    /// vector — exceeds the best distance by more than rounding could ([`SLACK`]). The answer
-    /// does not depend on the hint or the axis, only the time.
-    fn nearest(&self, row: &[f32], hint: u32) -> u32 {
-        let x = project(row, self.axis);
+    /// Index of the centre nearest to `row` among these and `hint` (any index of `cen`), the
+    /// first of equals; `x` is `row`'s [`Coords`] in the basis the centres were ordered by.
+    /// `hint` is measured first, so that its distance bounds the others' sums from the start.
+    /// The centres are visited outwards from `row`'s first coordinate; a direction ends where
+    /// the squared gap of the first coordinates — at most the squared distance — exceeds the
+    /// best distance by more than rounding could ([`SLACK`]), and a centre whose squared
+    /// coordinate distance does is passed over unmeasured. Over all the centres the answer does
+    /// not depend on the hint or the basis, only the time.
+    fn nearest(&self, row: &[f32], x: &Coords, hint: u32) -> u32 {
         let mut best = (dist2(row, self.centre(hint)), hint);
         let visit = |pos: usize, best: &mut (f32, u32)| {
-            let gap = x - self.keys[pos];
+            let key = &self.keys[pos];
+            let gap = x[0] - key[0];
             if gap * gap * (1.0 - SLACK) > f64::from(best.0) {
                 return false;
+            }
+            if below(x, key) * (1.0 - SLACK) > f64::from(best.0) {
+                return true;
             }
             let k = self.order[pos];
             // An index below the best one also wins a tie.
@@ -156,7 +271,7 @@ impl<'a> Centres<'a> {
             }
             true
         };
-        let start = self.keys.partition_point(|&k| k < x);
+        let start = self.keys.partition_point(|k| k[0] < x[0]);
         for pos in start..self.keys.len() {
             if !visit(pos, &mut best) {
                 break;
@@ -171,44 +286,8 @@ impl<'a> Centres<'a> {
     }
 }
 
-/// The direction along which `rows` (`c` values each, those listed in `which`) vary most, as a
-/// unit vector: the first principal component by power iteration on their covariance, sums in
-/// order (deterministic), started from the channel of largest variance — and that channel's unit
-/// vector where the rows do not vary. The axis of [`Centres`]: the wider the centres spread
-/// along it, the fewer [`Centres::nearest`] measures.
-fn principal_axis(rows: &[f32], c: usize, which: &[usize]) -> Vec<f64> {
-    let m = which.len().max(1) as f64;
-    let mut mean = vec![0.0f64; c];
-    for &i in which {
-        mean.iter_mut().zip(&rows[i * c..][..c]).for_each(|(s, &x)| *s += f64::from(x));
-    }
-    mean.iter_mut().for_each(|s| *s /= m);
-    let mut cov = vec![0.0f64; c * c];
-    for &i in which {
-        let r = &rows[i * c..][..c];
-        for a in 0..c {
-            let da = f64::from(r[a]) - mean[a];
-            for b in 0..c {
-                cov[a * c + b] += da * (f64::from(r[b]) - mean[b]);
-            }
-        }
-    }
-    let widest = (0..c).fold(0, |b, j| if cov[j * c + j] > cov[b * c + b] { j } else { b });
-    let mut v = vec![0.0f64; c];
-    v[widest] = 1.0;
-    for _ in 0..POWER_STEPS {
-        let w: Vec<f64> = (0..c).map(|a| (0..c).map(|b| cov[a * c + b] * v[b]).sum()).collect();
-        let norm = w.iter().map(|x| x * x).sum::<f64>().sqrt();
-        if !(norm > 0.0 && norm.is_finite()) {
-            break;
-        }
-        v = w.into_iter().map(|x| x / norm).collect();
-    }
-    v
-}
-
-/// Power-iteration steps of [`principal_axis`]: any unit vector is a valid axis, so a direction
-/// short of converged costs time, never the result.
+/// Power-iteration steps of [`Basis::principal`]: any orthonormal directions are a valid basis,
+/// so directions short of converged cost time, never the result.
 const POWER_STEPS: usize = 32;
 
 /// A codebook of at most `k` rows for the band rows `chans[channel][row]`, each row weighted by
@@ -253,39 +332,42 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     let row = |d: usize| &rows[d * c..][..c];
     // k-means++ seeding (weighted D² sampling), distances kept up to date per new centre.
     let mut centroids: Vec<f32> = Vec::with_capacity(k * c);
-    let pick = |rng: &mut Rng, p: &[f64]| -> usize {
-        let total: f64 = p.iter().sum();
+    // `p(j)` for j < `n` are the draw's weights, `total` their sum in order.
+    let pick = |rng: &mut Rng, n: usize, total: f64, p: &dyn Fn(usize) -> f64| -> usize {
         let mut t = rng.uniform_f64() * total;
-        for (j, &x) in p.iter().enumerate() {
+        for j in 0..n {
+            let x = p(j);
             if t < x {
                 return j;
             }
             t -= x;
         }
-        p.iter().rposition(|&x| x > 0.0).unwrap_or(0)
+        (0..n).rposition(|j| p(j) > 0.0).unwrap_or(0)
     };
-    let first = pick(&mut rng, &w);
+    let first = pick(&mut rng, w.len(), w.iter().sum(), &|j| w[j]);
     centroids.extend_from_slice(row(train[first]));
     let mut d2: Vec<f32> = train.par_iter().map(|&i| dist2(row(i), &centroids[..c])).collect();
-    // The axis of the nearest-centre search; in the seeding, a row whose projection on it is
+    // The basis of the nearest-centre search; in the seeding, a row whose coordinates are
     // farther from the new centre's than its distance so far cannot come nearer (as in
     // `Centres::nearest`) and is passed over.
-    let axis = principal_axis(&rows, c, &train);
-    let along: Vec<f64> = train.iter().map(|&i| project(row(i), &axis)).collect();
-    // Each training row's nearest centre so far (the hint of the first assignment).
+    let basis = Basis::principal(&rows, c, &train);
+    let along: Vec<Coords> = train.iter().map(|&i| basis.coords(row(i))).collect();
+    // Each training row's nearest centre so far, the first of equals.
     let mut assign = vec![0u32; train.len()];
     while centroids.len() < k * c {
-        let p: Vec<f64> = d2.iter().zip(&w).map(|(&d, &wt)| f64::from(d) * wt).collect();
-        if p.iter().all(|&x| x <= 0.0) {
+        let p = |j: usize| f64::from(d2[j]) * w[j];
+        // The weights are not negative: they sum to 0 only when all are 0.
+        let total: f64 = (0..d2.len()).map(p).sum();
+        if total <= 0.0 {
             break; // fewer distinct rows in the sample than k
         }
-        let j = pick(&mut rng, &p);
+        let j = pick(&mut rng, d2.len(), total, &p);
         let start = centroids.len();
         centroids.extend_from_slice(row(train[j]));
         let (cen, at) = (&centroids[start..], (start / c) as u32);
-        let key = project(cen, &axis);
-        d2.par_iter_mut().zip(&mut assign).zip(&train).zip(&along).for_each(|(((d, a), &i), &x)| {
-            if (x - key) * (x - key) * (1.0 - SLACK) > f64::from(*d) {
+        let key = basis.coords(cen);
+        d2.par_iter_mut().zip(&mut assign).zip(&train).zip(&along).for_each(|(((d, a), &i), x)| {
+            if below(x, &key) * (1.0 - SLACK) > f64::from(*d) {
                 return;
             }
             let new = dist2_below(row(i), cen, *d);
@@ -295,10 +377,26 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
         });
     }
     let kk = centroids.len() / c;
-    // Lloyd iterations on the training rows; sums in row order (f64).
-    for _ in 0..ITERATIONS {
-        let centres = Centres::new(&centroids, c, &axis);
-        assign = train.par_iter().zip(&assign).map(|(&i, &hint)| centres.nearest(row(i), hint)).collect();
+    // Lloyd iterations on the training rows; sums in row order (f64). Before each, `assign`
+    // holds every row's nearest centre (the first of equals) as the centres stood before they
+    // last moved — the seeding's is that for its centres — so a row whose centre did not move
+    // can only go to a centre that did: it is measured against those alone, and the others
+    // against all.
+    let mut moved = vec![false; kk];
+    for it in 0..ITERATIONS {
+        if it > 0 {
+            let all = Centres::new(&centroids, c, &basis, (0..kk as u32).collect());
+            let some = Centres::new(&centroids, c, &basis, (0..kk as u32).filter(|&a| moved[a as usize]).collect());
+            assign = train
+                .par_iter()
+                .zip(&along)
+                .zip(&assign)
+                .map(|((&i, x), &a)| {
+                    let centres = if moved[a as usize] { &all } else { &some };
+                    centres.nearest(row(i), x, a)
+                })
+                .collect();
+        }
         let mut sum = vec![0.0f64; kk * c];
         let mut mass = vec![0.0f64; kk];
         for ((&i, &a), &wt) in train.iter().zip(&assign).zip(&w) {
@@ -309,11 +407,17 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
             }
         }
         for a in 0..kk {
+            moved[a] = false;
             if mass[a] > 0.0 {
                 for j in 0..c {
-                    centroids[a * c + j] = (sum[a * c + j] / mass[a]) as f32;
+                    let x = (sum[a * c + j] / mass[a]) as f32;
+                    moved[a] |= x.to_bits() != centroids[a * c + j].to_bits();
+                    centroids[a * c + j] = x;
                 }
             }
+        }
+        if !moved.contains(&true) {
+            break; // every later iteration would assign and move the same
         }
     }
     // Integer codebook, then every distinct row to its nearest integer centroid, and every row
@@ -322,17 +426,23 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     // A training row's last assignment is its hint (the rounded centres moved little).
     let mut hints = vec![0u32; pal.len()];
     train.iter().zip(&assign).for_each(|(&d, &a)| hints[d] = a);
-    coded_by(&pal, &rows, int_rows, &axis, &hints)
+    coded_by(&pal, &rows, int_rows, &basis, &hints)
 }
 
 /// The codebook `rows` (integer, row-major) for the rows `pal` is the palette of, `values` its
-/// rows as `f32`: each distinct row to its nearest codebook row (searched along `axis`, starting
+/// rows as `f32`: each distinct row to its nearest codebook row (searched in `basis`, starting
 /// from `hints[d]`), every row to its distinct row's, rows no index uses dropped ([`compact`]).
-fn coded_by(pal: &Codebook, values: &[f32], rows: Vec<i32>, axis: &[f64], hints: &[u32]) -> Codebook {
+fn coded_by(pal: &Codebook, values: &[f32], rows: Vec<i32>, basis: &Basis, hints: &[u32]) -> Codebook {
     let c = pal.channels;
     let cen: Vec<f32> = rows.iter().map(|&x| x as f32).collect();
-    let centres = Centres::new(&cen, c, axis);
-    let nearest: Vec<u32> = (0..pal.len()).into_par_iter().map(|d| centres.nearest(&values[d * c..][..c], hints[d])).collect();
+    let centres = Centres::new(&cen, c, basis, (0..(cen.len() / c.max(1)) as u32).collect());
+    let nearest: Vec<u32> = (0..pal.len())
+        .into_par_iter()
+        .map(|d| {
+            let row = &values[d * c..][..c];
+            centres.nearest(row, &basis.coords(row), hints[d])
+        })
+        .collect();
     let index = pal.index.iter().map(|&d| nearest[d as usize]).collect();
     compact(Codebook { channels: c, rows, index })
 }
@@ -402,9 +512,9 @@ pub fn nearest_rows(chans: &[Vec<i32>], rows: &[i32]) -> Codebook {
     assert!(pal.is_empty() || !rows.is_empty(), "rows to code the band with");
     let cen: Vec<f32> = rows.iter().map(|&x| x as f32).collect();
     let k: Vec<usize> = (0..rows.len() / c.max(1)).collect();
-    let axis = principal_axis(&cen, c, &k);
+    let basis = Basis::principal(&cen, c, &k);
     let values: Vec<f32> = pal.rows.iter().map(|&x| x as f32).collect();
-    coded_by(&pal, &values, rows.to_vec(), &axis, &vec![0; pal.len()])
+    coded_by(&pal, &values, rows.to_vec(), &basis, &vec![0; pal.len()])
 }
 
 /// [`kmeans`] of the same arguments, taken from `memo` when it holds it (keyed by a 128-bit
@@ -544,7 +654,8 @@ mod tests {
         let cen: Vec<f32> = cb.rows.iter().map(|&x| x as f32).collect();
         for i in 0..2000 {
             let r = &rows[i * 9..][..9];
-            let best = Centres::new(&cen, 9, &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]).nearest(r, 0) as usize;
+            let basis = Basis::around(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            let best = Centres::new(&cen, 9, &basis, (0..cb.len() as u32).collect()).nearest(r, &basis.coords(r), 0) as usize;
             assert_eq!(dist2(r, &cen[cb.index[i] as usize * 9..][..9]), dist2(r, &cen[best * 9..][..9]), "row {i}");
         }
     }
@@ -557,21 +668,16 @@ mod tests {
         let cen: Vec<f32> = (0..40 * 3).map(|_| small()).collect();
         // The channels, diagonals (centres tie along them too) and the principal axis.
         let s = 0.5f64.sqrt();
-        let mut axes = vec![
-            vec![1.0, 0.0, 0.0],
-            vec![0.0, 1.0, 0.0],
-            vec![0.0, 0.0, 1.0],
-            vec![s, s, 0.0],
-            vec![s, -s, 0.0],
-            vec![1.0 / 3f64.sqrt(); 3],
-        ];
-        axes.push(principal_axis(&cen, 3, &(0..40).collect::<Vec<_>>()));
+        let axes = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [s, s, 0.0], [s, -s, 0.0], [1.0 / 3f64.sqrt(); 3]];
+        let mut bases: Vec<Basis> = axes.iter().map(|a| Basis::around(a)).collect();
+        bases.push(Basis::principal(&cen, 3, &(0..40).collect::<Vec<_>>()));
         for _ in 0..300 {
             let r = [small(), small(), small()];
             let d: Vec<f32> = cen.chunks_exact(3).map(|c| dist2(&r, c)).collect();
             let first = d.iter().enumerate().fold(0, |b, (k, &x)| if x < d[b] { k } else { b });
-            for (axis, hint) in axes.iter().flat_map(|a| (0..40).map(move |h| (a, h))) {
-                assert_eq!(Centres::new(&cen, 3, axis).nearest(&r, hint) as usize, first, "row {r:?} axis {axis:?} hint {hint}");
+            for (basis, hint) in bases.iter().flat_map(|b| (0..40).map(move |h| (b, h))) {
+                let centres = Centres::new(&cen, 3, basis, (0..40).collect());
+                assert_eq!(centres.nearest(&r, &basis.coords(&r), hint) as usize, first, "row {r:?} axis {:?} hint {hint}", basis.axes[0]);
             }
         }
     }
@@ -582,16 +688,17 @@ mod tests {
         let mut rng = Rng::new(9);
         let c = 21;
         let cen: Vec<f32> = (0..300 * c).map(|i| ((i % 7) as f64 * 900.0 + f64::from(rng.normal()) * 30.0).round() as f32).collect();
-        let mut axes = vec![principal_axis(&cen, c, &(0..300).collect::<Vec<_>>())];
         let random: Vec<f64> = (0..c).map(|_| f64::from(rng.normal())).collect();
         let norm = random.iter().map(|x| x * x).sum::<f64>().sqrt();
-        axes.push(random.iter().map(|x| x / norm).collect());
+        let unit: Vec<f64> = random.iter().map(|x| x / norm).collect();
+        let bases = [Basis::principal(&cen, c, &(0..300).collect::<Vec<_>>()), Basis::around(&unit)];
         for _ in 0..200 {
             let r: Vec<f32> = (0..c).map(|j| ((j % 7) as f64 * 900.0 + f64::from(rng.normal()) * 40.0).round() as f32).collect();
             let d: Vec<f32> = cen.chunks_exact(c).map(|x| dist2(&r, x)).collect();
             let first = d.iter().enumerate().fold(0, |b, (k, &x)| if x < d[b] { k } else { b });
-            for axis in &axes {
-                assert_eq!(Centres::new(&cen, c, axis).nearest(&r, 17) as usize, first);
+            for basis in &bases {
+                let centres = Centres::new(&cen, c, basis, (0..300).collect());
+                assert_eq!(centres.nearest(&r, &basis.coords(&r), 17) as usize, first);
             }
         }
     }
@@ -606,12 +713,12 @@ mod tests {
                 [t + rng.normal(), t + rng.normal(), rng.normal()]
             })
             .collect();
-        let u = principal_axis(&rows, 3, &(0..500).collect::<Vec<_>>());
+        let u = &Basis::principal(&rows, 3, &(0..500).collect::<Vec<_>>()).axes[0];
         assert!((u.iter().map(|x| x * x).sum::<f64>() - 1.0).abs() < 1e-12, "unit length: {u:?}");
         let s = 0.5f64.sqrt();
         assert!((u[0].abs() - s).abs() < 0.01 && (u[1].abs() - s).abs() < 0.01 && u[2].abs() < 0.01 && u[0] * u[1] > 0.0, "{u:?}");
         // No spread: the first channel's unit vector.
-        assert_eq!(principal_axis(&[2.0; 12], 3, &[0, 1, 2, 3]), vec![1.0, 0.0, 0.0]);
+        assert_eq!(Basis::principal(&[2.0; 12], 3, &[0, 1, 2, 3]).axes[0], vec![1.0, 0.0, 0.0]);
     }
 
     #[test]
@@ -619,5 +726,160 @@ mod tests {
         let (chans, w) = band(40_000, 15, 5); // more than TRAIN_ROWS: the subsample too
         let run = |t: usize| rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap().install(|| kmeans(&chans, &w, 128, 11));
         assert_eq!(run(1), run(2));
+    }
+
+    /// A basis is orthonormal (zero vectors past the channels), its first direction carries the
+    /// most spread, and coordinate distances never exceed distances.
+    #[test]
+    fn basis_coordinates_bound_distances_from_below() {
+        let mut rng = Rng::new(21);
+        for c in [2, 3, 9, 21] {
+            // Channels of falling spread, correlated through a shared term.
+            let mut rows = Vec::with_capacity(400 * c);
+            for _ in 0..400 {
+                let t = rng.normal();
+                for j in 0..c {
+                    rows.push((t * 6.0 / (1 + j) as f32 + rng.normal() * 2.0).round());
+                }
+            }
+            let all: Vec<usize> = (0..400).collect();
+            let basis = Basis::principal(&rows, c, &all);
+            for a in 0..AXES {
+                for b in 0..AXES {
+                    let dot: f64 = basis.axes[a].iter().zip(&basis.axes[b]).map(|(x, y)| x * y).sum();
+                    let want = if a == b && a < c { 1.0 } else { 0.0 };
+                    assert!((dot - want).abs() < 1e-9, "c {c}: axes {a}·{b} = {dot}");
+                }
+            }
+            let coords: Vec<Coords> = rows.chunks_exact(c).map(|r| basis.coords(r)).collect();
+            for i in 0..400 {
+                let j = (i * 7 + 3) % 400;
+                let d = f64::from(dist2(&rows[i * c..][..c], &rows[j * c..][..c]));
+                assert!(below(&coords[i], &coords[j]) <= d * (1.0 + 1e-9), "c {c}: rows {i}, {j}");
+            }
+            let mean: Vec<f64> = (0..c).map(|j| rows.iter().skip(j).step_by(c).map(|&x| f64::from(x)).sum::<f64>() / 400.0).collect();
+            let spread = |u: &[f64]| {
+                rows.chunks_exact(c)
+                    .map(|r| r.iter().zip(&mean).zip(u).map(|((&x, m), v)| (f64::from(x) - m) * v).sum::<f64>().powi(2))
+                    .sum::<f64>()
+            };
+            for a in 1..AXES.min(c) {
+                assert!(spread(&basis.axes[a - 1]) >= spread(&basis.axes[a]) * 0.999, "c {c}: direction {a} spreads more than {}", a - 1);
+            }
+        }
+    }
+
+    /// Among some of the centres, the nearest to a row is the nearest of those and the hint,
+    /// the first of equals (what a Lloyd iteration asks of the centres that moved).
+    #[test]
+    fn nearest_among_some_centres_is_the_nearest_of_those_and_the_hint() {
+        let mut rng = Rng::new(8);
+        let c = 9;
+        let cen: Vec<f32> = (0..120 * c).map(|_| (rng.normal() * 1.5).round()).collect();
+        let basis = Basis::principal(&cen, c, &(0..120).collect::<Vec<_>>());
+        for round in 0..200u32 {
+            let some: Vec<u32> = (0..120).filter(|k| (k * 7 + round) % 5 < 2).collect();
+            let hint = round * 13 % 120;
+            let centres = Centres::new(&cen, c, &basis, some.clone());
+            let r: Vec<f32> = (0..c).map(|_| (rng.normal() * 1.5).round()).collect();
+            let mut candidates = some;
+            candidates.push(hint);
+            candidates.sort_unstable();
+            let d = |k: u32| dist2(&r, &cen[k as usize * c..][..c]);
+            let first = candidates.iter().copied().fold(candidates[0], |b, k| if d(k) < d(b) { k } else { b });
+            assert_eq!(centres.nearest(&r, &basis.coords(&r), hint), first, "round {round}");
+        }
+    }
+
+    /// k-means written as plainly as it can be: the same draws, every row measured against
+    /// every centre, all [`ITERATIONS`] Lloyd iterations.
+    fn plain_kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codebook {
+        let n = chans[0].len();
+        let pal = palette(chans);
+        if pal.len() <= k {
+            return pal;
+        }
+        let c = chans.len();
+        let mut rng = Rng::new(seed);
+        let sample: Vec<usize> = if n > TRAIN_ROWS {
+            let mut idx: Vec<usize> = (0..n).collect();
+            rng.shuffle(&mut idx);
+            idx.truncate(TRAIN_ROWS);
+            idx.sort_unstable();
+            idx
+        } else {
+            (0..n).collect()
+        };
+        let mut mass = vec![0.0f64; pal.len()];
+        for &i in &sample {
+            mass[pal.index[i] as usize] += f64::from(weights[i].max(0.0)) + 1e-6;
+        }
+        let train: Vec<usize> = (0..pal.len()).filter(|&d| mass[d] > 0.0).collect();
+        let w: Vec<f64> = train.iter().map(|&d| mass[d]).collect();
+        let rows: Vec<f32> = pal.rows.iter().map(|&x| x as f32).collect();
+        let row = |d: usize| &rows[d * c..][..c];
+        let pick = |rng: &mut Rng, p: &[f64]| {
+            let mut t = rng.uniform_f64() * p.iter().sum::<f64>();
+            for (j, &x) in p.iter().enumerate() {
+                if t < x {
+                    return j;
+                }
+                t -= x;
+            }
+            p.iter().rposition(|&x| x > 0.0).unwrap_or(0)
+        };
+        let nearest = |r: &[f32], cen: &[f32]| {
+            let d: Vec<f32> = cen.chunks_exact(c).map(|x| dist2(r, x)).collect();
+            d.iter().enumerate().fold(0, |b, (k, &x)| if x < d[b] { k } else { b }) as u32
+        };
+        let mut cen: Vec<f32> = row(train[pick(&mut rng, &w)]).to_vec();
+        let mut d2: Vec<f32> = train.iter().map(|&i| dist2(row(i), &cen)).collect();
+        while cen.len() < k * c {
+            let p: Vec<f64> = d2.iter().zip(&w).map(|(&d, &wt)| f64::from(d) * wt).collect();
+            if p.iter().all(|&x| x <= 0.0) {
+                break;
+            }
+            let j = pick(&mut rng, &p);
+            cen.extend_from_slice(row(train[j]));
+            for (d, &i) in d2.iter_mut().zip(&train) {
+                *d = d.min(dist2(row(i), &cen[cen.len() - c..]));
+            }
+        }
+        let kk = cen.len() / c;
+        for _ in 0..ITERATIONS {
+            let assign: Vec<u32> = train.iter().map(|&i| nearest(row(i), &cen)).collect();
+            let (mut sum, mut m) = (vec![0.0f64; kk * c], vec![0.0f64; kk]);
+            for ((&i, &a), &wt) in train.iter().zip(&assign).zip(&w) {
+                m[a as usize] += wt;
+                for (s, &x) in sum[a as usize * c..][..c].iter_mut().zip(row(i)) {
+                    *s += wt * f64::from(x);
+                }
+            }
+            for a in 0..kk {
+                if m[a] > 0.0 {
+                    (0..c).for_each(|j| cen[a * c + j] = (sum[a * c + j] / m[a]) as f32);
+                }
+            }
+        }
+        let int_rows: Vec<i32> = cen.iter().map(|&x| x.round() as i32).collect();
+        let int_cen: Vec<f32> = int_rows.iter().map(|&x| x as f32).collect();
+        let by_distinct: Vec<u32> = (0..pal.len()).map(|d| nearest(row(d), &int_cen)).collect();
+        let index = pal.index.iter().map(|&d| by_distinct[d as usize]).collect();
+        compact(Codebook { channels: c, rows: int_rows, index })
+    }
+
+    /// The search's shortcuts — coordinate bounds, measuring a row again only against the
+    /// centres that moved, stopping when none moves — give exactly the plain k-means, ties
+    /// included (small integer rows tie often), on a subsample too.
+    #[test]
+    fn kmeans_is_the_plain_kmeans() {
+        for (n, c, k, scale, seed) in
+            [(600, 3, 16, 1.0, 1), (2000, 9, 64, 1.5, 2), (3000, 15, 256, 2.0, 3), (1500, 21, 300, 0.7, 4), (40_000, 3, 24, 3.0, 5)]
+        {
+            let mut rng = Rng::new(seed);
+            let chans: Vec<Vec<i32>> = (0..c).map(|_| (0..n).map(|_| (rng.normal() * scale).round() as i32).collect()).collect();
+            let w: Vec<f32> = (0..n).map(|i| if i % 5 == 0 { 0.0 } else { rng.uniform() }).collect();
+            assert_eq!(kmeans(&chans, &w, k, seed), plain_kmeans(&chans, &w, k, seed), "n {n} c {c} k {k}");
+        }
     }
 }
