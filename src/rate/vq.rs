@@ -290,6 +290,33 @@ impl<'a> Centres<'a> {
 /// so directions short of converged cost time, never the result.
 const POWER_STEPS: usize = 32;
 
+/// The distinct rows (indices into `pal`, the palette of a band's rows) k-means trains on, and
+/// their weights: those of a deterministic subsample of at most [`TRAIN_ROWS`] rows, drawn with
+/// `rng` when there are more. k-means of rows of which some are equal is k-means of the
+/// distinct rows, each weighted by the sum of its copies' weights (a seeding draw picks a value
+/// with the same probability, and a centroid is the same weighted mean): quantised SH rows
+/// repeat (a third to a half of a band's rows, the zero row most). A zero-weight row still
+/// counts a little, so that unseen rows are not ignored.
+fn training_rows(pal: &Codebook, weights: &[f32], rng: &mut Rng) -> (Vec<usize>, Vec<f64>) {
+    let n = pal.index.len();
+    let sample: Vec<usize> = if n > TRAIN_ROWS {
+        let mut idx: Vec<usize> = (0..n).collect();
+        rng.shuffle(&mut idx);
+        idx.truncate(TRAIN_ROWS);
+        idx.sort_unstable();
+        idx
+    } else {
+        (0..n).collect()
+    };
+    let mut mass = vec![0.0f64; pal.len()];
+    for &i in &sample {
+        mass[pal.index[i] as usize] += f64::from(weights[i].max(0.0)) + 1e-6;
+    }
+    let train: Vec<usize> = (0..pal.len()).filter(|&d| mass[d] > 0.0).collect();
+    let w = train.iter().map(|&d| mass[d]).collect();
+    (train, w)
+}
+
 /// A codebook of at most `k` rows for the band rows `chans[channel][row]`, each row weighted by
 /// `weights[row]` (significance: how much of the views the Gaussian covers): k-means on the
 /// integer rows, centroids rounded to integers. When the band has at most `k` distinct rows the
@@ -307,27 +334,7 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     }
     let c = chans.len();
     let mut rng = Rng::new(seed);
-    // Deterministic subsample for training.
-    let sample: Vec<usize> = if n > TRAIN_ROWS {
-        let mut idx: Vec<usize> = (0..n).collect();
-        rng.shuffle(&mut idx);
-        idx.truncate(TRAIN_ROWS);
-        idx.sort_unstable();
-        idx
-    } else {
-        (0..n).collect()
-    };
-    // k-means of rows of which some are equal is k-means of the distinct rows, each weighted by
-    // the sum of its copies' weights (a seeding draw picks a value with the same probability,
-    // and a centroid is the same weighted mean), so it trains on the sample's distinct rows:
-    // quantised SH rows repeat (a third to a half of a band's rows, the zero row most).
-    // Weights: a zero-weight row still counts a little, so that unseen rows are not ignored.
-    let mut mass = vec![0.0f64; pal.len()];
-    for &i in &sample {
-        mass[pal.index[i] as usize] += f64::from(weights[i].max(0.0)) + 1e-6;
-    }
-    let train: Vec<usize> = (0..pal.len()).filter(|&d| mass[d] > 0.0).collect();
-    let w: Vec<f64> = train.iter().map(|&d| mass[d]).collect();
+    let (train, w) = training_rows(&pal, weights, &mut rng);
     let rows: Vec<f32> = pal.rows.iter().map(|&x| x as f32).collect();
     let row = |d: usize| &rows[d * c..][..c];
     // k-means++ seeding (weighted D² sampling), distances kept up to date per new centre.
@@ -794,28 +801,13 @@ mod tests {
     /// k-means written as plainly as it can be: the same draws, every row measured against
     /// every centre, all [`ITERATIONS`] Lloyd iterations.
     fn plain_kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codebook {
-        let n = chans[0].len();
         let pal = palette(chans);
         if pal.len() <= k {
             return pal;
         }
         let c = chans.len();
         let mut rng = Rng::new(seed);
-        let sample: Vec<usize> = if n > TRAIN_ROWS {
-            let mut idx: Vec<usize> = (0..n).collect();
-            rng.shuffle(&mut idx);
-            idx.truncate(TRAIN_ROWS);
-            idx.sort_unstable();
-            idx
-        } else {
-            (0..n).collect()
-        };
-        let mut mass = vec![0.0f64; pal.len()];
-        for &i in &sample {
-            mass[pal.index[i] as usize] += f64::from(weights[i].max(0.0)) + 1e-6;
-        }
-        let train: Vec<usize> = (0..pal.len()).filter(|&d| mass[d] > 0.0).collect();
-        let w: Vec<f64> = train.iter().map(|&d| mass[d]).collect();
+        let (train, w) = training_rows(&pal, weights, &mut rng);
         let rows: Vec<f32> = pal.rows.iter().map(|&x| x as f32).collect();
         let row = |d: usize| &rows[d * c..][..c];
         let pick = |rng: &mut Rng, p: &[f64]| {
