@@ -138,26 +138,18 @@ impl Basis {
         let mut axes: [Vec<f64>; AXES] = std::array::from_fn(|_| vec![0.0; c]);
         for j in 0..AXES.min(c) {
             let (done, rest) = axes.split_at_mut(j);
-            let orthogonal = |mut v: Vec<f64>| {
-                for u in done.iter() {
-                    let d: f64 = v.iter().zip(u).map(|(x, y)| x * y).sum();
-                    v.iter_mut().zip(u).for_each(|(x, y)| *x -= d * y);
-                }
-                v
-            };
-            let unit = |ch: usize| orthogonal((0..c).map(|b| f64::from(u8::from(b == ch))).collect());
-            let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
             // The channel whose unit vector the earlier directions leave most of, by its variance
             // (for the first direction: the widest channel); by what is left alone where no
             // channel varies.
-            let score = |ch: usize, by_variance: bool| norm(&unit(ch)) * if by_variance { cov[ch * c + ch] } else { 1.0 };
-            let first = |by_variance: bool| (0..c).fold(0, |b, ch| if score(ch, by_variance) > score(b, by_variance) { ch } else { b });
-            let start = if score(first(true), true) > 0.0 { first(true) } else { first(false) };
-            let s = unit(start);
+            let left: Vec<f64> = (0..c).map(|ch| norm(&orthogonal_to(channel(c, ch), done))).collect();
+            let first_max = |score: &dyn Fn(usize) -> f64| (0..c).fold(0, |b, ch| if score(ch) > score(b) { ch } else { b });
+            let widest = first_max(&|ch| left[ch] * cov[ch * c + ch]);
+            let start = if left[widest] * cov[widest * c + widest] > 0.0 { widest } else { first_max(&|ch| left[ch]) };
+            let s = orthogonal_to(channel(c, start), done);
             let n = norm(&s);
             let mut v: Vec<f64> = s.into_iter().map(|x| x / n).collect();
             for _ in 0..POWER_STEPS {
-                let w = orthogonal((0..c).map(|a| (0..c).map(|b| cov[a * c + b] * v[b]).sum()).collect());
+                let w = orthogonal_to((0..c).map(|a| (0..c).map(|b| cov[a * c + b] * v[b]).sum()).collect(), done);
                 let n = norm(&w);
                 if !(n > 0.0 && n.is_finite()) {
                     break;
@@ -181,12 +173,8 @@ impl Basis {
             if next == AXES {
                 break;
             }
-            let mut v: Vec<f64> = (0..c).map(|b| f64::from(u8::from(b == ch))).collect();
-            for u in &axes[..next] {
-                let d: f64 = v.iter().zip(u).map(|(x, y)| x * y).sum();
-                v.iter_mut().zip(u).for_each(|(x, y)| *x -= d * y);
-            }
-            let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            let v = orthogonal_to(channel(c, ch), &axes[..next]);
+            let n = norm(&v);
             if n > 0.1 {
                 axes[next] = v.into_iter().map(|x| x / n).collect();
                 next += 1;
@@ -199,6 +187,24 @@ impl Basis {
     fn coords(&self, row: &[f32]) -> Coords {
         std::array::from_fn(|j| project(row, &self.axes[j]))
     }
+}
+
+/// The unit vector of channel `ch` among `c`.
+fn channel(c: usize, ch: usize) -> Vec<f64> {
+    (0..c).map(|b| f64::from(u8::from(b == ch))).collect()
+}
+
+/// `v` less its components along the orthonormal `axes`, one after another (Gram–Schmidt).
+fn orthogonal_to(mut v: Vec<f64>, axes: &[Vec<f64>]) -> Vec<f64> {
+    for u in axes {
+        let d: f64 = v.iter().zip(u).map(|(x, y)| x * y).sum();
+        v.iter_mut().zip(u).for_each(|(x, y)| *x -= d * y);
+    }
+    v
+}
+
+fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
 }
 
 /// The squared distance of two points' coordinates: at most the points' squared distance.
