@@ -183,19 +183,91 @@ pub fn tile_rect(mean: [f32; 2], radius: f32, width: u32, height: u32) -> [u32; 
 /// minimum of the quadratic form `dᵀ Q d` (`Q` = conic) over the box of offsets, which lies at
 /// the centre when the box contains it, otherwise on one of the four edges.
 pub fn reaches_box(mean: [f32; 2], conic: [f32; 3], opacity: f32, box_px: [f32; 4]) -> bool {
+    reaches_box_with(mean, conic, opacity, alpha_level(opacity), box_px)
+}
+
+/// `ln(MIN_ALPHA·(1 − 1e-3) / opacity)`: the exponent below which [`reaches_box`]'s alpha falls
+/// short, for [`reaches_box_with`].
+pub fn alpha_level(opacity: f32) -> f32 {
+    (f64::from(MIN_ALPHA * (1.0 - 1e-3)) / f64::from(opacity)).ln() as f32
+}
+
+/// [`reaches_box`] given `level = alpha_level(opacity)`: the same answer, without `exp` unless the
+/// exponent lies within 1e-3 of the level (where the rounding of `exp` and of the level could
+/// matter). Binning calls it for every tile a Gaussian's rectangle covers.
+#[inline]
+pub fn reaches_box_with(mean: [f32; 2], conic: [f32; 3], opacity: f32, level: f32, box_px: [f32; 4]) -> bool {
+    // A small margin keeps the test conservative under f32 rounding.
+    let power = -0.5 * box_qmin(mean, conic, box_px) * (1.0 - 1e-3);
+    if power.is_finite() && level.is_finite() {
+        if power > level + 1e-3 {
+            return true;
+        }
+        if power < level - 1e-3 {
+            return false;
+        }
+    }
+    !(opacity * power.exp() < MIN_ALPHA * (1.0 - 1e-3))
+}
+
+/// The least `dᵀ Q d` (`Q` = `conic`) over the offsets `d = mean − pixel` of the pixel centres of
+/// `box_px`: 0 when the box holds the centre, otherwise on one of its four edges.
+fn box_qmin(mean: [f32; 2], conic: [f32; 3], box_px: [f32; 4]) -> f32 {
     let [a, b, c] = conic;
     // Offsets d = mean_ref - pixel for pixels in the box (pixel centre = index + 0.5).
     let (mx, my) = (mean[0] - 0.5, mean[1] - 0.5);
     let (dx0, dx1) = (mx - box_px[2], mx - box_px[0]);
     let (dy0, dy1) = (my - box_px[3], my - box_px[1]);
     let q = |dx: f32, dy: f32| a * dx * dx + 2.0 * b * dx * dy + c * dy * dy;
-    let qmin = if dx0 <= 0.0 && 0.0 <= dx1 && dy0 <= 0.0 && 0.0 <= dy1 {
+    if dx0 <= 0.0 && 0.0 <= dx1 && dy0 <= 0.0 && 0.0 <= dy1 {
         0.0
     } else {
         let along_y = |dx: f32| q(dx, (-b * dx / c).clamp(dy0, dy1));
         let along_x = |dy: f32| q((-b * dy / a).clamp(dx0, dx1), dy);
         along_y(dx0).min(along_y(dx1)).min(along_x(dy0)).min(along_x(dy1))
-    };
-    // A small margin keeps the test conservative under f32 rounding.
-    !(opacity * (-0.5 * qmin * (1.0 - 1e-3)).exp() < MIN_ALPHA * (1.0 - 1e-3))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// [`reaches_box_with`]'s shortcut gives the answer of the `exp` test it skips, also for
+    /// opacities chosen so that the alpha lands within ±1e-2 … ±1e-8 of the threshold, at 0, 1,
+    /// denormal and non-finite opacities and for degenerate conics.
+    #[test]
+    fn reaching_a_box_without_exp_is_the_exp_test() {
+        let exact =
+            |mean, conic, opacity: f32, bx| !(opacity * (-0.5 * box_qmin(mean, conic, bx) * (1.0 - 1e-3)).exp() < MIN_ALPHA * (1.0 - 1e-3));
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (mut checked, mut near) = (0, 0);
+        for _ in 0..20_000 {
+            let mean = [next() * 64.0 - 16.0, next() * 64.0 - 16.0];
+            let (a, c) = ((next() * 2.0).powi(3) + 1e-4, (next() * 2.0).powi(3) + 1e-4);
+            let b = (next() * 2.0 - 1.0) * (a * c).sqrt() * if next() < 0.1 { 1.0 } else { 0.99 };
+            let conic = [a, b, c];
+            let bx = [16.0, 16.0, 31.0, 31.0];
+            let power = -0.5 * box_qmin(mean, conic, bx) * (1.0 - 1e-3);
+            let at_threshold = MIN_ALPHA * (1.0 - 1e-3) / power.exp();
+            let mut opacities = vec![next(), 0.0, 1.0, 1e-40, f32::NAN, f32::INFINITY];
+            for d in [0.0, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 2e-3, 1e-2] {
+                opacities.extend([at_threshold * (1.0 + d), at_threshold * (1.0 - d)]);
+            }
+            for opacity in opacities {
+                let fast = reaches_box_with(mean, conic, opacity, alpha_level(opacity), bx);
+                assert_eq!(fast, exact(mean, conic, opacity, bx), "mean {mean:?} conic {conic:?} opacity {opacity:e}");
+                assert_eq!(reaches_box(mean, conic, opacity, bx), fast);
+                checked += 1;
+                near += usize::from(exact(mean, conic, opacity * 1.001, bx) != exact(mean, conic, opacity / 1.001, bx));
+            }
+        }
+        // Many of the cases sit at the threshold, where the answer turns within ±0.1 %.
+        assert!(near > checked / 10, "{near} of {checked} cases near the threshold");
+    }
 }

@@ -93,13 +93,15 @@ impl TileBins {
 pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
     let (tiles_x, tiles_y) = (width.div_ceil(TILE), height.div_ceil(TILE));
     let n_tiles = (tiles_x * tiles_y) as usize;
-    let rects: Vec<[u32; 4]> =
-        proj.par_iter().map(|p| if p.radius > 0.0 { math::tile_rect(p.mean, p.radius, width, height) } else { [0; 4] }).collect();
+    let rects: Vec<([u32; 4], f32)> = proj
+        .par_iter()
+        .map(|p| (if p.radius > 0.0 { math::tile_rect(p.mean, p.radius, width, height) } else { [0; 4] }, math::alpha_level(p.opacity)))
+        .collect();
     // A Gaussian is listed in a tile only if it can reach alpha >= 1/255 at one of its pixels.
-    let reaches = |p: &Projected, tx: u32, ty: u32| {
+    let reaches = |p: &Projected, level: f32, tx: u32, ty: u32| {
         let (x0, y0) = (tx * TILE, ty * TILE);
         let bx = [x0 as f32, y0 as f32, ((x0 + TILE).min(width) - 1) as f32, ((y0 + TILE).min(height) - 1) as f32];
-        math::reaches_box(p.mean, p.conic, p.opacity, bx)
+        math::reaches_box_with(p.mean, p.conic, p.opacity, level, bx)
     };
     // Bands of tile rows are binned in parallel, each scanning every rectangle in index order
     // (a list of (tile, id) pairs, then a counting sort by tile), so every tile's list holds its
@@ -111,10 +113,10 @@ pub fn bin_tiles(proj: &[Projected], width: u32, height: u32) -> TileBins {
             let (y0, y1) = (tiles_y * b / n_bands, tiles_y * (b + 1) / n_bands);
             let first = y0 * tiles_x;
             let mut pairs: Vec<(u32, u32)> = Vec::new();
-            for (g, (p, r)) in proj.iter().zip(&rects).enumerate() {
+            for (g, (p, (r, level))) in proj.iter().zip(&rects).enumerate() {
                 for ty in r[1].max(y0)..r[3].min(y1) {
                     for tx in r[0]..r[2] {
-                        if reaches(p, tx, ty) {
+                        if reaches(p, *level, tx, ty) {
                             pairs.push((ty * tiles_x + tx - first, g as u32));
                         }
                     }
@@ -198,8 +200,9 @@ pub fn gather_tile(proj: &[Projected], cull: &[f32], ids: &[u32], out: &mut Vec<
     }));
 }
 
-/// Side, in pixels, of the blocks that [`shade`] and [`record`] cut a tile into.
-const BLOCK: u32 = 4;
+/// Side, in pixels, of the blocks that [`shade`], [`record`] and the training passes cut a tile
+/// into: a block's row is one [`composite_lanes`] call.
+const BLOCK: u32 = LANES as u32;
 
 /// A tile's gathered list cut per [`BLOCK`]×[`BLOCK`] block of pixels: each block keeps the
 /// entries whose reach overlaps it, in the tile's order. An entry's reach is the bounding box of
@@ -211,16 +214,48 @@ const BLOCK: u32 = 4;
 /// list blends, in the same order: the same colour and weights, bit for bit, with fewer entries
 /// to visit.
 #[derive(Default)]
-struct TileBlocks {
+pub struct TileBlocks {
     /// Per block (row-major within the tile): the entries and their indices in the tile's list.
     lists: Vec<(Vec<TileGaussian>, Vec<u32>)>,
     /// Blocks per row of the tile.
     per_row: u32,
 }
 
+/// Per projected Gaussian, the half-widths along x and y of its reach as [`TileBlocks`] defines
+/// it (`None`: below 1/255 everywhere, never blended). A Gaussian's reach is the same in every
+/// tile, so it is computed once per frame rather than once per tile it is listed in.
+pub fn block_reaches(proj: &[Projected]) -> Vec<Option<[f64; 2]>> {
+    proj.par_iter()
+        .map(|p| {
+            let level = 2.0 * (f64::from(p.opacity) / f64::from(MIN_ALPHA)).ln();
+            if !(level > 0.0) {
+                return None;
+            }
+            let [a, b, c] = p.conic.map(f64::from);
+            let det = a * c - b * b;
+            // The f32 rounding of `power` is below 1e-7 of the magnitude of its terms, which
+            // within the ellipse's box are at most `terms`: the level is raised by 1e-5 of that.
+            let (hx, hy) = ((level * c / det).sqrt(), (level * a / det).sqrt());
+            let terms = a * hx * hx + c * hy * hy + 2.0 * b.abs() * hx * hy;
+            let level = level * 1.02 + 1e-5 * terms;
+            let half =
+                |s: f64| if det > 0.0 && s > 0.0 && level.is_finite() { (level * s / det).sqrt() * 1.01 + 0.01 } else { f64::INFINITY };
+            Some([half(c), half(a)])
+        })
+        .collect()
+}
+
 impl TileBlocks {
-    /// Cuts `local`, the gathered list of tile (`tx`, `ty`) of a `width`×`height` frame.
-    fn cut(&mut self, local: &[TileGaussian], (tx, ty): (u32, u32), (width, height): (u32, u32)) {
+    /// Cuts `local`, the gathered list of tile (`tx`, `ty`) of a `width`×`height` frame, whose
+    /// entries are Gaussians `ids` with reaches `reach[id]` ([`block_reaches`]).
+    pub fn cut(
+        &mut self,
+        local: &[TileGaussian],
+        ids: &[u32],
+        reach: &[Option<[f64; 2]>],
+        (tx, ty): (u32, u32),
+        (width, height): (u32, u32),
+    ) {
         let (x0, y0) = (tx * TILE, ty * TILE);
         let (x1, y1) = ((x0 + TILE).min(width), (y0 + TILE).min(height));
         let (nx, ny) = ((x1 - x0).div_ceil(BLOCK), (y1 - y0).div_ceil(BLOCK));
@@ -236,23 +271,14 @@ impl TileBlocks {
             if !(hi >= 0.0 && lo < f64::from(n)) {
                 return if lo.is_nan() || hi.is_nan() { Some((0, n - 1)) } else { None };
             }
-            Some((lo.max(0.0).floor() as u32, hi.min(f64::from(n - 1)).floor() as u32))
+            // Both ends are ≥ 0 here, where truncation is the floor.
+            Some((lo.max(0.0) as u32, hi.min(f64::from(n - 1)) as u32))
         };
-        for (j, g) in local.iter().enumerate() {
-            let level = 2.0 * (f64::from(g.opacity) / f64::from(MIN_ALPHA)).ln();
-            if !(level > 0.0) {
+        for (j, (g, &id)) in local.iter().zip(ids).enumerate() {
+            let Some([half_x, half_y]) = reach[id as usize] else {
                 continue; // below 1/255 everywhere: never blended
-            }
-            let [a, b, c] = g.conic.map(f64::from);
-            let det = a * c - b * b;
-            // The f32 rounding of `power` is below 1e-7 of the magnitude of its terms, which
-            // within the ellipse's box are at most `terms`: the level is raised by 1e-5 of that.
-            let (hx, hy) = ((level * c / det).sqrt(), (level * a / det).sqrt());
-            let terms = a * hx * hx + c * hy * hy + 2.0 * b.abs() * hx * hy;
-            let level = level * 1.02 + 1e-5 * terms;
-            let half =
-                |s: f64| if det > 0.0 && s > 0.0 && level.is_finite() { (level * s / det).sqrt() * 1.01 + 0.01 } else { f64::INFINITY };
-            let (Some(bx), Some(by)) = (span(f64::from(g.mx), half(c), x0, nx), span(f64::from(g.my), half(a), y0, ny)) else {
+            };
+            let (Some(bx), Some(by)) = (span(f64::from(g.mx), half_x, x0, nx), span(f64::from(g.my), half_y, y0, ny)) else {
                 continue;
             };
             for yb in by.0..=by.1 {
@@ -266,7 +292,7 @@ impl TileBlocks {
     }
 
     /// The list and tile-list indices of the block holding pixel (`lx`, `ly`) of the tile.
-    fn at(&self, lx: u32, ly: u32) -> (&[TileGaussian], &[u32]) {
+    pub fn at(&self, lx: u32, ly: u32) -> (&[TileGaussian], &[u32]) {
         let (list, index) = &self.lists[((ly / BLOCK) * self.per_row + lx / BLOCK) as usize];
         (list, index)
     }
@@ -308,6 +334,63 @@ pub fn composite_with(list: &[TileGaussian], px: f32, py: f32, mut blend: impl F
         t = next_t;
     }
     (c, t, list.len() as u32)
+}
+
+/// Pixels [`composite_lanes`] composites side by side.
+pub const LANES: usize = 4;
+
+/// [`composite_with`] for the first `lanes` (≤ [`LANES`]) of the pixels `px` of one row `py`:
+/// each pixel's colour (per channel, per pixel), final transmittance and entries visited, bit
+/// for bit what [`composite`] gives it, calling `blend(j, α, T)` for every entry `j` blended
+/// into a pixel, the pixels of an entry in order. The pixels share the list's
+/// loads and the arithmetic that the target can do in vectors.
+#[inline]
+pub fn composite_lanes(
+    list: &[TileGaussian],
+    px: [f32; LANES],
+    py: f32,
+    lanes: usize,
+    mut blend: impl FnMut(usize, f32, f32),
+) -> ([[f32; LANES]; 3], [f32; LANES], [u32; LANES]) {
+    let mut c = [[0.0f32; LANES]; 3];
+    let mut t = [1.0f32; LANES];
+    let mut visited = [list.len() as u32; LANES];
+    let mut live: [bool; LANES] = std::array::from_fn(|l| l < lanes);
+    for (j, p) in list.iter().enumerate() {
+        let mut power = [0.0f32; LANES];
+        let mut pass = [false; LANES];
+        for l in 0..LANES {
+            let (dx, dy) = (p.mx - px[l], p.my - py);
+            power[l] = -0.5 * (p.conic[0] * dx * dx + p.conic[2] * dy * dy) - p.conic[1] * dx * dy;
+            pass[l] = live[l] & !(power[l] > 0.0 || power[l] < p.cull);
+        }
+        if pass == [false; LANES] {
+            continue;
+        }
+        for l in 0..LANES {
+            if !pass[l] {
+                continue;
+            }
+            let alpha = MAX_ALPHA.min(p.opacity * power[l].exp());
+            if alpha < MIN_ALPHA {
+                continue;
+            }
+            let next_t = t[l] * (1.0 - alpha);
+            if next_t < MIN_TRANSMITTANCE {
+                (live[l], visited[l]) = (false, j as u32);
+                continue;
+            }
+            for k in 0..3 {
+                c[k][l] += p.color[k] * alpha * t[l];
+            }
+            blend(j, alpha, t[l]);
+            t[l] = next_t;
+        }
+        if live == [false; LANES] {
+            break;
+        }
+    }
+    (c, t, visited)
 }
 
 /// Renders `splats` from `cam` with the reference 3DGS semantics (see DESIGN §3).
@@ -383,7 +466,7 @@ const fn slots(mode: u8) -> usize {
 /// (in `RECORD_REMOVAL`) its removal error.
 fn shade<const MODE: u8>(proj: &[Projected], bins: &TileBins, cam: &Camera, opts: &RenderOptions, records: &mut [f32]) -> Image {
     let w = cam.width;
-    let cull = cull_thresholds(proj);
+    let (cull, reach) = (cull_thresholds(proj), block_reaches(proj));
     let mut img = Image::filled(w, cam.height, [0.0; 3]);
     let row_len = (w * 3) as usize;
     let slots = slots(MODE);
@@ -406,36 +489,39 @@ fn shade<const MODE: u8>(proj: &[Projected], bins: &TileBins, cam: &Camera, opts
         for tx in 0..bins.tiles_x {
             let t = (ty * bins.tiles_x + tx) as usize;
             gather_tile(proj, &cull, bins.tile(t), &mut local);
-            blocks.cut(&local, (tx, ty), (w, cam.height));
+            blocks.cut(&local, bins.tile(t), &reach, (tx, ty), (w, cam.height));
             let offset = (bins.ranges[t] - band_start) as usize;
             let x1 = ((tx + 1) * TILE).min(w);
             for (ly, row) in band.chunks_mut(row_len).enumerate() {
                 let py = (ty * TILE + ly as u32) as f32;
-                for x in tx * TILE..x1 {
-                    let (list, index) = blocks.at(x - tx * TILE, ly as u32);
-                    let (c, t, _) = composite_with(list, x as f32, py, |j, a, t| {
+                // A block's row is `LANES` pixels wide (or fewer at the frame's edge).
+                for x0 in (tx * TILE..x1).step_by(LANES) {
+                    let (list, index) = blocks.at(x0 - tx * TILE, ly as u32);
+                    let lanes = (x1 - x0).min(LANES as u32) as usize;
+                    let px = std::array::from_fn(|l| (x0 + l as u32) as f32);
+                    let (c, t, _) = composite_lanes(list, px, py, lanes, |j, a, t| {
                         if MODE != NO_RECORD {
                             band_w[slots * (offset + index[j] as usize)] += a * t;
                         }
                     });
-                    if MODE == RECORD_REMOVAL {
-                        // ΔC of removing entry j: T·α·(B − c), B the colour behind it, from
-                        // T·(1 − α)·B = C_final − (C in front of j, j included).
-                        let fin: [f32; 3] = std::array::from_fn(|k| c[k] + t * opts.background[k]);
-                        let mut front = [0.0f32; 3];
-                        composite_with(list, x as f32, py, |j, a, t| {
-                            let col = list[j].color;
-                            let mut e = 0.0;
-                            for k in 0..3 {
-                                front[k] += col[k] * a * t;
-                                let d = a / (1.0 - a) * (fin[k] - front[k]) - t * a * col[k];
-                                e += d * d;
-                            }
-                            band_w[slots * (offset + index[j] as usize) + 1] += e;
-                        });
-                    }
-                    for k in 0..3 {
-                        row[x as usize * 3 + k] = c[k] + t * opts.background[k];
+                    for l in 0..lanes {
+                        let fin: [f32; 3] = std::array::from_fn(|k| c[k][l] + t[l] * opts.background[k]);
+                        if MODE == RECORD_REMOVAL {
+                            // ΔC of removing entry j: T·α·(B − c), B the colour behind it, from
+                            // T·(1 − α)·B = C_final − (C in front of j, j included).
+                            let mut front = [0.0f32; 3];
+                            composite_with(list, px[l], py, |j, a, t| {
+                                let col = list[j].color;
+                                let mut e = 0.0;
+                                for k in 0..3 {
+                                    front[k] += col[k] * a * t;
+                                    let d = a / (1.0 - a) * (fin[k] - front[k]) - t * a * col[k];
+                                    e += d * d;
+                                }
+                                band_w[slots * (offset + index[j] as usize) + 1] += e;
+                            });
+                        }
+                        row[(x0 as usize + l) * 3..][..3].copy_from_slice(&fin);
                     }
                 }
             }
@@ -475,7 +561,7 @@ pub fn record(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Re
     let proj = preprocess(splats, cam, opts.max_sh_degree);
     let bins = bin_tiles(&proj, cam.width, cam.height);
     let w = cam.width;
-    let cull = cull_thresholds(&proj);
+    let (cull, reach) = (cull_thresholds(&proj), block_reaches(&proj));
     let mut img = Image::filled(w, cam.height, [0.0; 3]);
     let row_len = (w * 3) as usize;
     let bands = img
@@ -491,7 +577,7 @@ pub fn record(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Image, Re
                 let t = (ty * bins.tiles_x + tx) as usize;
                 let ids = bins.tile(t);
                 gather_tile(&proj, &cull, ids, &mut local);
-                blocks.cut(&local, (tx, ty), (w, cam.height));
+                blocks.cut(&local, ids, &reach, (tx, ty), (w, cam.height));
                 let x1 = ((tx + 1) * TILE).min(w);
                 for (ly, row) in band.chunks_mut(row_len).enumerate() {
                     let py = (ty * TILE + ly as u32) as f32;
@@ -613,6 +699,67 @@ mod tests {
             assert_eq!(contributions(&s, &cam, &opts), want);
             assert!(want.iter().filter(|&&v| v > 0.0).count() > 100);
         }
+    }
+
+    /// Compositing `LANES` pixels side by side gives each pixel what compositing it alone gives:
+    /// colour, final transmittance and entries visited, bit for bit, whether a pixel stops
+    /// early (transmittance spent) or walks its whole list.
+    #[test]
+    fn pixels_side_by_side_are_pixels_alone() {
+        let s = random_and_extreme_splats(800, 2, 17);
+        let (mut stopped, mut walked) = (0, 0);
+        for cam in rig_cameras(3, 3.0, 50, 35) {
+            let proj = preprocess(&s, &cam, 3);
+            let bins = bin_tiles(&proj, cam.width, cam.height);
+            let cull = cull_thresholds(&proj);
+            let mut local = Vec::new();
+            for t in 0..(bins.tiles_x * bins.tiles_y) as usize {
+                gather_tile(&proj, &cull, bins.tile(t), &mut local);
+                let (tx, ty) = (t as u32 % bins.tiles_x, t as u32 / bins.tiles_x);
+                for y in ty * TILE..(ty + 1) * TILE {
+                    for x0 in (tx * TILE..(tx + 1) * TILE).step_by(LANES) {
+                        let px: [f32; LANES] = std::array::from_fn(|l| (x0 as usize + l) as f32);
+                        let (c, tr, n) = composite_lanes(&local, px, y as f32, LANES, |_, _, _| ());
+                        for l in 0..LANES {
+                            let (c1, t1, n1) = composite(&local, px[l], y as f32);
+                            assert_eq!(
+                                (c1.map(f32::to_bits), t1.to_bits(), n1),
+                                ([c[0][l], c[1][l], c[2][l]].map(f32::to_bits), tr[l].to_bits(), n[l])
+                            );
+                            if (n1 as usize) < local.len() {
+                                stopped += 1;
+                            } else if n1 > 0 {
+                                walked += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(stopped > 100 && walked > 100, "{stopped} pixels stopped early, {walked} walked their list");
+    }
+
+    /// A Gaussian's removal error is the squared change of the frame when it alone is left out:
+    /// each compared with a render of the scene without it.
+    #[test]
+    fn removal_errors_are_what_leaving_one_out_changes() {
+        let s = random_splats(80, 1, 23);
+        let opts = RenderOptions { background: [0.3, 0.5, 0.2], ..RenderOptions::default() };
+        let cam = rig_cameras(1, 3.5, 45, 38)[0];
+        let full = render(&s, &cam, &opts);
+        let errors = removal_errors(&s, &cam, &opts);
+        let mut seen = 0;
+        for (i, &e) in errors.iter().enumerate() {
+            let mut without = s.clone();
+            without.retain_indices(|k| k != i);
+            let change: f64 = full.data.iter().zip(&render(&without, &cam, &opts).data).map(|(a, b)| f64::from(a - b).powi(2)).sum();
+            assert!(
+                (f64::from(e) - change).abs() <= 1e-3 * change + 1e-7,
+                "Gaussian {i}: removal error {e}, leaving it out changes {change}"
+            );
+            seen += usize::from(change > 1e-3);
+        }
+        assert!(seen > 20, "only {seen} Gaussians change the frame");
     }
 
     /// A recording's frame is `render`'s, and replaying it with other colours (SH coefficients

@@ -8,7 +8,10 @@ pub mod reference;
 
 /// The CPU renderer's stages, shared with the encoder's differentiable rasterizer; not an API.
 #[doc(hidden)]
-pub use cpu::{bin_tiles, composite, composite_with, cull_thresholds, gather_tile, preprocess, Projected, TileBins, TileGaussian};
+pub use cpu::{
+    bin_tiles, block_reaches, composite, composite_lanes, composite_with, cull_thresholds, gather_tile, preprocess, Projected, TileBins,
+    TileBlocks, TileGaussian, LANES,
+};
 pub use cpu::{contributions, contributions_and_removal_errors, record, removal_errors, render, replay, Recording};
 
 /// A linear-in-file RGB float image, row-major, channels interleaved (`data[(y*w + x)*3 + c]`).
