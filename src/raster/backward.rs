@@ -5,7 +5,7 @@
 use super::RasterState;
 use glam::{Mat3, Vec3};
 use gscodec_decoder::math::{self, MAX_ALPHA, MIN_ALPHA, SH_C1, SH_C2, SH_C3, TILE};
-use gscodec_decoder::render::{cull_thresholds, gather_tile};
+use gscodec_decoder::render::{gather_tile, TileBlocks};
 use gscodec_decoder::Splats;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
@@ -56,71 +56,78 @@ pub fn backward(splats: &Splats, state: &RasterState, dl_dimg: &[f32]) -> Gradie
     // 1. One gradient slot per tile-list entry; each tile fills its own slots.
     let mut entries = vec![Grad2d::default(); bins.ids.len()];
     let chunks = split_at_ranges(&mut entries, &bins.ranges[..=n_tiles]);
-    let cull = cull_thresholds(proj);
-    chunks.into_par_iter().enumerate().for_each_init(Vec::new, |local, (t, out)| {
-        let ids = bins.tile(t);
-        if ids.is_empty() {
-            return;
-        }
-        gather_tile(proj, &cull, ids, local);
-        let (tx, ty) = (t as u32 % bins.tiles_x, t as u32 / bins.tiles_x);
-        for y in ty * TILE..((ty + 1) * TILE).min(h) {
-            for x in tx * TILE..((tx + 1) * TILE).min(w) {
-                let p = (y * w + x) as usize;
-                let n = state.n_visited[p] as usize;
-                if n == 0 {
-                    continue;
-                }
-                let dl = [dl_dimg[p * 3], dl_dimg[p * 3 + 1], dl_dimg[p * 3 + 2]];
-                let t_final = state.final_t[p];
-                let bg_dot = bg[0] * dl[0] + bg[1] * dl[1] + bg[2] * dl[2];
-                let (px, py) = (x as f32, y as f32);
-                let mut tr = t_final;
-                let mut accum = [0.0f32; 3];
-                let (mut last_alpha, mut last_color) = (0.0f32, [0.0f32; 3]);
-                for j in (0..n).rev() {
-                    let pr = &local[j];
-                    // Same arithmetic as the forward pass, so the same entries are skipped.
-                    let (dx, dy) = (pr.mx - px, pr.my - py);
-                    let power = -0.5 * (pr.conic[0] * dx * dx + pr.conic[2] * dy * dy) - pr.conic[1] * dx * dy;
-                    if power > 0.0 || power < pr.cull {
+    let (cull, reach) = (&state.cull, &state.reach);
+    chunks.into_par_iter().enumerate().for_each_init(
+        || (Vec::new(), TileBlocks::default()),
+        |(local, blocks), (t, out)| {
+            let ids = bins.tile(t);
+            if ids.is_empty() {
+                return;
+            }
+            gather_tile(proj, cull, ids, local);
+            let (tx, ty) = (t as u32 % bins.tiles_x, t as u32 / bins.tiles_x);
+            // Each pixel walks its block's entries (those of its tile that can reach it, in the
+            // tile's order) that the forward pass visited.
+            blocks.cut(local, ids, reach, (tx, ty), (w, h));
+            for y in ty * TILE..((ty + 1) * TILE).min(h) {
+                for x in tx * TILE..((tx + 1) * TILE).min(w) {
+                    let p = (y * w + x) as usize;
+                    let (list, index) = blocks.at(x - tx * TILE, y - ty * TILE);
+                    let n = index.partition_point(|&j| j < state.n_visited[p]);
+                    if n == 0 {
                         continue;
                     }
-                    let gauss = power.exp();
-                    let raw = pr.opacity * gauss;
-                    let alpha = MAX_ALPHA.min(raw);
-                    if alpha < MIN_ALPHA {
-                        continue;
+                    let dl = [dl_dimg[p * 3], dl_dimg[p * 3 + 1], dl_dimg[p * 3 + 2]];
+                    let t_final = state.final_t[p];
+                    let bg_dot = bg[0] * dl[0] + bg[1] * dl[1] + bg[2] * dl[2];
+                    let (px, py) = (x as f32, y as f32);
+                    let mut tr = t_final;
+                    let mut accum = [0.0f32; 3];
+                    let (mut last_alpha, mut last_color) = (0.0f32, [0.0f32; 3]);
+                    for j in (0..n).rev() {
+                        let pr = &list[j];
+                        // Same arithmetic as the forward pass, so the same entries are skipped.
+                        let (dx, dy) = (pr.mx - px, pr.my - py);
+                        let power = -0.5 * (pr.conic[0] * dx * dx + pr.conic[2] * dy * dy) - pr.conic[1] * dx * dy;
+                        if power > 0.0 || power < pr.cull {
+                            continue;
+                        }
+                        let gauss = power.exp();
+                        let raw = pr.opacity * gauss;
+                        let alpha = MAX_ALPHA.min(raw);
+                        if alpha < MIN_ALPHA {
+                            continue;
+                        }
+                        let one_minus = 1.0 - alpha;
+                        tr /= one_minus; // transmittance in front of this Gaussian
+                        let o = &mut out[index[j] as usize];
+                        let weight = alpha * tr;
+                        for k in 0..3 {
+                            o.color[k] += weight * dl[k];
+                            accum[k] = last_alpha * last_color[k] + (1.0 - last_alpha) * accum[k];
+                        }
+                        last_alpha = alpha;
+                        last_color = pr.color;
+                        let mut dl_dalpha = 0.0;
+                        for k in 0..3 {
+                            dl_dalpha += (pr.color[k] - accum[k]) * dl[k];
+                        }
+                        dl_dalpha = dl_dalpha * tr - t_final / one_minus * bg_dot;
+                        if raw > MAX_ALPHA {
+                            continue; // alpha is clamped: no gradient to opacity or shape
+                        }
+                        o.opacity += gauss * dl_dalpha;
+                        let dl_dpower = pr.opacity * gauss * dl_dalpha;
+                        o.mean[0] += dl_dpower * (-pr.conic[0] * dx - pr.conic[1] * dy);
+                        o.mean[1] += dl_dpower * (-pr.conic[2] * dy - pr.conic[1] * dx);
+                        o.conic[0] += dl_dpower * (-0.5 * dx * dx);
+                        o.conic[1] += dl_dpower * (-dx * dy);
+                        o.conic[2] += dl_dpower * (-0.5 * dy * dy);
                     }
-                    let one_minus = 1.0 - alpha;
-                    tr /= one_minus; // transmittance in front of this Gaussian
-                    let o = &mut out[j];
-                    let weight = alpha * tr;
-                    for k in 0..3 {
-                        o.color[k] += weight * dl[k];
-                        accum[k] = last_alpha * last_color[k] + (1.0 - last_alpha) * accum[k];
-                    }
-                    last_alpha = alpha;
-                    last_color = pr.color;
-                    let mut dl_dalpha = 0.0;
-                    for k in 0..3 {
-                        dl_dalpha += (pr.color[k] - accum[k]) * dl[k];
-                    }
-                    dl_dalpha = dl_dalpha * tr - t_final / one_minus * bg_dot;
-                    if raw > MAX_ALPHA {
-                        continue; // alpha is clamped: no gradient to opacity or shape
-                    }
-                    o.opacity += gauss * dl_dalpha;
-                    let dl_dpower = pr.opacity * gauss * dl_dalpha;
-                    o.mean[0] += dl_dpower * (-pr.conic[0] * dx - pr.conic[1] * dy);
-                    o.mean[1] += dl_dpower * (-pr.conic[2] * dy - pr.conic[1] * dx);
-                    o.conic[0] += dl_dpower * (-0.5 * dx * dx);
-                    o.conic[1] += dl_dpower * (-dx * dy);
-                    o.conic[2] += dl_dpower * (-0.5 * dy * dy);
                 }
             }
-        }
-    });
+        },
+    );
 
     // 2. Sum per Gaussian in tile-list order (fixed, independent of the thread count).
     let per_g = sum_per_gaussian(&entries, &bins.ids, splats.len());

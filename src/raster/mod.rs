@@ -1,10 +1,11 @@
 //! Differentiable rasterizer: the decoder's forward render with saved state, and its analytic
 //! backward pass to every Gaussian parameter.
 //!
-//! The forward pass *is* the decoder's renderer (`preprocess`, `bin_tiles`, and the same per-pixel
-//! compositing), so a trained scene renders identically in any player. It additionally keeps, per
-//! pixel, the final transmittance and how many entries of its tile list were visited; the backward
-//! pass walks each pixel's list back to front from there (as the reference CUDA rasterizer does),
+//! The forward pass *is* the decoder's renderer (`preprocess`, `bin_tiles`, each pixel composited
+//! over its 4×4 block's share of its tile's list, `TileBlocks`), so a trained scene renders
+//! identically in any player. It additionally keeps, per pixel, the final transmittance and where
+//! in its tile's list it stopped; the backward pass walks the pixel's block list back to front
+//! from there (as the reference CUDA rasterizer walks the tile's list),
 //! recovering each transmittance by division, so memory is bounded by the image size plus the
 //! tile overlaps.
 //!
@@ -16,7 +17,9 @@ mod backward;
 pub use backward::{backward, Gradients};
 
 use gscodec_decoder::math::TILE;
-use gscodec_decoder::render::{bin_tiles, composite, cull_thresholds, gather_tile, preprocess, Projected, TileBins};
+use gscodec_decoder::render::{
+    bin_tiles, block_reaches, composite_lanes, cull_thresholds, gather_tile, preprocess, Projected, TileBins, TileBlocks, LANES,
+};
 use gscodec_decoder::{Camera, Image, RenderOptions, Splats};
 use rayon::prelude::*;
 use std::time::Instant;
@@ -30,9 +33,15 @@ pub struct RasterState {
     pub degree: u8,
     pub projected: Vec<Projected>,
     pub bins: TileBins,
+    /// Per Gaussian, the `power` below which it is skipped (`cull_thresholds`) and its 4×4-block
+    /// reach (`block_reaches`), as the forward pass used them.
+    pub cull: Vec<f32>,
+    pub reach: Vec<Option<[f64; 2]>>,
     /// Final transmittance per pixel.
     pub final_t: Vec<f32>,
-    /// Number of tile-list entries visited per pixel.
+    /// Per pixel, the index in its tile's list of the entry its compositing stopped at
+    /// (transmittance spent), or the list's length: the backward pass walks the entries of the
+    /// pixel's block ([`TileBlocks`]) that come before it.
     pub n_visited: Vec<u32>,
 }
 
@@ -64,24 +73,38 @@ pub fn forward_timed(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Im
     let mut final_t = vec![0.0f32; n_pix];
     let mut n_visited = vec![0u32; n_pix];
     let band_pix = (w * TILE) as usize;
-    let cull = cull_thresholds(&projected);
-    // Every tile composited in parallel (row-major within the tile), then copied into the image
-    // by bands of tile rows: the same per-pixel arithmetic as the decoder's banded renderer.
+    let (cull, reach) = (cull_thresholds(&projected), block_reaches(&projected));
+    // Every tile composited in parallel (row-major within the tile, each pixel over its block's
+    // list: TileBlocks), then copied into the image by bands of tile rows: the same per-pixel
+    // arithmetic as the decoder's banded renderer.
     let n_tiles = (bins.tiles_x * bins.tiles_y) as usize;
     let tiles: Vec<Vec<([f32; 3], f32, u32)>> = (0..n_tiles)
         .into_par_iter()
-        .map_init(Vec::new, |local, t| {
-            let (tx, ty) = (t as u32 % bins.tiles_x, t as u32 / bins.tiles_x);
-            gather_tile(&projected, &cull, bins.tile(t), local);
-            let (x0, x1, y0, y1) = (tx * TILE, ((tx + 1) * TILE).min(w), ty * TILE, ((ty + 1) * TILE).min(h));
-            let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
-            for py in y0..y1 {
-                for x in x0..x1 {
-                    out.push(composite(local, x as f32, py as f32));
+        .map_init(
+            || (Vec::new(), TileBlocks::default()),
+            |(local, blocks), t| {
+                let (tx, ty) = (t as u32 % bins.tiles_x, t as u32 / bins.tiles_x);
+                gather_tile(&projected, &cull, bins.tile(t), local);
+                blocks.cut(local, bins.tile(t), &reach, (tx, ty), (w, h));
+                let (x0, x1, y0, y1) = (tx * TILE, ((tx + 1) * TILE).min(w), ty * TILE, ((ty + 1) * TILE).min(h));
+                let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+                for py in y0..y1 {
+                    for xl in (x0..x1).step_by(LANES) {
+                        let (list, index) = blocks.at(xl - x0, py - y0);
+                        let lanes = (x1 - xl).min(LANES as u32) as usize;
+                        let (c, t, n) =
+                            composite_lanes(list, std::array::from_fn(|l| (xl + l as u32) as f32), py as f32, lanes, |_, _, _| ());
+                        for l in 0..lanes {
+                            // Entries visited, as an index into the tile's list: the one the
+                            // pixel stopped at, or past the end.
+                            let n = index.get(n[l] as usize).copied().unwrap_or(local.len() as u32);
+                            out.push(([c[0][l], c[1][l], c[2][l]], t[l], n));
+                        }
+                    }
                 }
-            }
-            out
-        })
+                out
+            },
+        )
         .collect();
     img.data
         .par_chunks_mut(band_pix * 3)
@@ -106,5 +129,5 @@ pub fn forward_timed(splats: &Splats, cam: &Camera, opts: &RenderOptions) -> (Im
     let t3 = Instant::now();
     let degree = opts.max_sh_degree.min(splats.sh_degree);
     let timings = ForwardTimings { project: (t1 - t0).as_secs_f64(), sort: (t2 - t1).as_secs_f64(), rasterize: (t3 - t2).as_secs_f64() };
-    (img, RasterState { camera: *cam, options: *opts, degree, projected, bins, final_t, n_visited }, timings)
+    (img, RasterState { camera: *cam, options: *opts, degree, projected, bins, cull, reach, final_t, n_visited }, timings)
 }
