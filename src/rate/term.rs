@@ -8,6 +8,7 @@ use std::sync::{Arc, Mutex};
 use gscodec_decoder::math::sigmoid;
 use gscodec_decoder::Splats;
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::group::{self, Group, GroupMap};
@@ -53,6 +54,31 @@ pub const LEARNED_GROUPS: [Group; 6] = [Group::Scale, Group::Opacity, Group::ShD
 pub(crate) const STEP_LR: f32 = 2e-3;
 /// A learned step stays within this factor of its starting value.
 pub(crate) const STEP_RANGE: f32 = 8.0;
+
+/// Gaussians per block of [`RateTerm::rate_and_grad`]'s parallel part (a fixed size, so the
+/// results do not depend on the thread count).
+const RATE_BLOCK: usize = 4096;
+
+/// One Gaussian's share of [`RateTerm::rate_and_grad`], before it is summed in.
+#[derive(Debug, Clone, Copy, Default)]
+struct PerGaussian {
+    /// Its bits (with [`FIXED_BITS_PER_GAUSSIAN`]).
+    bits: f64,
+    /// How much it counts: a soft step of its opacity at the pruning threshold, and its slope.
+    keep: f64,
+    d_keep: f64,
+    /// `Σ ∂bits/∂ln step` per group.
+    d_step: GroupMap<f64>,
+}
+
+/// One value's derivatives in [`RateTerm::rate_and_grad`]: by the value and by its channel
+/// model's mean and log scale.
+#[derive(Debug, Clone, Copy, Default)]
+struct PerChannel {
+    d_value: f64,
+    d_mu: f64,
+    d_log_b: f64,
+}
 
 /// What a [`RateTerm`] shares with its owner during training.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -221,33 +247,44 @@ impl RateTerm {
             }
         }
         let logit_min = (self.min_opacity / (1.0 - self.min_opacity).max(1e-6)).max(1e-9).ln();
+        let scale = self.lambda.training_weight_per_bit();
         let mut total = 0.0;
         let mut model_grads = vec![(0.0f64, 0.0f64); nc];
-        for i in 0..n {
-            let mut bits_i = FIXED_BITS_PER_GAUSSIAN;
-            let mut d_values = vec![0.0f64; nc];
-            let mut d_step_i = GroupMap::<f64>::default();
-            for (k, &(g, c)) in channels.iter().enumerate() {
-                let step = self.steps.of(g);
-                let b = self.models[k].bits(f64::from(group::values(params, g)[at(i, (g, c))]), f64::from(step));
-                bits_i += b.bits;
-                d_values[k] = b.d_value;
-                d_step_i[g] += b.d_step * f64::from(step);
-                model_grads[k].0 += b.d_mu;
-                model_grads[k].1 += b.d_log_b;
+        // Each block's Gaussians are measured in parallel (the models' bits and derivatives,
+        // the part that costs), then summed and applied one Gaussian after another in index
+        // order, so every sum is the same on any number of threads.
+        let mut per = vec![PerGaussian::default(); RATE_BLOCK.min(n)];
+        let mut per_channel = vec![PerChannel::default(); RATE_BLOCK.min(n) * nc];
+        for start in (0..n).step_by(RATE_BLOCK) {
+            let len = RATE_BLOCK.min(n - start);
+            per[..len].par_iter_mut().zip(per_channel[..len * nc].par_chunks_mut(nc)).enumerate().for_each(|(j, (pg, pc))| {
+                let i = start + j;
+                let mut bits_i = FIXED_BITS_PER_GAUSSIAN;
+                let mut d_step_i = GroupMap::<f64>::default();
+                for ((k, &(g, c)), out) in channels.iter().enumerate().zip(pc.iter_mut()) {
+                    let step = self.steps.of(g);
+                    let b = self.models[k].bits(f64::from(group::values(params, g)[at(i, (g, c))]), f64::from(step));
+                    bits_i += b.bits;
+                    d_step_i[g] += b.d_step * f64::from(step);
+                    *out = PerChannel { d_value: b.d_value, d_mu: b.d_mu, d_log_b: b.d_log_b };
+                }
+                let t = (params.opacity_logits[i] - logit_min) / 0.5;
+                let keep = f64::from(sigmoid(t));
+                *pg = PerGaussian { bits: bits_i, keep, d_keep: keep * (1.0 - keep) / 0.5, d_step: d_step_i };
+            });
+            for (j, (pg, pc)) in per[..len].iter().zip(per_channel.chunks_exact(nc)).enumerate() {
+                let i = start + j;
+                total += pg.keep * pg.bits;
+                for g in LEARNED_GROUPS {
+                    d_log_step[g] += scale * pg.keep * pg.d_step[g];
+                }
+                for (k, (&(g, c), b)) in channels.iter().zip(pc).enumerate() {
+                    model_grads[k].0 += b.d_mu;
+                    model_grads[k].1 += b.d_log_b;
+                    group::values_mut(grad, g)[at(i, (g, c))] += (scale * pg.keep * b.d_value) as f32;
+                }
+                grad.opacity_logits[i] += (scale * pg.bits * pg.d_keep) as f32;
             }
-            let t = (params.opacity_logits[i] - logit_min) / 0.5;
-            let keep = f64::from(sigmoid(t));
-            let d_keep = keep * (1.0 - keep) / 0.5;
-            total += keep * bits_i;
-            let scale = self.lambda.training_weight_per_bit();
-            for g in LEARNED_GROUPS {
-                d_log_step[g] += scale * keep * d_step_i[g];
-            }
-            for (k, &(g, c)) in channels.iter().enumerate() {
-                group::values_mut(grad, g)[at(i, (g, c))] += (scale * keep * d_values[k]) as f32;
-            }
-            grad.opacity_logits[i] += (scale * bits_i * d_keep) as f32;
         }
         // One normalised gradient step on the entropy model (it minimises the same bits).
         for (m, (gm, gb)) in self.models.iter_mut().zip(model_grads) {
@@ -475,5 +512,76 @@ mod tests {
             let plain = s.sh_rest.iter().filter(|v| (*v / 0.03).round() == 0.0).count();
             assert_eq!(zeros > plain, deadzone > 0.0, "dead zone {deadzone}: {zeros} zeros, {plain} by rounding");
         }
+    }
+
+    /// The term's value, gradient, step gradient and model update are those of the plain loop
+    /// over the Gaussians in order (written out here), on 1 and 3 threads, over several of its
+    /// parallel blocks.
+    #[test]
+    fn the_blocked_term_is_the_plain_loop_on_any_thread_count() {
+        let s = gscodec_decoder::testkit::random_splats(2 * RATE_BLOCK + 123, 3, 31);
+        let grad0 = gscodec_decoder::testkit::random_splats(s.len(), 3, 32);
+        let mut fitted = RateTerm::new(Lambda::new(4.0).unwrap(), Steps::default(), 0.02).learning_steps();
+        fitted.rate_and_grad(&s, &mut grad0.clone(), 0); // fits the models
+        let run = |threads: usize| {
+            let (mut t, mut g) = (fitted.clone(), grad0.clone());
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let v = pool.install(|| t.rate_and_grad(&s, &mut g, 1));
+            (v, g, t.last_step_gradient, t.models.iter().map(|m| (m.mu, m.log_b)).collect::<Vec<_>>())
+        };
+        // The plain loop.
+        let (t, mut g) = (fitted.clone(), grad0.clone());
+        let degree = s.sh_degree;
+        let channels = RateTerm::channels(degree);
+        let at = |i: usize, (g, c): (Group, usize)| group::index(g, degree, i, c);
+        let mut d_log_step = GroupMap::<f64>::default();
+        for &(gr, c) in &channels {
+            let (step, dz) = (t.steps.of(gr), t.deadzone(gr));
+            for i in 0..s.len() {
+                let v = group::values(&s, gr)[at(i, (gr, c))];
+                d_log_step[gr] +=
+                    f64::from(group::values(&grad0, gr)[at(i, (gr, c))]) * f64::from((q_dz(v, step, dz) as f32 - v / step) * step);
+            }
+        }
+        let logit_min = (t.min_opacity / (1.0 - t.min_opacity).max(1e-6)).max(1e-9).ln();
+        let scale = t.lambda.training_weight_per_bit();
+        let (mut total, mut model_grads) = (0.0, vec![(0.0f64, 0.0f64); channels.len()]);
+        for i in 0..s.len() {
+            let (mut bits, mut d_step, mut d_values) = (FIXED_BITS_PER_GAUSSIAN, GroupMap::<f64>::default(), vec![]);
+            for (k, &(gr, c)) in channels.iter().enumerate() {
+                let step = t.steps.of(gr);
+                let b = t.models[k].bits(f64::from(group::values(&s, gr)[at(i, (gr, c))]), f64::from(step));
+                bits += b.bits;
+                d_values.push(b.d_value);
+                d_step[gr] += b.d_step * f64::from(step);
+                model_grads[k].0 += b.d_mu;
+                model_grads[k].1 += b.d_log_b;
+            }
+            let keep = f64::from(sigmoid((s.opacity_logits[i] - logit_min) / 0.5));
+            total += keep * bits;
+            for gr in LEARNED_GROUPS {
+                d_log_step[gr] += scale * keep * d_step[gr];
+            }
+            for (k, &(gr, c)) in channels.iter().enumerate() {
+                group::values_mut(&mut g, gr)[at(i, (gr, c))] += (scale * keep * d_values[k]) as f32;
+            }
+            g.opacity_logits[i] += (scale * bits * keep * (1.0 - keep) / 0.5) as f32;
+        }
+        let models: Vec<(f64, f64)> = t
+            .models
+            .iter()
+            .zip(&model_grads)
+            .map(|(m, (gm, gb))| (m.mu - 0.1 * m.log_b.exp() * gm / s.len() as f64, m.log_b - 0.1 * gb / s.len() as f64))
+            .collect();
+        let one = run(1);
+        assert_eq!(one.0.to_bits(), (scale * total).to_bits());
+        assert_eq!(one.1, g);
+        assert_eq!(one.2 .0.map(f64::to_bits), d_log_step.0.map(f64::to_bits));
+        assert_eq!(one.3, models);
+        let three = run(3);
+        assert_eq!(
+            (three.0.to_bits(), &three.1, three.2 .0.map(f64::to_bits), &three.3),
+            (one.0.to_bits(), &one.1, one.2 .0.map(f64::to_bits), &one.3)
+        );
     }
 }
