@@ -36,8 +36,10 @@ def classes(x, parts=8):
     return np.searchsorted(np.quantile(x, np.linspace(0, 1, parts + 1)[1:-1]), x, side="right")
 
 
-def context_bits(v, prev, lower):
-    cp, cl = classes(prev), classes(lower)
+def context_bits(v, prev, lower, lower_parts=8):
+    """Bits per value under 8 classes of `prev` × `lower_parts` classes of `lower` (None: one)."""
+    cp = classes(prev)
+    cl = classes(lower, lower_parts) if lower is not None else np.zeros_like(cp)
     total = 0.0
     for c in set(zip(cp.tolist(), cl.tolist())):
         m = (cp == c[0]) & (cl == c[1])
@@ -71,4 +73,5 @@ def main():
                 print(f"  {NAMES[g]}/{j}: {now:.3f} → {linear:.3f} bits/value ({(linear - now) * k / 8:+.0f} B), coefficients {np.round(coef[:-1], 3)}")
 
 
-main()
+if __name__ == "__main__":
+    main()
