@@ -155,35 +155,94 @@ fn quantile_thresholds(sorted: &[i32], buckets: usize) -> Vec<i32> {
     t
 }
 
+/// A context's distinct `(prev, value)` pairs in the order they first occur, each with the
+/// number of times it occurs. (Quantised values repeat: a context's pairs are about a tenth as
+/// many distinct as in all, and the fit below visits each distinct one once per mix.)
+type Pairs = Vec<(i32, i32, u32)>;
+
 /// One context's best prediction and window for its `(prev, value)` pairs: the centre is the
 /// values' median; every mix and (coarse to fine) every ratio is tried. With its bits.
-fn fit_context(pairs: &[(i32, i32)], reach: u32, bits: &[Vec<f64>]) -> (NeighbourContext, f64) {
-    let mut vs: Vec<i32> = pairs.iter().map(|p| p.1).collect();
-    let half = vs.len() / 2;
-    let centre = *vs.select_nth_unstable(half).1;
+fn fit_context(pairs: &[(i32, i32, u32)], reach: u32, bits: &[Vec<f64>]) -> (NeighbourContext, f64) {
+    // The median: the value at position ⌊n/2⌋ of all n values in order.
+    let mut vs: Vec<(i32, u32)> = pairs.iter().map(|p| (p.1, p.2)).collect();
+    vs.sort_unstable();
+    let half = vs.iter().map(|v| u64::from(v.1)).sum::<u64>() / 2;
+    let mut below = 0;
+    let centre = vs.iter().find(|v| {
+        below += u64::from(v.1);
+        below > half
+    });
+    let centre = centre.expect("a context has pairs").0;
     let mut best = (NeighbourContext { mix: 0, centre, ratio: 0 }, f64::INFINITY);
-    // How often each |difference| occurs (the escape at reach + 1), and which ones do.
+    // How often each |difference| occurs (the escape at reach + 1), and which ones do, in the
+    // order they first occur (the order the costs below are summed in).
     let mut counts = vec![0u32; reach as usize + 2];
     let mut seen: Vec<usize> = Vec::new();
     for mix in 0..=MAX_MIX {
         let k = NeighbourContext { mix, centre, ratio: 0 };
-        for &(prev, v) in pairs {
+        for &(prev, v, times) in pairs {
             let d = (i64::from(v) - k.predict(prev)).unsigned_abs().min(u64::from(reach) + 1) as usize;
             if counts[d] == 0 {
                 seen.push(d);
             }
-            counts[d] += 1;
+            counts[d] += times;
         }
         let runs: Vec<(usize, f64)> = seen.drain(..).map(|d| (d, f64::from(std::mem::take(&mut counts[d])))).collect();
-        let cost = |r: usize| runs.iter().map(|&(x, c)| c * bits[r][x]).sum::<f64>();
-        let coarse = (0..RATIOS.len()).step_by(4).min_by(|&a, &b| cost(a).total_cmp(&cost(b))).expect("ratios");
-        let fine = (coarse.saturating_sub(3)..(coarse + 4).min(RATIOS.len())).min_by(|&a, &b| cost(a).total_cmp(&cost(b))).expect("ratios");
-        let c = cost(fine);
+        // Each ratio's cost once; of equal costs the first ratio.
+        let cheapest = |ratios: &mut dyn Iterator<Item = usize>| {
+            ratios.map(|r| (r, runs.iter().map(|&(x, c)| c * bits[r][x]).sum::<f64>())).min_by(|a, b| a.1.total_cmp(&b.1)).expect("ratios")
+        };
+        let (coarse, _) = cheapest(&mut (0..RATIOS.len()).step_by(4));
+        let (fine, c) = cheapest(&mut (coarse.saturating_sub(3)..(coarse + 4).min(RATIOS.len())));
         if c < best.1 {
             best = (NeighbourContext { mix, centre, ratio: fine as u8 }, c);
         }
     }
     best
+}
+
+/// A channel's distinct (previous value, value, octile of the value below) in the order they
+/// first occur, with their counts: what every threshold shape of [`with_neighbours`] splits
+/// into its contexts' [`Pairs`], as its thresholds on the value below are among the octiles.
+struct DistinctPairs {
+    list: Vec<(i32, i32, usize, u32)>,
+    /// Octile thresholds of the values below (none for channel 0).
+    octiles: Vec<i32>,
+}
+
+impl DistinctPairs {
+    /// `lower_sorted` is `lower` sorted; each chunk's first value follows `start`.
+    fn new(values: &[i32], lower: &[i32], lower_sorted: &[i32], chunks: &[Range<usize>], start: i32) -> DistinctPairs {
+        let octiles = if lower.is_empty() { vec![] } else { quantile_thresholds(lower_sorted, 8) };
+        let mut list: Vec<(i32, i32, usize, u32)> = Vec::new();
+        let mut at: HashMap<(i32, i32, usize), usize, foldhash::fast::FixedState> = HashMap::default();
+        for chunk in chunks {
+            let mut prev = start;
+            for i in chunk.clone() {
+                let octile = if lower.is_empty() { 0 } else { octiles.iter().filter(|&&t| lower[i] >= t).count() };
+                let j = *at.entry((prev, values[i], octile)).or_insert_with(|| {
+                    list.push((prev, values[i], octile, 0));
+                    list.len() - 1
+                });
+                list[j].3 += 1;
+                prev = values[i];
+            }
+        }
+        DistinctPairs { list, octiles }
+    }
+
+    /// Each context's pairs under thresholds `prev_at` and `lower_at` (a subset of the
+    /// octiles). A value below stands for its octile by the octile's lower end: a threshold of
+    /// `lower_at` is at or below the one iff it is at or below the other.
+    fn split(&self, prev_at: &[i32], lower_at: &[i32]) -> Vec<Pairs> {
+        debug_assert!(lower_at.iter().all(|t| self.octiles.contains(t)), "thresholds below among the octiles");
+        let mut pairs: Vec<Pairs> = vec![Vec::new(); (prev_at.len() + 1) * (lower_at.len() + 1)];
+        for &(prev, v, octile, times) in &self.list {
+            let lower = if octile == 0 { i32::MIN } else { self.octiles[octile - 1] };
+            pairs[neighbour::context(prev_at, lower_at, prev, lower)].push((prev, v, times));
+        }
+        pairs
+    }
 }
 
 /// The neighbour-context table (mode 3, SPEC §4.3) of a channel: `lower` holds the values of
@@ -201,21 +260,9 @@ pub fn with_neighbours(values: &[i32], lower: &[i32], chunks: &[Range<usize>]) -
     let start = sorted[sorted.len() / 2];
     let mut lower_sorted = lower.to_vec();
     lower_sorted.sort_unstable();
-    let lower_of = |i: usize| if lower.is_empty() { 0 } else { lower[i] };
-    // Each context's `(prev, value)` pairs under thresholds `prev_at`, `lower_at`.
-    let pairs_of = |prev_at: &[i32], lower_at: &[i32]| {
-        let mut pairs: Vec<Vec<(i32, i32)>> = vec![Vec::new(); (prev_at.len() + 1) * (lower_at.len() + 1)];
-        for chunk in chunks {
-            let mut prev = start;
-            for i in chunk.clone() {
-                pairs[neighbour::context(prev_at, lower_at, prev, lower_of(i))].push((prev, values[i]));
-                prev = values[i];
-            }
-        }
-        pairs
-    };
+    let distinct = DistinctPairs::new(values, lower, &lower_sorted, chunks, start);
     // The table of reach `reach` for these contexts: (bytes, contexts, bits).
-    let fit = |prev_at: &[i32], lower_at: &[i32], pairs: &[Vec<(i32, i32)>], reach: u32| {
+    let fit = |prev_at: &[i32], lower_at: &[i32], pairs: &[Pairs], reach: u32| {
         let bits = window_bits(reach);
         let mut total = 0.0;
         let contexts: Vec<NeighbourContext> = pairs
@@ -238,14 +285,14 @@ pub fn with_neighbours(values: &[i32], lower: &[i32], chunks: &[Range<usize>]) -
     // shape is then fitted again with the reach its differences need (a smaller table to build
     // in the decoder, fewer symbols to share the probability) and kept if cheaper still.
     let reach = (i64::from(max) - i64::from(min)).min(i64::from(MAX_REACH)) as u32;
-    let mut best: Option<(Vec<i32>, Vec<i32>, Vec<Vec<(i32, i32)>>, (Vec<u8>, Vec<NeighbourContext>, f64))> = None;
+    let mut best: Option<(Vec<i32>, Vec<i32>, Vec<Pairs>, (Vec<u8>, Vec<NeighbourContext>, f64))> = None;
     for (pb, lb) in [(8, 8), (8, 1), (4, 4), (4, 1), (2, 1)] {
         if lb > 1 && lower.is_empty() {
             continue;
         }
         let prev_at = quantile_thresholds(&sorted, pb);
         let lower_at = if lb > 1 { quantile_thresholds(&lower_sorted, lb) } else { vec![] };
-        let pairs = pairs_of(&prev_at, &lower_at);
+        let pairs = distinct.split(&prev_at, &lower_at);
         let cand = fit(&prev_at, &lower_at, &pairs, reach);
         if best.as_ref().is_none_or(|b| cost(&cand) < cost(&b.3)) {
             best = Some((prev_at, lower_at, pairs, cand));
@@ -256,7 +303,7 @@ pub fn with_neighbours(values: &[i32], lower: &[i32], chunks: &[Range<usize>]) -
     let needed = pairs
         .iter()
         .zip(&chosen.1)
-        .flat_map(|(p, k)| p.iter().map(move |&(prev, v)| (i64::from(v) - k.predict(prev)).unsigned_abs()))
+        .flat_map(|(p, k)| p.iter().map(move |&(prev, v, _)| (i64::from(v) - k.predict(prev)).unsigned_abs()))
         .max()
         .unwrap_or(1)
         .clamp(1, u64::from(reach)) as u32;
@@ -402,6 +449,69 @@ mod tests {
         assert!(with_neighbours(&[3; 10], &[], &[0..10]).is_none());
         let ChannelTable::Neighbour(alone) = with_neighbours(&values, &[], &chunks).unwrap().table else { panic!() };
         assert!(alone.lower_at.is_empty());
+    }
+
+    /// Every threshold shape's contexts get the pairs they get one value at a time — each
+    /// `(prev, value)` as often, in the order it first occurs — and [`fit_context`] fits the
+    /// same prediction, window and bits (bit for bit) to them as to the pairs one by one.
+    #[test]
+    fn distinct_pairs_fit_what_the_pairs_one_by_one_fit() {
+        let mut rng = crate::rng::Rng::new(17);
+        for case in 0..24 {
+            let n = 300 + 97 * case;
+            let spread = [3, 9, 40, 400][case % 4];
+            let mut draw = |m: i32| (rng.next_u64() % (2 * m as u64 + 1)) as i32 - m;
+            let lower: Vec<i32> = (0..n).map(|i| ((i as f32 * 0.05).sin() * spread as f32) as i32 + draw(2)).collect();
+            let values: Vec<i32> = (0..n).map(|i| if case % 3 == 0 { draw(spread) } else { lower[i] / 2 + draw(spread / 3 + 1) }).collect();
+            let chunks = [0..n / 3, n / 3..n];
+            let lower = if case % 5 == 4 { vec![] } else { lower };
+            let (mut sorted, mut lower_sorted) = (values.clone(), lower.clone());
+            sorted.sort_unstable();
+            lower_sorted.sort_unstable();
+            let start = sorted[n / 2];
+            let distinct = DistinctPairs::new(&values, &lower, &lower_sorted, &chunks, start);
+            for (pb, lb) in [(8, 8), (8, 1), (4, 4), (4, 1), (2, 1), (8, 2)] {
+                let prev_at = quantile_thresholds(&sorted, pb);
+                let lower_at = if lb > 1 && !lower.is_empty() { quantile_thresholds(&lower_sorted, lb) } else { vec![] };
+                let mut plain: Vec<Pairs> = vec![Vec::new(); (prev_at.len() + 1) * (lower_at.len() + 1)];
+                for c in &chunks {
+                    let mut prev = start;
+                    for i in c.clone() {
+                        let below = if lower.is_empty() { 0 } else { lower[i] };
+                        plain[neighbour::context(&prev_at, &lower_at, prev, below)].push((prev, values[i], 1));
+                        prev = values[i];
+                    }
+                }
+                let split = distinct.split(&prev_at, &lower_at);
+                assert_eq!(split.len(), plain.len());
+                for (d, p) in split.iter().zip(&plain) {
+                    // The same pairs as often, first occurrences in the same order.
+                    let mut firsts: Vec<(i32, i32)> = p.iter().map(|x| (x.0, x.1)).collect();
+                    let mut seen = std::collections::HashSet::new();
+                    firsts.retain(|x| seen.insert(*x));
+                    let mut merged: Vec<(i32, i32)> = Vec::new();
+                    for x in d {
+                        if !merged.contains(&(x.0, x.1)) {
+                            merged.push((x.0, x.1));
+                        }
+                    }
+                    assert_eq!(merged, firsts, "case {case}, shape ({pb}, {lb})");
+                    for &(a, b) in &firsts {
+                        let times = |l: &Pairs| l.iter().filter(|x| (x.0, x.1) == (a, b)).map(|x| x.2).sum::<u32>();
+                        assert_eq!(times(d), times(p));
+                    }
+                    if p.is_empty() {
+                        continue;
+                    }
+                    for reach in [1, 6, 2047] {
+                        let bits = window_bits(reach);
+                        let (kd, bd) = fit_context(d, reach, &bits);
+                        let (kp, bp) = fit_context(p, reach, &bits);
+                        assert_eq!((kd, bd.to_bits()), (kp, bp.to_bits()), "case {case}, shape ({pb}, {lb}), reach {reach}");
+                    }
+                }
+            }
+        }
     }
 
     #[test]
