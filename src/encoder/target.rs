@@ -457,8 +457,8 @@ impl Encoder {
         let began = Instant::now();
         let eval = |c: &EncodeConfig| -> Result<(usize, f64)> {
             let c = EncodeConfig { learned_tables: false, ..self.file_config(c) };
-            let (bytes, _, q) = rate::encode_with(scene, &c, Some(trials.importance())).map_err(|e| crate::Error::Input(e.to_string()))?;
-            Ok((bytes.len(), orbit.psnr(&rate::quantise::dequantise(&q))))
+            let (bytes, decoded) = trials.code(&c).map_err(|e| crate::Error::Input(e.to_string()))?;
+            Ok((bytes, orbit.psnr(&decoded)))
         };
         // Compared like for like: without learned tables (as every trial), same PSNR.
         let start = (good.config, eval(&good.config)?);

@@ -486,6 +486,17 @@ impl<'a> Trials<'a> {
         &self.ev.importance
     }
 
+    /// `config`'s file size and decoded scene, coded as the trials are: the groups and SH
+    /// codebooks they have coded are taken from their cache, so a configuration close to one
+    /// tried costs only what differs ([`encode_cached`]: the same bytes as [`super::encode_with`]).
+    ///
+    /// # Errors
+    /// `config`'s encode.
+    pub fn code(&self, config: &EncodeConfig) -> Result<(usize, Splats), SceneError> {
+        let (bytes, _, dec) = self.ev.code(config)?;
+        Ok((bytes, dec))
+    }
+
     /// Configurations evaluated so far (those of the pruning views included).
     pub fn len(&self) -> usize {
         self.seen.len() + self.pruning.as_ref().map_or(0, |p| p.1.len())
