@@ -24,7 +24,8 @@ pub struct Args {
     #[arg(long, default_value_t = Lambda::DEFAULT)]
     pub lambda: Lambda,
     /// Instead of a λ: the smallest file whose PSNR reaches DB, found by a bracketing search on
-    /// λ (regula falsi; at most ten encodes). The PSNR is measured as `gscodec eval OUTPUT --reference INPUT --orbit 8`
+    /// λ: from λ = 230,000 / Gaussians towards the target, then regula falsi (usually 4–9
+    /// encodes, at most 14). The PSNR is measured as `gscodec eval OUTPUT --reference INPUT --orbit 8`
     /// measures it (8 orbit views at 256×256, up −y, black background). For a dataset: the
     /// held-out (test) views' PSNR as `gscodec eval OUTPUT DATASET` measures it; the scene is
     /// trained from the images once, at the default λ (or is --init), and each probe runs the

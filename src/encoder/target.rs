@@ -39,9 +39,21 @@ const CLOSE_PSNR: f64 = 0.05;
 const CLOSE_BYTES: f64 = 0.005;
 /// Rounds of configurations between the best probe and the nearest miss (`Encoder::fill`).
 const FILL_ROUNDS: usize = 3;
-/// Trained probes that step away from the first phase's λ before the target is bracketed
-/// ([`refine`]): each doubles the step of the one before.
+/// Probes that step away from the first probe before the target is bracketed ([`outward`]).
 const MAX_OUTWARD_PROBES: usize = 4;
+/// Where the search on λ starts ([`start_lambda`]): λ times the scene's Gaussians. λ is per
+/// megabit of file and a file's bits at a given quality grow with its Gaussians, so the λ of a
+/// PSNR falls about as 1/N; this is the geometric mean of λ·N at SPZ's PSNR on k7000, fruit-drops,
+/// lego trained here and playbot-lod3 (from 40,000 to 1,760,000).
+const START_LAMBDA_GAUSSIANS: f64 = 2.3e5;
+/// The first step assumes the margin changes this fast per unit of `ln(1+λ)` ([`Target::slope`]):
+/// dB of PSNR, and `ln` of the bytes, measured around SPZ's PSNR on k7000, fruit-drops and lego
+/// trained here (4.7–5.7 dB, 0.42–0.48).
+const SLOPE_PSNR: f64 = 5.0;
+const SLOPE_BYTES: f64 = 0.45;
+/// Steps aim this much beyond where the margin is predicted to cross 0, so that the first
+/// step usually brackets the target.
+const OVERSHOOT: f64 = 1.25;
 /// The first step away from the first phase's λ, in `ln(1+λ)`, when the first phase's curve
 /// does not predict one.
 const FIRST_STEP: f64 = 0.1;
@@ -133,6 +145,14 @@ impl Target {
         (0.0..self.close()).contains(&margin)
     }
 
+    /// How fast the margin usually changes per unit of `ln(1+λ)` (its magnitude).
+    fn slope(self) -> f64 {
+        match self {
+            Target::Psnr(_) => SLOPE_PSNR,
+            Target::Bytes(_) => SLOPE_BYTES,
+        }
+    }
+
     /// A margin close enough to the target to stop searching.
     fn close(self) -> f64 {
         match self {
@@ -196,19 +216,84 @@ impl<F: FnMut(Lambda) -> Result<(Encoded, f64)>> Search<F> {
     }
 }
 
-/// Brackets λ for `target` ([`bracket`]: regula falsi, Illinois) in `t = ln(1+λ)` over
-/// [0, [`MAX_LAMBDA`]]: the PSNR falls and the size shrinks as λ grows, so the search keeps the
-/// boundary between λs that meet the target and λs that do not. `encode(λ)` makes one probe
-/// and returns it with the PSNR the target reads; `trained` marks the probes.
-fn search_lambda(target: Target, trained: bool, encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
+/// The λ a search on λ starts at for a scene of `gaussians` Gaussians ([`START_LAMBDA_GAUSSIANS`]).
+pub fn start_lambda(gaussians: usize) -> f64 {
+    (START_LAMBDA_GAUSSIANS / gaussians.max(1) as f64).min(MAX_LAMBDA)
+}
+
+/// Brackets λ for `target` in `t = ln(1+λ)` over [0, [`MAX_LAMBDA`]]: the PSNR falls and the
+/// size shrinks as λ grows, so the search keeps the boundary between λs that meet the target and
+/// λs that do not. It starts at λ = `start` ([`start_lambda`]) and steps towards the other side ([`outward`]:
+/// the first step where a curve of the usual slope ([`Target::slope`]) would cross, later ones
+/// where the line through the last two probes does), then [`bracket`] (regula falsi, Illinois)
+/// narrows the two. An end is probed only when the steps reach it: λ = 0 codes the whole scene
+/// at the finest steps, the costliest encode of all. `encode(λ)` makes one probe and returns it
+/// with the PSNR the target reads; `trained` marks the probes.
+fn search_lambda(target: Target, trained: bool, start: f64, encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
     let mut search = Search::new(target, trained, encode);
-    // Ends: t = 0 (finest) and t = ln(1 + MAX_LAMBDA) (coarsest).
-    let ends = [0.0f64, MAX_LAMBDA.ln_1p()];
-    let (m0, m1) = (search.probe(ends[0])?, search.probe(ends[1])?);
-    if (m0 >= 0.0) != (m1 >= 0.0) {
-        bracket(ends[0], m0, ends[1], m1, target.close(), |t| search.probe(t))?;
+    let t0 = start.ln_1p();
+    let m0 = search.probe(t0)?;
+    if target.met_closely(m0) {
+        return Ok(search.found);
+    }
+    let first = OVERSHOOT * m0.abs() / target.slope();
+    let last = outward(&mut search, (t0, m0), first, MAX_OUTWARD_PROBES, |(ta, ma), (tb, mb), step| {
+        // Where the line through the last two probes crosses (a little beyond), at most four
+        // times the last step (a flat stretch of the curve says nothing about its slope).
+        let slope = ((mb - ma) / (tb - ta)).abs();
+        (OVERSHOOT * mb.abs() / slope).clamp(RESOLUTION, 4.0 * step)
+    })?;
+    // Still on the start's side: the end beyond the last probe.
+    if let Some((t, m, dir)) = last {
+        let end = if dir > 0.0 { MAX_LAMBDA.ln_1p() } else { 0.0 };
+        let m_end = search.probe(end)?;
+        if (m_end >= 0.0) != (m >= 0.0) {
+            bracket(t, m, end, m_end, target.close(), |t| search.probe(t))?;
+        }
     }
     Ok(search.found)
+}
+
+/// Steps away from the probe `(t0, m0)` towards the λs on the target's other side (a PSNR's
+/// margin falls as `t` grows, a size's rises), by `step` first and then by `next(previous
+/// probe, last probe, last step)`, until a probe lands on the other side — then [`bracket`]
+/// narrows the two — or meets the target closely, or an end of [0, ln(1 + [`MAX_LAMBDA`])] is
+/// probed. Returns the last probe and the direction (±1 in `t`) when `max` steps did none of
+/// these.
+fn outward<F: FnMut(Lambda) -> Result<(Encoded, f64)>>(
+    search: &mut Search<F>,
+    (t0, m0): (f64, f64),
+    mut step: f64,
+    max: usize,
+    next: impl Fn((f64, f64), (f64, f64), f64) -> f64,
+) -> Result<Option<(f64, f64, f64)>> {
+    let target = search.target;
+    let (t_max, met) = (MAX_LAMBDA.ln_1p(), m0 >= 0.0);
+    let dir = if met == matches!(target, Target::Psnr(_)) { 1.0 } else { -1.0 };
+    let mut near = (t0, m0);
+    let end = if dir > 0.0 { t_max } else { 0.0 };
+    for _ in 0..max {
+        let t = near.0 + dir * step.max(RESOLUTION);
+        // A step past an end goes halfway from where it predicts the crossing (without the
+        // overshoot) to that end, or halfway from here when that is beyond it too: an end is
+        // the costliest probe (λ = 0) or a useless one.
+        let t = match near.0 + dir * step / OVERSHOOT {
+            _ if (0.0..=t_max).contains(&t) => t,
+            crossing if (0.0..=t_max).contains(&crossing) => 0.5 * (crossing + end),
+            _ => 0.5 * (near.0 + end),
+        };
+        let m = search.probe(t)?;
+        if (m >= 0.0) != met {
+            bracket(near.0, near.1, t, m, target.close(), |t| search.probe(t))?;
+            return Ok(None);
+        }
+        if target.met_closely(m) || t == 0.0 || t == t_max {
+            return Ok(None);
+        }
+        step = next(near, (t, m), step);
+        near = (t, m);
+    }
+    Ok(Some((near.0, near.1, dir)))
 }
 
 /// The second phase of a search whose encodes train: the first phase ([`search_lambda`] with
@@ -220,36 +305,18 @@ fn search_lambda(target: Target, trained: bool, encode: impl FnMut(Lambda) -> Re
 /// [`bracket`] narrows the two. No trained encode runs at the ends (λ = 0: the whole scene
 /// trained; λ = [`MAX_LAMBDA`]: an empty one) unless the first phase met the target nowhere:
 /// then the trained encodes search on their own, as [`search_lambda`].
-fn refine(target: Target, first: &Searched, mut encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
-    let Some((t0, _, _)) = first.best else { return search_lambda(target, true, encode) };
+fn refine(target: Target, first: &Searched, start: f64, mut encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
+    let Some((t0, _, _)) = first.best else { return search_lambda(target, true, start, encode) };
     let mut search = Search::new(target, true, &mut encode);
     let curve: Vec<(f64, f64)> = first.probes.iter().map(|p| (p.lambda.get().ln_1p(), target.margin((p.bytes, p.psnr)))).collect();
     let m0 = search.probe(t0)?;
     if target.met_closely(m0) {
         return Ok(search.found);
     }
-    let (t_max, met) = (MAX_LAMBDA.ln_1p(), m0 >= 0.0);
-    // Towards the λs that miss (a PSNR's margin falls as t grows, a size's rises).
-    let falling = matches!(target, Target::Psnr(_));
-    let dir = if met == falling { 1.0 } else { -1.0 };
-    let mut step = predicted_step(&curve, t0, m0, dir).unwrap_or(FIRST_STEP).max(RESOLUTION);
-    let (mut near, mut m_near) = (t0, m0);
-    for _ in 0..MAX_OUTWARD_PROBES {
-        let t = (near + dir * step).clamp(0.0, t_max);
-        if t == near {
-            break;
-        }
-        let m = search.probe(t)?;
-        if (m >= 0.0) != met {
-            bracket(near, m_near, t, m, target.close(), |t| search.probe(t))?;
-            break;
-        }
-        if target.met_closely(m) {
-            break;
-        }
-        (near, m_near) = (t, m);
-        step *= 2.0;
-    }
+    let dir = if (m0 >= 0.0) == matches!(target, Target::Psnr(_)) { 1.0 } else { -1.0 };
+    let step = predicted_step(&curve, t0, m0, dir).unwrap_or(FIRST_STEP);
+    // Each later step twice the last; no trained probe at an end unless the steps reach it.
+    outward(&mut search, (t0, m0), step, MAX_OUTWARD_PROBES, |_, _, step| 2.0 * step)?;
     Ok(search.found)
 }
 
@@ -287,7 +354,7 @@ fn unreachable(target: Target, probes: &[Probe]) -> crate::Error {
         Target::Psnr(p) => {
             format!(
                 "--target-psnr {p}: not reachable, the finest setting (λ = 0) gives {:.2} dB",
-                probes.first().map_or(f64::NAN, |f| f.psnr)
+                probes.iter().find(|p| p.lambda == Lambda::ZERO).map_or(f64::NAN, |f| f.psnr)
             )
         }
         Target::Bytes(b) => {
@@ -323,10 +390,12 @@ impl Encoder {
             Ok((e, psnr))
         };
         let first_iters = if two_phase { Some(0) } else { self.config.iters };
-        let mut first = search_lambda(target, !two_phase && self.config.iters_for(false) > 0, |lambda| encode_at(lambda, first_iters))?;
+        let start = start_lambda(scene.len());
+        let mut first =
+            search_lambda(target, !two_phase && self.config.iters_for(false) > 0, start, |lambda| encode_at(lambda, first_iters))?;
         let (probes, Searched { best, missed, .. }) = match two_phase {
             true => {
-                let second = refine(target, &first, |lambda| encode_at(lambda, self.config.iters))?;
+                let second = refine(target, &first, start, |lambda| encode_at(lambda, self.config.iters))?;
                 let probes = first.probes.iter().chain(&second.probes).copied().collect();
                 // The better phase's best (the fine-tuned one where they tie) and its misses.
                 let first_wins = match (first.best_outcome(), second.best_outcome()) {
@@ -419,7 +488,11 @@ impl Encoder {
             }
         };
         let retrains = self.config.retrain_iters_of_dataset(init.is_some()) > 0;
-        let Searched { probes, best, .. } = search_lambda(target, retrains, |lambda| {
+        let gaussians = match &scene {
+            Scene::Trained(t) => t.scene.len(),
+            Scene::Given(s) => s.len(),
+        };
+        let Searched { probes, best, .. } = search_lambda(target, retrains, start_lambda(gaussians), |lambda| {
             let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
             let e = match &scene {
                 Scene::Trained(t) => enc.resolved().code_trained_scene(dataset, t, progress)?,
@@ -591,7 +664,7 @@ mod tests {
         // The smallest file that met it, and no probe that met it is smaller.
         assert!(s.probes.iter().filter(|p| p.psnr >= want).all(|p| p.bytes >= e.bytes.len()), "{s:?}");
         assert!(s.probes.iter().any(|p| p.psnr < want), "the search brackets the target: {s:?}");
-        assert!(s.probes.len() <= 2 + MAX_INNER_PROBES, "{s:?}");
+        assert!(s.probes.len() <= 2 + MAX_OUTWARD_PROBES + MAX_INNER_PROBES, "{s:?}");
         // The file is what its configuration codes; one smaller than every probe's came from the
         // configurations tried between the best probe and the nearest miss, with that PSNR.
         assert_eq!(rate::encode(&scene, &e.config).unwrap().0, e.bytes);
@@ -622,10 +695,10 @@ mod tests {
         let e = Encoder::new(config).unwrap().encode_scene_to(&scene, Target::Psnr(want), &mut |_| {}).unwrap();
         let s = e.report.target.clone().unwrap();
         assert!(e.report.orbit_psnr >= want, "{} < {want}", e.report.orbit_psnr);
-        // The first phase: the ends and a bracket, untrained; then the trained probes.
+        // The first phase from its start, untrained; then the trained probes.
         let first = s.probes.iter().take_while(|p| !p.trained).count();
         let trained = &s.probes[first..];
-        assert!(first >= 2 && s.probes[0].lambda == Lambda::ZERO, "{s:?}");
+        assert!(first >= 2 && (s.probes[0].lambda.get() - start_lambda(scene.len())).abs() < 1e-9, "{s:?}");
         assert!(trained.iter().all(|p| p.trained), "{s:?}");
         assert!((1..=1 + MAX_OUTWARD_PROBES + MAX_INNER_PROBES).contains(&trained.len()), "{s:?}");
         assert!(trained.iter().all(|p| p.lambda != Lambda::ZERO && p.lambda.get() < MAX_LAMBDA), "{s:?}");
@@ -658,6 +731,76 @@ mod tests {
         // Training that lost 2 dB (margin −1): 3 − 2t crosses 0 at 1.5, below t = 2.
         let step = predicted_step(&curve, 2.0, -1.0, -1.0).unwrap();
         assert!((step - 0.5).abs() < 1e-12, "{step}");
+    }
+
+    #[test]
+    fn the_start_falls_as_one_over_the_gaussians() {
+        assert!((start_lambda(9_200) - 25.0).abs() < 1e-12);
+        assert!((start_lambda(92_000) - 2.5).abs() < 1e-12);
+        assert_eq!(start_lambda(0), start_lambda(1));
+        assert!(start_lambda(1) <= MAX_LAMBDA && start_lambda(usize::MAX) > 0.0);
+    }
+
+    /// Where the searches on synthetic curves start.
+    const START: f64 = 25.0;
+
+    /// Runs [`search_lambda`] for `target` from λ = [`START`] on a scene whose file at `t = ln(1+λ)` has
+    /// `curve(t)` = (bytes, PSNR); returns the probes (t, bytes, PSNR) and the best's `t`.
+    fn searched(target: Target, curve: impl Fn(f64) -> (usize, f64)) -> (Vec<(f64, usize, f64)>, Option<f64>) {
+        let scene = crate::sample::scene(20, 0);
+        let template = Encoder::new(EncoderConfig::default()).unwrap().encode_scene(&scene, &mut |_| {}).unwrap();
+        let found = search_lambda(target, false, START, |lambda| {
+            let (bytes, psnr) = curve(lambda.get().ln_1p());
+            Ok((Encoded { bytes: vec![0; bytes], ..template.clone() }, psnr))
+        })
+        .unwrap();
+        let probes = found.probes.iter().map(|p| (p.lambda.get().ln_1p(), p.bytes, p.psnr)).collect();
+        (probes, found.best.map(|b| b.0))
+    }
+
+    /// The search starts at its λ and brackets the target without probing λ = 0 (the
+    /// whole scene at the finest steps) or the largest λ when the target lies between: on
+    /// curves of the README scenes' slope and steeper or flatter ones, targets on either side of
+    /// the start, for a PSNR and for a size.
+    #[test]
+    fn the_search_brackets_from_its_start_without_the_ends() {
+        let t_max = MAX_LAMBDA.ln_1p();
+        for slope in [2.0, 5.0, 12.0] {
+            // PSNR falling from 55 dB at λ = 0 to 10 dB; bytes falling as e^(−0.45 t).
+            let psnr = |t: f64| 10.0 + 45.0 / (1.0 + t * slope / 22.5);
+            let bytes = |t: f64| (2e5 * (-0.45 * t).exp()) as usize + 50;
+            let curve = |t: f64| (bytes(t), psnr(t));
+            for cross in [0.5, 1.8, 3.0, 4.0, 6.0, 9.0] {
+                for target in [Target::Psnr(psnr(cross)), Target::Bytes(bytes(cross) as u64)] {
+                    let (probes, best) = searched(target, curve);
+                    assert!((probes[0].0 - START.ln_1p()).abs() < 1e-12);
+                    assert!(probes.iter().all(|p| p.0 > 0.0 && p.0 < t_max), "{target:?} slope {slope}: {probes:?}");
+                    let best = best.expect("met");
+                    // The best is within the search's resolution of the crossing, on the right side.
+                    let gap = match target {
+                        Target::Psnr(_) => cross - best,
+                        Target::Bytes(_) => best - cross,
+                    };
+                    let closely = target.met_closely(target.margin(curve(best)));
+                    assert!((-1e-9..=RESOLUTION).contains(&gap) || closely, "{target:?} slope {slope}: best {best}, {probes:?}");
+                    assert!(probes.len() <= 1 + MAX_OUTWARD_PROBES + MAX_INNER_PROBES, "{target:?} slope {slope}: {probes:?}");
+                }
+            }
+        }
+    }
+
+    /// Targets beyond either end: λ = 0 is probed and misses (unreachable), or the largest λ
+    /// still meets it (its file is the smallest); a target met closely at the start stops there.
+    #[test]
+    fn targets_beyond_the_ends_probe_the_ends() {
+        let psnr = |t: f64| 12.0 + 40.0 / (1.0 + t / 2.0);
+        let curve = |t: f64| ((1e5 * (-0.4 * t).exp()) as usize + 50, psnr(t));
+        let (probes, best) = searched(Target::Psnr(60.0), curve);
+        assert!(best.is_none() && probes.iter().any(|p| p.0 == 0.0), "{probes:?}");
+        let (probes, best) = searched(Target::Psnr(5.0), curve);
+        assert_eq!(best, Some(MAX_LAMBDA.ln_1p()), "{probes:?}");
+        let (probes, _) = searched(Target::Psnr(psnr(START.ln_1p()) - 0.01), curve);
+        assert_eq!(probes.len(), 1, "{probes:?}");
     }
 
     /// Runs [`bracket`] on `margin` over the ends' bracket; returns the probes (t, margin).
