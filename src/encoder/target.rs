@@ -217,18 +217,18 @@ impl<F: FnMut(Lambda) -> Result<(Encoded, f64)>> Search<F> {
 }
 
 /// The λ a search on λ starts at for a scene of `gaussians` Gaussians ([`START_LAMBDA_GAUSSIANS`]).
-pub fn start_lambda(gaussians: usize) -> f64 {
+fn start_lambda(gaussians: usize) -> f64 {
     (START_LAMBDA_GAUSSIANS / gaussians.max(1) as f64).min(MAX_LAMBDA)
 }
 
 /// Brackets λ for `target` in `t = ln(1+λ)` over [0, [`MAX_LAMBDA`]]: the PSNR falls and the
 /// size shrinks as λ grows, so the search keeps the boundary between λs that meet the target and
-/// λs that do not. It starts at λ = `start` ([`start_lambda`]) and steps towards the other side ([`outward`]:
-/// the first step where a curve of the usual slope ([`Target::slope`]) would cross, later ones
-/// where the line through the last two probes does), then [`bracket`] (regula falsi, Illinois)
-/// narrows the two. An end is probed only when the steps reach it: λ = 0 codes the whole scene
-/// at the finest steps, the costliest encode of all. `encode(λ)` makes one probe and returns it
-/// with the PSNR the target reads; `trained` marks the probes.
+/// λs that do not. It starts at λ = `start` ([`start_lambda`]) and steps towards the other side
+/// ([`outward`]: the first step where a curve of the usual slope ([`Target::slope`]) would
+/// cross, later ones where the line through the last two probes does), then [`bracket`] (regula
+/// falsi, Illinois) narrows the two. An end is probed only when the steps reach it: λ = 0 codes
+/// the whole scene at the finest steps, the costliest encode of all. `encode(λ)` makes one probe
+/// and returns it with the PSNR the target reads; `trained` marks the probes.
 fn search_lambda(target: Target, trained: bool, start: f64, encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
     let mut search = Search::new(target, trained, encode);
     let t0 = start.ln_1p();
