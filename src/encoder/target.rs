@@ -145,6 +145,16 @@ impl Target {
         (0.0..self.close()).contains(&margin)
     }
 
+    /// The direction (±1 in `t = ln(1+λ)`) from a probe of margin `margin` towards the λs on the
+    /// target's other side: a PSNR's margin falls as `t` grows, a size's rises.
+    fn towards(self, margin: f64) -> f64 {
+        if (margin >= 0.0) == matches!(self, Target::Psnr(_)) {
+            1.0
+        } else {
+            -1.0
+        }
+    }
+
     /// How fast the margin usually changes per unit of `ln(1+λ)` (its magnitude).
     fn slope(self) -> f64 {
         match self {
@@ -244,8 +254,8 @@ fn search_lambda(target: Target, trained: bool, start: f64, encode: impl FnMut(L
         (OVERSHOOT * mb.abs() / slope).clamp(RESOLUTION, 4.0 * step)
     })?;
     // Still on the start's side: the end beyond the last probe.
-    if let Some((t, m, dir)) = last {
-        let end = if dir > 0.0 { MAX_LAMBDA.ln_1p() } else { 0.0 };
+    if let Some((t, m)) = last {
+        let end = end_towards(target.towards(m0));
         let m_end = search.probe(end)?;
         if (m_end >= 0.0) != (m >= 0.0) {
             bracket(t, m, end, m_end, target.close(), |t| search.probe(t))?;
@@ -258,20 +268,18 @@ fn search_lambda(target: Target, trained: bool, start: f64, encode: impl FnMut(L
 /// margin falls as `t` grows, a size's rises), by `step` first and then by `next(previous
 /// probe, last probe, last step)`, until a probe lands on the other side — then [`bracket`]
 /// narrows the two — or meets the target closely, or an end of [0, ln(1 + [`MAX_LAMBDA`])] is
-/// probed. Returns the last probe and the direction (±1 in `t`) when `max` steps did none of
-/// these.
+/// probed. Returns the last probe when `max` steps did none of these.
 fn outward<F: FnMut(Lambda) -> Result<(Encoded, f64)>>(
     search: &mut Search<F>,
     (t0, m0): (f64, f64),
     mut step: f64,
     max: usize,
     next: impl Fn((f64, f64), (f64, f64), f64) -> f64,
-) -> Result<Option<(f64, f64, f64)>> {
+) -> Result<Option<(f64, f64)>> {
     let target = search.target;
-    let (t_max, met) = (MAX_LAMBDA.ln_1p(), m0 >= 0.0);
-    let dir = if met == matches!(target, Target::Psnr(_)) { 1.0 } else { -1.0 };
+    let (t_max, met, dir) = (MAX_LAMBDA.ln_1p(), m0 >= 0.0, target.towards(m0));
+    let end = end_towards(dir);
     let mut near = (t0, m0);
-    let end = if dir > 0.0 { t_max } else { 0.0 };
     for i in 0..max {
         let t = near.0 + dir * step.max(RESOLUTION);
         // A step past an end goes halfway from where it predicts the crossing (without the
@@ -289,13 +297,22 @@ fn outward<F: FnMut(Lambda) -> Result<(Encoded, f64)>>(
             bracket(near.0, near.1, t, m, target.close(), |t| search.probe(t))?;
             return Ok(None);
         }
-        if target.met_closely(m) || t == 0.0 || t == t_max {
+        if target.met_closely(m) || t == end {
             return Ok(None);
         }
         step = next(near, (t, m), step);
         near = (t, m);
     }
-    Ok(Some((near.0, near.1, dir)))
+    Ok(Some(near))
+}
+
+/// The end of [0, ln(1 + [`MAX_LAMBDA`])] in the direction `dir` (±1) of `t`.
+fn end_towards(dir: f64) -> f64 {
+    if dir > 0.0 {
+        MAX_LAMBDA.ln_1p()
+    } else {
+        0.0
+    }
 }
 
 /// The second phase of a search whose encodes train: the first phase ([`search_lambda`] with
@@ -315,8 +332,7 @@ fn refine(target: Target, first: &Searched, start: f64, mut encode: impl FnMut(L
     if target.met_closely(m0) {
         return Ok(search.found);
     }
-    let dir = if (m0 >= 0.0) == matches!(target, Target::Psnr(_)) { 1.0 } else { -1.0 };
-    let step = predicted_step(&curve, t0, m0, dir).unwrap_or(FIRST_STEP);
+    let step = predicted_step(&curve, t0, m0, target.towards(m0)).unwrap_or(FIRST_STEP);
     // Each later step twice the last; no trained probe at an end unless the steps reach it.
     outward(&mut search, (t0, m0), step, MAX_OUTWARD_PROBES, |_, _, step| 2.0 * step)?;
     Ok(search.found)
