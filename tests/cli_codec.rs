@@ -192,7 +192,8 @@ fn backend_gpu_is_refused_without_a_gpu_trainer() {
 }
 
 /// `--target-psnr`: the file `eval --reference INPUT --orbit 8` measures reaches the target, and
-/// the report lists the bisection's encodes; an unreachable target is bad input.
+/// the report lists the search's encodes, each printed as it finished; an unreachable target is
+/// bad input.
 #[test]
 fn target_psnr_is_reached_as_eval_measures_it() {
     let dir = tempfile::tempdir().unwrap();
@@ -200,8 +201,9 @@ fn target_psnr_is_reached_as_eval_measures_it() {
     let report = dir.path().join("r.json");
     let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply");
     let (inp, out, rep) = (input.to_str().unwrap(), gsc.to_str().unwrap(), report.to_str().unwrap());
-    let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "38", "--report", rep, "--quiet"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "38", "--report", rep]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
     let o = gscodec(&["eval", out, "--reference", inp, "--orbit", "8", "--json", "--quiet"]);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let psnr = v["psnr"].as_f64().unwrap();
@@ -210,6 +212,18 @@ fn target_psnr_is_reached_as_eval_measures_it() {
     assert!((r["orbit_psnr"].as_f64().unwrap() - psnr).abs() < 0.01, "report {} vs eval {psnr}", r["orbit_psnr"]);
     let probes = r["target"]["probes"].as_array().unwrap();
     assert!(probes.len() > 2);
+    // One line per encode, in the search's order, with its λ, bytes, PSNR and verdict.
+    let lines: Vec<&str> = stderr.lines().filter(|l| l.starts_with("encode ")).collect();
+    assert_eq!(lines.len(), probes.len(), "{stderr}");
+    for (i, (line, p)) in lines.iter().zip(probes).enumerate() {
+        let psnr = p["psnr"].as_f64().unwrap();
+        let met = if psnr >= 38.0 { "meets" } else { "misses" };
+        let (lambda, rest) = line.strip_prefix(&format!("encode {}: λ = ", i + 1)).and_then(|l| l.split_once(", ")).expect(line);
+        // serde_json may read the report's λ an ulp off.
+        let want_lambda = p["lambda"].as_f64().unwrap();
+        assert!((lambda.parse::<f64>().unwrap() - want_lambda).abs() <= 1e-12 * want_lambda, "{line}: {want_lambda}");
+        assert_eq!(rest, format!("{} bytes, orbit PSNR {psnr:.2} dB: {met} the target", p["bytes"]));
+    }
     let bytes = std::fs::metadata(&gsc).unwrap().len();
     assert!(probes.iter().filter(|p| p["psnr"].as_f64().unwrap() >= 38.0).all(|p| p["bytes"].as_u64().unwrap() >= bytes));
     let o = gscodec(&["encode", inp, "-o", out, "--target-psnr", "190", "--quiet"]);
@@ -238,7 +252,7 @@ fn a_dataset_target_is_met_on_its_held_out_views() {
     };
     for (flag, value) in [("--target-psnr", "40"), ("--target-bytes", "6000")] {
         let o = gscodec(&["encode", data, "--init", init, "--retrain-iters", "0", "-o", out, flag, value, "--report", rep, "--quiet"]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(o.status.success() && o.stderr.is_empty(), "{}", String::from_utf8_lossy(&o.stderr));
         let (psnr, bytes) = (heldout_psnr(), std::fs::metadata(&gsc).unwrap().len());
         let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
         let probes = r["target"]["probes"].as_array().unwrap();

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::encoder::{Backend, Encoded, Encoder, EncoderConfig, Lambda, LossSpec, Profile, SearchDistortion, Target};
+use crate::encoder::{Backend, Encoded, Encoder, EncoderConfig, Lambda, LossSpec, Profile, SearchDistortion, Target, TargetEvent};
 use crate::loss::LossKind;
 use crate::Error;
 use gscodec_decoder::Splats;
@@ -31,6 +31,7 @@ pub struct Args {
     /// trained from the images once, at the default λ (or is --init), and each probe runs the
     /// RD search, the retraining and the coding at its λ. With --iters on a scene, the RD
     /// search alone brackets λ first, and the fine-tuned encodes start from the λ it found.
+    /// Each encode prints a line as it finishes (not with --quiet).
     #[arg(long, value_name = "DB", conflicts_with_all = ["lambda", "target_bytes"])]
     pub target_psnr: Option<f64>,
     /// Instead of a λ: the best PSNR (measured as for --target-psnr) among files of at most N
@@ -171,6 +172,25 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
     let pb = super::progress::bar(iters as u64, "train", args.quiet || iters == 0);
     let mut progress = |p: &crate::train::Progress| pb.set_position(p.iteration as u64);
     let out = if let Some(target) = args.target() {
+        // A line per encode of the search as it finishes (the search takes minutes on large
+        // scenes), printed above the training bar.
+        let measure = if dataset { "held-out" } else { "orbit" };
+        let mut probes = 0;
+        let mut events = |e: TargetEvent| match e {
+            TargetEvent::Train(p) => progress(p),
+            TargetEvent::Probe { probe: p, met } if !args.quiet => {
+                probes += 1;
+                let (tuned, verdict) = (if p.trained { " (trained)" } else { "" }, if met { "meets" } else { "misses" });
+                pb.suspend(|| {
+                    eprintln!(
+                        "encode {probes}{tuned}: λ = {}, {} bytes, {measure} PSNR {:.2} dB: {verdict} the target",
+                        p.lambda, p.bytes, p.psnr
+                    );
+                });
+            }
+            TargetEvent::Mixing if !args.quiet => pb.suspend(|| eprintln!("mixing the best encode's choices with its nearest miss's")),
+            _ => {}
+        };
         target.validate()?;
         if dataset {
             let init: Option<Splats> = args.init.as_ref().map(|p| crate::io::read_scene(p)).transpose()?;
@@ -180,13 +200,13 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
                 encoder.config().validate_for_dataset().map_err(|e| name(e.into()))?;
             }
             let ds = crate::io::load_dataset(&args.input, &args.dataset.load_options())?;
-            encoder.encode_dataset_to(&ds, init.as_ref(), target, &mut progress).map(|mut e| {
+            encoder.encode_dataset_to(&ds, init.as_ref(), target, &mut events).map(|mut e| {
                 e.report.init = args.init.as_ref().map(|p| p.display().to_string());
                 e
             })
         } else {
             let scene: Splats = crate::io::read_scene(&args.input)?;
-            encoder.encode_scene_to(&scene, target, &mut progress)
+            encoder.encode_scene_to(&scene, target, &mut events)
         }
     } else if let Some(init) = &args.init {
         encoder.config().validate().map_err(|e| name(e.into()))?;

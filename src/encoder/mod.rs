@@ -41,7 +41,7 @@ pub use config::{
     MAX_ITERS, RETRAIN_DIVISOR, RETRAIN_RATE_WEIGHT,
 };
 pub use report::{EncodeReport, EncodeStages, SeriesPoint};
-pub use target::{Between, Probe, Target, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
+pub use target::{Between, Probe, Target, TargetEvent, TargetSearch, MAX_LAMBDA, MAX_TARGET_PSNR};
 
 use crate::io::{Dataset, Split};
 use crate::loss::{wdr, LossKind};

@@ -84,6 +84,19 @@ pub struct Between {
     pub psnr: f64,
 }
 
+/// What a search for a target reports while it runs ([`Encoder::encode_scene_to`],
+/// [`Encoder::encode_dataset_to`]).
+#[derive(Debug, Clone, Copy)]
+pub enum TargetEvent<'a> {
+    /// A training iteration: a fine-tuned or retrained probe's, or a dataset's first training.
+    Train(&'a Progress),
+    /// An encode of the search on λ finished; `met`: whether it meets the target.
+    Probe { probe: &'a Probe, met: bool },
+    /// The configurations between the best probe and the nearest miss are being tried
+    /// ([`TargetSearch::between`]).
+    Mixing,
+}
+
 /// How a target was met: the target and every encode tried, in order.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TargetSearch {
@@ -192,18 +205,24 @@ impl Searched {
     }
 }
 
-/// A search on λ in progress: `encode(λ)` makes one probe and returns it with the PSNR the
-/// target reads; `trained` marks the probes ([`Probe::trained`]).
-struct Search<F> {
+/// A search on λ in progress: `encode(λ, progress)` makes one probe, reporting its training to
+/// `progress`, and returns it with the PSNR the target reads; `trained` marks the probes
+/// ([`Probe::trained`]); `events` hears of every probe and every training iteration.
+struct Search<'e, F> {
     target: Target,
     trained: bool,
     encode: F,
+    events: &'e mut dyn FnMut(TargetEvent),
     found: Searched,
 }
 
-impl<F: FnMut(Lambda) -> Result<(Encoded, f64)>> Search<F> {
-    fn new(target: Target, trained: bool, encode: F) -> Self {
-        Search { target, trained, encode, found: Searched { probes: Vec::new(), best: None, missed: Vec::new() } }
+/// One probe of a search: `encode(λ, progress)` ([`Search`]).
+trait ProbeFn: FnMut(Lambda, &mut dyn FnMut(&Progress)) -> Result<(Encoded, f64)> {}
+impl<F: FnMut(Lambda, &mut dyn FnMut(&Progress)) -> Result<(Encoded, f64)>> ProbeFn for F {}
+
+impl<'e, F: ProbeFn> Search<'e, F> {
+    fn new(target: Target, trained: bool, events: &'e mut dyn FnMut(TargetEvent), encode: F) -> Self {
+        Search { target, trained, encode, events, found: Searched { probes: Vec::new(), best: None, missed: Vec::new() } }
     }
 
     /// Encodes at `t = ln(1+λ)` and returns the margin by which the target is met (≥ 0) or
@@ -211,10 +230,13 @@ impl<F: FnMut(Lambda) -> Result<(Encoded, f64)>> Search<F> {
     fn probe(&mut self, t: f64) -> Result<f64> {
         let target = self.target;
         let lambda = Lambda::new(t.exp_m1().max(0.0)).unwrap_or(Lambda::ZERO);
-        let (e, psnr) = (self.encode)(lambda)?;
+        let events = &mut *self.events;
+        let (e, psnr) = (self.encode)(lambda, &mut |p| events(TargetEvent::Train(p)))?;
         let outcome = (e.bytes.len(), psnr);
-        self.found.probes.push(Probe { lambda, bytes: outcome.0, psnr, trained: self.trained });
+        let probe = Probe { lambda, bytes: outcome.0, psnr, trained: self.trained };
+        self.found.probes.push(probe);
         let met = target.met(outcome);
+        (self.events)(TargetEvent::Probe { probe: &probe, met });
         let margin = target.margin(outcome);
         if !met {
             self.found.missed.push((t, e.config));
@@ -238,9 +260,9 @@ fn start_lambda(gaussians: usize) -> f64 {
 /// cross, later ones where the line through the last two probes does), then [`bracket`] (regula
 /// falsi, Illinois) narrows the two. An end is probed only when the steps reach it: λ = 0 codes
 /// the whole scene at the finest steps, the costliest encode of all. `encode(λ)` makes one probe
-/// and returns it with the PSNR the target reads; `trained` marks the probes.
-fn search_lambda(target: Target, trained: bool, start: f64, encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
-    let mut search = Search::new(target, trained, encode);
+/// and returns it with the PSNR the target reads ([`Search`]); `trained` marks the probes.
+fn search_lambda(target: Target, trained: bool, start: f64, events: &mut dyn FnMut(TargetEvent), encode: impl ProbeFn) -> Result<Searched> {
+    let mut search = Search::new(target, trained, events, encode);
     let t0 = start.ln_1p();
     let m0 = search.probe(t0)?;
     if target.met_closely(m0) {
@@ -269,8 +291,8 @@ fn search_lambda(target: Target, trained: bool, start: f64, encode: impl FnMut(L
 /// probe, last probe, last step)`, until a probe lands on the other side — then [`bracket`]
 /// narrows the two — or meets the target closely, or an end of [0, ln(1 + [`MAX_LAMBDA`])] is
 /// probed. Returns the last probe when `max` steps did none of these.
-fn outward<F: FnMut(Lambda) -> Result<(Encoded, f64)>>(
-    search: &mut Search<F>,
+fn outward<F: ProbeFn>(
+    search: &mut Search<'_, F>,
     (t0, m0): (f64, f64),
     mut step: f64,
     max: usize,
@@ -324,9 +346,9 @@ fn end_towards(dir: f64) -> f64 {
 /// [`bracket`] narrows the two. No trained encode runs at the ends (λ = 0: the whole scene
 /// trained; λ = [`MAX_LAMBDA`]: an empty one) unless the first phase met the target nowhere:
 /// then the trained encodes search on their own, as [`search_lambda`].
-fn refine(target: Target, first: &Searched, start: f64, mut encode: impl FnMut(Lambda) -> Result<(Encoded, f64)>) -> Result<Searched> {
-    let Some((t0, _, _)) = first.best else { return search_lambda(target, true, start, encode) };
-    let mut search = Search::new(target, true, &mut encode);
+fn refine(target: Target, first: &Searched, start: f64, events: &mut dyn FnMut(TargetEvent), encode: impl ProbeFn) -> Result<Searched> {
+    let Some((t0, _, _)) = first.best else { return search_lambda(target, true, start, events, encode) };
+    let mut search = Search::new(target, true, events, encode);
     let curve: Vec<(f64, f64)> = first.probes.iter().map(|p| (p.lambda.get().ln_1p(), target.margin((p.bytes, p.psnr)))).collect();
     let m0 = search.probe(t0)?;
     if target.met_closely(m0) {
@@ -388,11 +410,13 @@ impl Encoder {
     /// Encodes `scene` to `target` by a search on λ ([`search_lambda`]) and returns the best
     /// encode that met it (the smallest file for a PSNR, the best PSNR for a size); its report's
     /// `target` lists every encode tried. Each probe is a full [`Encoder::encode_scene`] with
-    /// this encoder's settings, and the PSNR is the report's `orbit_psnr`.
+    /// this encoder's settings, and the PSNR is the report's `orbit_psnr`. `events` hears of
+    /// each probe as it finishes, of the training iterations of fine-tuned probes, and of the
+    /// mixing between probes when it starts ([`TargetEvent`]).
     ///
     /// # Errors
     /// An invalid target, a PSNR that even λ = 0 does not reach, or an encode's error.
-    pub fn encode_scene_to(&self, scene: &Splats, target: Target, progress: &mut dyn FnMut(&Progress)) -> Result<Encoded> {
+    pub fn encode_scene_to(&self, scene: &Splats, target: Target, events: &mut dyn FnMut(TargetEvent)) -> Result<Encoded> {
         target.validate()?;
         // The probes share the RD search's trials: a configuration's size and distortion do not
         // depend on λ, so each is coded and rendered once for all probes.
@@ -401,7 +425,7 @@ impl Encoder {
         // With fine-tuning (the explicit profile's), the RD search alone brackets λ first and
         // the fine-tuned encodes refine it ([`refine`]).
         let two_phase = self.config.iters_for(false) > 0 && self.config.profile == Profile::Explicit;
-        let mut encode_at = |lambda: Lambda, iters: Option<usize>| -> Result<(Encoded, f64)> {
+        let mut encode_at = |lambda: Lambda, iters: Option<usize>, progress: &mut dyn FnMut(&Progress)| -> Result<(Encoded, f64)> {
             let enc = Encoder { config: self.config.clone().with_lambda(lambda).with_iters(iters) };
             let e = enc.encode_scene_with(&mut trials, &orbit, progress)?;
             let psnr = e.report.orbit_psnr;
@@ -409,11 +433,11 @@ impl Encoder {
         };
         let first_iters = if two_phase { Some(0) } else { self.config.iters };
         let start = start_lambda(scene.len());
-        let mut first =
-            search_lambda(target, !two_phase && self.config.iters_for(false) > 0, start, |lambda| encode_at(lambda, first_iters))?;
+        let trained = !two_phase && self.config.iters_for(false) > 0;
+        let mut first = search_lambda(target, trained, start, events, |lambda, p| encode_at(lambda, first_iters, p))?;
         let (probes, Searched { best, missed, .. }) = match two_phase {
             true => {
-                let second = refine(target, &first, start, |lambda| encode_at(lambda, self.config.iters))?;
+                let second = refine(target, &first, start, events, |lambda, p| encode_at(lambda, self.config.iters, p))?;
                 let probes = first.probes.iter().chain(&second.probes).copied().collect();
                 // The better phase's best (the fine-tuned one where they tie) and its misses.
                 let first_wins = match (first.best_outcome(), second.best_outcome()) {
@@ -441,6 +465,7 @@ impl Encoder {
                 }
                 false => &trials,
             };
+            events(TargetEvent::Mixing);
             let filled = self.fill(mix_on, &orbit, target, &best, bad, &mut between)?;
             let outcome = |e: &Encoded| (e.bytes.len(), e.report.orbit_psnr);
             if let Some(filled) = filled.filter(|f| target.better(outcome(f), outcome(&best))) {
@@ -474,7 +499,8 @@ impl Encoder {
     /// DATASET`): the scene is trained from the images once, at this encoder's λ, or is `init`
     /// (`--init`); then each probe of the search on λ ([`search_lambda`]) runs the RD search,
     /// the retraining and the coding at its λ ([`Encoder::code_dataset`], [`Encoder::encode_trained`]).
-    /// The report's `target` lists every probe; there is no search between probes.
+    /// The report's `target` lists every probe; there is no search between probes. `events`
+    /// hears of the training iterations and of each probe as it finishes ([`TargetEvent`]).
     ///
     /// # Errors
     /// As [`Encoder::encode_scene_to`], and a dataset without held-out views.
@@ -483,7 +509,7 @@ impl Encoder {
         dataset: &Dataset,
         init: Option<&Splats>,
         target: Target,
-        progress: &mut dyn FnMut(&Progress),
+        events: &mut dyn FnMut(TargetEvent),
     ) -> Result<Encoded> {
         target.validate()?;
         let heldout = dataset.split(Split::Test);
@@ -501,7 +527,7 @@ impl Encoder {
         let scene = match init {
             Some(s) => Scene::Given(s),
             None => {
-                trained = self.train_dataset(dataset, progress)?;
+                trained = self.train_dataset(dataset, &mut |p| events(TargetEvent::Train(p)))?;
                 Scene::Trained(&trained)
             }
         };
@@ -510,7 +536,7 @@ impl Encoder {
             Scene::Trained(t) => t.scene.len(),
             Scene::Given(s) => s.len(),
         };
-        let Searched { probes, best, .. } = search_lambda(target, retrains, start_lambda(gaussians), |lambda| {
+        let Searched { probes, best, .. } = search_lambda(target, retrains, start_lambda(gaussians), events, |lambda, progress| {
             let enc = Encoder { config: self.config.clone().with_lambda(lambda) };
             let e = match &scene {
                 Scene::Trained(t) => enc.resolved().code_trained_scene(dataset, t, progress)?,
@@ -676,8 +702,17 @@ mod tests {
         // A PSNR between the finest and the default setting's.
         let fine = enc.encode_scene(&scene, &mut |_| {}).unwrap().report.orbit_psnr;
         let want = fine - 3.0;
-        let e = enc.encode_scene_to(&scene, Target::Psnr(want), &mut |_| {}).unwrap();
+        // Each probe is reported as it finishes, in order, and the mixing before it starts.
+        let (mut heard, mut mixing) = (Vec::new(), None);
+        let mut events = |e: TargetEvent| match e {
+            TargetEvent::Probe { probe, met } => heard.push((*probe, met)),
+            TargetEvent::Mixing => mixing = Some(heard.len()),
+            TargetEvent::Train(_) => panic!("no training"),
+        };
+        let e = enc.encode_scene_to(&scene, Target::Psnr(want), &mut events).unwrap();
         let s = e.report.target.clone().unwrap();
+        assert_eq!(heard, s.probes.iter().map(|p| (*p, p.psnr >= want)).collect::<Vec<_>>());
+        assert!(mixing.is_none_or(|m| m == s.probes.len()) && (s.between.is_empty() || mixing.is_some()), "{s:?}");
         assert!(e.report.orbit_psnr >= want, "{} < {want}", e.report.orbit_psnr);
         // The smallest file that met it, and no probe that met it is smaller.
         assert!(s.probes.iter().filter(|p| p.psnr >= want).all(|p| p.bytes >= e.bytes.len()), "{s:?}");
@@ -767,7 +802,7 @@ mod tests {
     fn searched(target: Target, curve: impl Fn(f64) -> (usize, f64)) -> (Vec<(f64, usize, f64)>, Option<f64>) {
         let scene = crate::sample::scene(20, 0);
         let template = Encoder::new(EncoderConfig::default()).unwrap().encode_scene(&scene, &mut |_| {}).unwrap();
-        let found = search_lambda(target, false, START, |lambda| {
+        let found = search_lambda(target, false, START, &mut |_| {}, |lambda, _| {
             let (bytes, psnr) = curve(lambda.get().ln_1p());
             Ok((Encoded { bytes: vec![0; bytes], ..template.clone() }, psnr))
         })
