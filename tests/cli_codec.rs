@@ -222,7 +222,9 @@ fn target_psnr_is_reached_as_eval_measures_it() {
         // serde_json may read the report's λ an ulp off.
         let want_lambda = p["lambda"].as_f64().unwrap();
         assert!((lambda.parse::<f64>().unwrap() - want_lambda).abs() <= 1e-12 * want_lambda, "{line}: {want_lambda}");
-        assert_eq!(rest, format!("{} bytes, orbit PSNR {psnr:.2} dB: {met} the target", p["bytes"]));
+        let seconds = p["seconds"].as_f64().unwrap();
+        assert!(seconds > 0.0, "{p}");
+        assert_eq!(rest, format!("{} bytes, orbit PSNR {psnr:.2} dB: {met} the target ({seconds:.1} s)", p["bytes"]));
     }
     let bytes = std::fs::metadata(&gsc).unwrap().len();
     assert!(probes.iter().filter(|p| p["psnr"].as_f64().unwrap() >= 38.0).all(|p| p["bytes"].as_u64().unwrap() >= bytes));

@@ -183,8 +183,8 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
                 let (tuned, verdict) = (if p.trained { " (trained)" } else { "" }, if met { "meets" } else { "misses" });
                 pb.suspend(|| {
                     eprintln!(
-                        "encode {probes}{tuned}: λ = {}, {} bytes, {measure} PSNR {:.2} dB: {verdict} the target",
-                        p.lambda, p.bytes, p.psnr
+                        "encode {probes}{tuned}: λ = {}, {} bytes, {measure} PSNR {:.2} dB: {verdict} the target ({:.1} s)",
+                        p.lambda, p.bytes, p.psnr, p.seconds
                     );
                 });
             }

@@ -70,6 +70,8 @@ pub struct Probe {
     /// Whether this encode trained (fine-tuned a scene, retrained a dataset's scene); with
     /// fine-tuning, the first phase's encodes bracket λ without it ([`Encoder::encode_scene_to`]).
     pub trained: bool,
+    /// Wall time of the encode (and, for a dataset, of measuring its held-out PSNR), seconds.
+    pub seconds: f64,
 }
 
 /// A configuration tried between the best probe and the nearest one that missed
@@ -231,9 +233,10 @@ impl<'e, F: ProbeFn> Search<'e, F> {
         let target = self.target;
         let lambda = Lambda::new(t.exp_m1().max(0.0)).unwrap_or(Lambda::ZERO);
         let events = &mut *self.events;
+        let began = Instant::now();
         let (e, psnr) = (self.encode)(lambda, &mut |p| events(TargetEvent::Train(p)))?;
         let outcome = (e.bytes.len(), psnr);
-        let probe = Probe { lambda, bytes: outcome.0, psnr, trained: self.trained };
+        let probe = Probe { lambda, bytes: outcome.0, psnr, trained: self.trained, seconds: began.elapsed().as_secs_f64() };
         self.found.probes.push(probe);
         let met = target.met(outcome);
         (self.events)(TargetEvent::Probe { probe: &probe, met });
