@@ -120,3 +120,27 @@ fn densification_stops_at_the_budget_largest_gradients_first() {
     assert_eq!(densify_and_prune_keeping(&mut full, &mut adam, &stats, &roomy, &mut Rng::new(0), 0), (11, 2, 0));
     assert_eq!(full.len(), 13 + 11 + 2, "11 small cloned, the 2 large halves split again");
 }
+
+/// The learning rates: the reference's constants by default; with `anneal_to` every group but
+/// the positions keeps its rate through the first half and falls log-linearly to that share of
+/// it at the end, and the position rate is unchanged.
+#[test]
+fn learning_rates_anneal_over_the_second_half_when_asked() {
+    use gscodec::rate::group::Group;
+    use gscodec::train::{learning_rate, LR_OPACITY, LR_SH_REST};
+    let plain = TrainConfig { iters: 400, ..TrainConfig::default() };
+    let annealed = TrainConfig { anneal_to: 0.3, ..plain.clone() };
+    let extent = 2.5;
+    for it in [1, 100, 200, 300, 400] {
+        assert_eq!(learning_rate(Group::Opacity, it, &plain, extent), LR_OPACITY, "constant at {it}");
+        assert_eq!(learning_rate(Group::Position, it, &annealed, extent), learning_rate(Group::Position, it, &plain, extent));
+    }
+    let rel = |g: Group, it: usize| f64::from(learning_rate(g, it, &annealed, extent)) / f64::from(learning_rate(g, it, &plain, extent));
+    for g in [Group::Scale, Group::Rotation, Group::Opacity, Group::ShDc, Group::Sh1, Group::Sh3] {
+        assert_eq!(rel(g, 1), 1.0);
+        assert_eq!(rel(g, 200), 1.0, "{g:?}: full rate until half way");
+        assert!((rel(g, 300) - 0.3f64.sqrt()).abs() < 1e-6, "{g:?}: the geometric mean three quarters in");
+        assert!((rel(g, 400) - 0.3).abs() < 1e-6, "{g:?}: the share at the end");
+    }
+    assert!((f64::from(learning_rate(Group::Sh2, 400, &annealed, extent)) - 0.3 * f64::from(LR_SH_REST)).abs() < 1e-9);
+}

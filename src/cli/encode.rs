@@ -41,7 +41,8 @@ pub struct Args {
     /// Training distortion and its options.
     #[command(flatten)]
     pub loss: crate::loss::LossArgs,
-    /// Fine-tuning (a .ply: against 24 orbit renders of itself, densification off) or training
+    /// Fine-tuning (a .ply: against 24 orbit renders of itself, densification off, the rates of
+    /// all but the positions falling to 0.3 over the second half) or training
     /// (a dataset) iterations under D + λ·R with straight-through quantisation; 0 = code as is.
     /// Default: 0 for a .ply, 3000 for a dataset.
     #[arg(long)]

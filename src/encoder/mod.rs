@@ -259,7 +259,8 @@ impl Encoder {
             // Training views avoid the orbit views `orbit_psnr` evaluates on (held out).
             let cams = training_cameras(scene, 8, ORBIT_SIZE, ORBIT_SIZE, UpAxis::NegY.vector());
             let dataset = crate::train::targets::render_targets(scene, &cams, [0.0; 3]);
-            let cfg = self.fine_tune_config(iters, &init);
+            // The rates falling over the second half ([`crate::train::FINE_TUNE_ANNEAL`]).
+            let cfg = TrainConfig { anneal_to: crate::train::FINE_TUNE_ANNEAL, ..self.fine_tune_config(iters, &init) };
             // A .ply already has its structure: the term runs from the start.
             let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
