@@ -7,7 +7,7 @@
 //! | [`Lambda`] | the trade-off λ, its one unit and every conversion |
 //! | [`Encoder`] | RD search, training through a backend, coding, measuring |
 //! | [`TrainedScene`], [`Encoder::train_dataset`], [`Encoder::code_dataset`] | a dataset encode in two halves, the training shared by encoders that [`Encoder::trains_like`] |
-//! | [`Target`], [`Encoder::encode_scene_to`] | the smallest file at a PSNR, the best PSNR within a size |
+//! | [`Target`], [`Encoder::encode_scene_to`], [`TargetEvent`] | the smallest file at a PSNR, the best PSNR within a size; each probe as it finishes |
 //! | [`EncodeReport`] | what an encode did, typed (`encode --report`, `sweep`) |
 //! | [`Backend`], [`TrainBackend`], [`TrainJob`], [`CpuBackend`] | the training-backend seam |
 //!
