@@ -179,7 +179,8 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
         let mut probes = 0;
         let mut events = |e: TargetEvent| match e {
             TargetEvent::Train(p) => progress(p),
-            TargetEvent::Probe { probe: p, met } if !args.quiet => {
+            _ if args.quiet => {}
+            TargetEvent::Probe { probe: p, met } => {
                 probes += 1;
                 let (tuned, verdict) = (if p.trained { " (trained)" } else { "" }, if met { "meets" } else { "misses" });
                 pb.suspend(|| {
@@ -189,8 +190,7 @@ pub fn encode_input(args: &Args, encoder: &Encoder) -> crate::Result<Encoded> {
                     );
                 });
             }
-            TargetEvent::Mixing if !args.quiet => pb.suspend(|| eprintln!("mixing the best encode's choices with its nearest miss's")),
-            _ => {}
+            TargetEvent::Mixing => pb.suspend(|| eprintln!("mixing the best encode's choices with its nearest miss's")),
         };
         target.validate()?;
         if dataset {
