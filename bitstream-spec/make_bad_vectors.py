@@ -4,8 +4,9 @@
 deterministically from the good vectors `vectors/hand.gsc`, (for the levels section of
 format 4.0, SPEC §3.1) `vectors/levels.gsc`, (for the codebooks of format 5.0, SPEC §3.2)
 `vectors/vq.gsc`, (for the parameter sections per level of format 6.0, SPEC §4)
-`vectors/classes.gsc`, (for the anchor profile of format 7.0, SPEC §12) `vectors/anchor.gsc` and
-(for the neighbour-context tables of format 8.0, SPEC §4.3) `vectors/neighbour.gsc`.
+`vectors/classes.gsc`, (for the anchor profile of format 7.0, SPEC §12) `vectors/anchor.gsc`,
+(for the neighbour-context tables of format 8.0, SPEC §4.3) `vectors/neighbour.gsc` and (for the
+shared index of format 9.0, SPEC §3.2) `vectors/shared.gsc`.
 
 Each bad vector breaks exactly one rule of SPEC.md; every other byte, including every CRC that
 is not the point of the vector, is kept valid, so that a decoder has to reach the broken rule
@@ -183,8 +184,8 @@ def make(good):
     add("truncated", good[: len(good) - 7], "format", "the file ends 7 bytes before the last payload does")
     add("magic", b"\x8aGSD" + good[4:], "format", "magic is 8A 47 53 44, not 8A 47 53 43")
     f = edit()
-    f.major = 9
-    add("version", f.write(), "unsupported", "version_major 9 (header CRC valid)")
+    f.major = 10
+    add("version", f.write(), "unsupported", "version_major 10 (header CRC valid)")
     add("header-crc", edit().write(header_crc_xor=1), "checksum", "header CRC off by one bit")
     f = edit()
     s = f.section(0x24)
@@ -420,6 +421,46 @@ def make_classes(good):
     return out
 
 
+def make_shared(good):
+    """{name: (bytes, class, reason)}: the shared index (SPEC §3.2), from shared.gsc (9.0: D = 3,
+    two levels, one codebook per band with bands 2 and 3 sharing band 1's index, no mode-3
+    table)."""
+    out = {}
+
+    def add(name, data, cls, reason):
+        out[name] = (data, cls, reason)
+
+    f0 = File(good)
+    assert f0.major == 9 and f0.degree == 3 and f0.section(0x16, 1)[3] == b"\x00"
+    f = File(good)
+    f.major = 8
+    add("shared-in-8", f.write(), "format", "an 8.0 file whose band 2 parameter sections hold no channel (a shared index is 9.0 only)")
+    f = File(good)
+    f.section(0x15, 0)[3] = b"\x00"
+    add("shared-band1", f.write(), "format", "band 1's parameter section of level 0 holds no channel (band 1 has no band below)")
+    # Band 2's codebook with its last row dropped, its streams re-coded: K − 1 rows against band 1's K.
+    f = File(good)
+    book = f.section(0x02, 2)[3]
+    rd = specdec.Reader(book, "codebook")
+    k = rd.varint()
+    start = rd.pos
+    channels = specdec.read_group_channels(rd, 6, 15)
+    params = book[start:rd.pos]
+    rows = specdec.decode_channels(book[rd.pos:], k, channels, "codebook")
+    assert all(t.mode in (0, 1, 2) for _, t in channels)
+    streams = [ans_encode(value_intervals(t, [int(v) for v in rows[: k - 1, j]])) for j, (_, t) in enumerate(channels) if t.mode != 0]
+    f.section(0x02, 2)[3] = varint(k - 1) + params + section_of(streams)
+    add("shared-rows", f.write(), "format", f"band 2 shares band 1's index of K = {k} rows but its codebook has {k - 1}")
+    # Level 1's band 2 with an index of its own (one constant channel: no stream), level 0's shared.
+    f = File(good)
+    f.section(0x16, 1)[3] = bytes([1]) + struct.pack("<f", 1.0) + bytes([0]) + varint(zigzag(0))
+    add("shared-level", f.write(), "format", "band 2 shares band 1's index in level 0 but has an index of its own in level 1")
+    f = File(good)
+    f.sections.append([0x26, 0, 0, f.section(0x25, 0)[3], None])
+    add("shared-stream", f.write(), "format", "a data section of band 2, which shares band 1's index, holds band 1's index stream")
+    return out
+
+
 def neighbour_table(reach, start, prev_at, lower_at, contexts):
     """§4.3: the bytes of a mode-3 table; contexts are (mix, centre, ratio)."""
     out = bytearray([3]) + varint(reach) + varint(zigzag(start))
@@ -638,11 +679,12 @@ def main(argv):
     vectors.update(make_classes(open(os.path.join(VECTORS, "classes.gsc"), "rb").read()))
     vectors.update(make_anchor(open(os.path.join(VECTORS, "anchor.gsc"), "rb").read(), open(os.path.join(VECTORS, "classes.gsc"), "rb").read()))
     vectors.update(make_neighbour(open(os.path.join(VECTORS, "neighbour.gsc"), "rb").read()))
+    vectors.update(make_shared(open(os.path.join(VECTORS, "shared.gsc"), "rb").read()))
     os.makedirs(out_dir, exist_ok=True)
     for old in os.listdir(out_dir):
         if old.startswith("bad-") and old.endswith(".gsc"):
             os.remove(os.path.join(out_dir, old))
-    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc, levels.gsc, vq.gsc, classes.gsc, anchor.gsc and neighbour.gsc"]
+    lines = ["# bad vector, expected error class (SPEC §9.1), reason; made by ../../make_bad_vectors.py from hand.gsc, levels.gsc, vq.gsc, classes.gsc, anchor.gsc, neighbour.gsc and shared.gsc"]
     for name, (data, cls, reason) in sorted(vectors.items()):
         with open(os.path.join(out_dir, f"bad-{name}.gsc"), "wb") as fh:
             fh.write(data)

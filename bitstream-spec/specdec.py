@@ -14,10 +14,12 @@ import zlib
 import numpy as np
 
 MAGIC = b"\x8aGSC"
-VERSION_MAJORS = (3, 4, 5, 6, 7, 8)  # §2, §11: 4.x adds the levels section (§3.1), 5.x codebooks (§3.2),
-# 6.x parameter sections per level (§4), 7.x the anchor profile (§12), 8.x neighbour tables (§4.3)
+VERSION_MAJORS = (3, 4, 5, 6, 7, 8, 9)  # §2, §11: 4.x adds the levels section (§3.1), 5.x codebooks (§3.2),
+# 6.x parameter sections per level (§4), 7.x the anchor profile (§12), 8.x neighbour tables (§4.3),
+# 9.x the shared index (§3.2)
 ANCHOR_MAJOR = 7
 NEIGHBOUR_MAJOR = 8
+SHARED_MAJOR = 9
 # §4.3: the window ratios r_ρ · 2^16, ρ = 0..63
 RATIOS = [
     115, 283, 617, 1200, 2125, 3466, 5274, 7557, 10287, 13399, 16807, 20411, 24109, 27809, 31429, 34905,
@@ -483,7 +485,7 @@ def read_group_channels(rd, g, expected, neighbours=False):
     """§4; `neighbours`: mode 3 is allowed (an 8.0 file, §4.3), never with thresholds on the
     channel below for channel 0."""
     c = rd.u8()
-    if c != expected:
+    if c not in (expected if isinstance(expected, tuple) else (expected,)):
         raise corrupt(f"group {g}: channel count {c}, expected {expected}")
     channels = []
     for j in range(c):
@@ -496,7 +498,8 @@ def read_group_channels(rd, g, expected, neighbours=False):
 
 
 def parse_group_params(g, payload, expected=None, neighbours=False):
-    """§4; `expected` = 1 for an SH band with a codebook (§3.2: the index channel)."""
+    """§4; `expected` = 1 for an SH band with a codebook (§3.2: the index channel), (0, 1) for
+    one that may share the index of the band below (9.0); a tuple lists the counts allowed."""
     rd = Reader(payload, f"parameters of group {g}")
     channels = read_group_channels(rd, g, GROUP_CHANNELS[g] if expected is None else expected, neighbours)
     rd.expect_end()
@@ -738,13 +741,36 @@ def decode(data):
         if n > 0:
             cols = decode_anchor(known[(KIND_ANCHOR, 0)], n, degree)
     elif n > 0:
-        nb = major == NEIGHBOUR_MAJOR
+        nb = major in (NEIGHBOUR_MAJOR, SHARED_MAJOR)
         books = {g: parse_codebook(g, known[(KIND_CODEBOOK, g - 4)], n, nb) for g in range(5, groups) if (KIND_CODEBOOK, g - 4) in known}
+
+        def index_channels(g):
+            # §3.2: a codebook band's one index channel; in 9.0 a band above 1 may have none.
+            if g not in books:
+                return None
+            return (0, 1) if major == SHARED_MAJOR and g >= 6 else 1
+
         # §4: one set of parameter sections per parameter chunk (per level in 6.0, else chunk 0).
         params = {}
         for p in sorted(set(params_of)):
             position = parse_position_params(known[(0x10, p)])
-            params[p] = (position, {g: parse_group_params(g, known[(0x10 + g, p)], 1 if g in books else None, nb) for g in range(1, groups)})
+            params[p] = (position, {g: parse_group_params(g, known[(0x10 + g, p)], index_channels(g), nb) for g in range(1, groups)})
+        # §3.2 (9.0): a band whose parameter sections hold no channel shares the row index of the
+        # band below: in every level, and the band below has a codebook of as many rows.
+        shares = {}
+        for g in books:
+            counts = {len(params[p][1][g]) for p in params}
+            if 0 in counts:
+                if counts != {0}:
+                    raise corrupt(f"group {g}: shares the index of the band below in some levels only")
+                if g - 1 not in books or len(books[g - 1][1]) != len(books[g][1]):
+                    raise corrupt(f"group {g}: shares the index of a band below without a codebook of as many rows")
+                shares[g] = True
+
+        def index_source(g):
+            while shares.get(g):
+                g -= 1
+            return g
         ints = {g: [] for g in range(groups)}
         for c, k in enumerate(sizes):
             (_, _, bits, ltable), group_params = params[params_of[c]]
@@ -772,11 +798,12 @@ def decode(data):
                             raise corrupt("rotation index out of 0..3")
                         deq_parts[g].append(dequant(v[:, 1:], steps[1:]))
                     elif g in books:
-                        # §3.2, §8: row index i of the band's codebook, dequantised with its steps.
+                        # §3.2, §8: row index i of the band's codebook, dequantised with its steps
+                        # (the index of the band below when the band shares it).
                         bchannels, rows = books[g]
                         book = dequant(rows, [s for s, _ in bchannels])
                         check_finite(book, f"codebook of group {g}")
-                        idx = v[:, 0]
+                        idx = ints[index_source(g)][c][:, 0]
                         if np.any((idx < 0) | (idx >= len(rows))):
                             raise corrupt(f"group {g}: codebook index out of range")
                         deq_parts[g].append(book[idx])

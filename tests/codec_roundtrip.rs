@@ -4,7 +4,7 @@ use glam::Vec3;
 use gscodec::rate::{self, quantise, EncodeConfig};
 use gscodec::rng::Rng;
 use gscodec::testkit::{extreme_splats, random_splats_in, rig_cameras, SceneRanges};
-use gscodec_decoder::bitstream::VERSION_MAJOR_NEIGHBOURS;
+use gscodec_decoder::bitstream::{VERSION_MAJOR_NEIGHBOURS, VERSION_MAJOR_SHARED};
 use gscodec_decoder::render::render;
 use gscodec_decoder::{decode, decode_with, Camera, DecodeError, FormatErrorKind, Limits, RenderOptions, Splats};
 
@@ -247,8 +247,8 @@ fn typed_errors_for_bad_files() {
     let e = decode(b"PK\x03\x04").unwrap_err();
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::BadMagic));
     let mut newer = bytes.clone();
-    newer[4] = VERSION_MAJOR_NEIGHBOURS + 1;
-    assert!(matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR_NEIGHBOURS + 1, 0))));
+    newer[4] = VERSION_MAJOR_SHARED + 1;
+    assert!(matches!(decode(&newer), Err(DecodeError::Unsupported(u)) if u.version() == Some((VERSION_MAJOR_SHARED + 1, 0))));
     let e = decode(&bytes[..bytes.len() - 1]).unwrap_err();
     assert_eq!(e.format_error().map(|f| f.kind()), Some(FormatErrorKind::Truncated));
     // Hostile Gaussian count: refused before anything is allocated.
@@ -513,4 +513,55 @@ fn mutated_codebook_files_never_panic() {
         }
         let _ = decode_threads(&b, 1);
     }
+}
+
+/// One joint codebook for every SH band (`sh_joint`, SPEC §3.2, format 9.0): bands 2 and 3 share
+/// band 1's row index and hold no stream; the file decodes to the quantised scene bit-exactly,
+/// in levels and importance classes too, and at a lower SH degree to the truncated scene.
+#[test]
+fn a_shared_sh_index_round_trips_bit_exactly() {
+    use gscodec::rate::CoarseTail;
+    use gscodec_decoder::bitstream::{layout::Group, params::read_all_params, parse};
+    let s = scene(3000, 3, 1.0, 33);
+    let config = EncodeConfig { sh_vq: [64, 0, 0], sh_joint: true, ..EncodeConfig::default() };
+    let (bytes, _, q) = rate::encode(&s, &config).unwrap();
+    assert_eq!(bytes[4], VERSION_MAJOR_SHARED);
+    assert!(q.shared_index);
+    let k = q.codebooks[0].1.len();
+    assert!(k > 1 && k <= 64, "{k} rows");
+    assert!(q.codebooks.iter().all(|(_, cb)| cb.len() == k && cb.index == q.codebooks[0].1.index), "one index, K rows per band");
+    let decoded = decode(&bytes).unwrap();
+    assert_eq!(decoded, quantise::dequantise(&q));
+    // At most K distinct SH rows (all bands together).
+    let mut rows: Vec<Vec<u32>> = decoded.sh_rest.chunks_exact(45).map(|r| r.iter().map(|v| v.to_bits()).collect()).collect();
+    rows.sort();
+    rows.dedup();
+    assert!(rows.len() <= k, "{} distinct rows", rows.len());
+    let c = parse(&bytes).unwrap();
+    let params = read_all_params(&c, 3, 1).unwrap();
+    for (g, p) in params.of_level(0) {
+        assert_eq!(p.shares_index(), matches!(g, Group::Sh2 | Group::Sh3), "{}", g.name());
+    }
+    assert_eq!(decode_with(&bytes, &Limits { max_sh_degree: 1, ..Limits::default() }).unwrap(), decoded.with_sh_degree(1));
+    assert_eq!(decode_with(&bytes, &Limits { max_sh_degree: 2, ..Limits::default() }).unwrap(), decoded.with_sh_degree(2));
+    // The same codebook rows coded per band cost more: the joint index is one channel, not three.
+    let (separate, _, _) = rate::encode(&s, &EncodeConfig { sh_vq: [64, 64, 64], sh_joint: false, ..config }).unwrap();
+    assert!(bytes.len() < separate.len(), "{} bytes joint, {} separate", bytes.len(), separate.len());
+    // Importance classes and progressive levels: parameter sections per level.
+    for c in [
+        EncodeConfig { tail: CoarseTail { share: 0.5, factor: 2.0 }, ..config },
+        EncodeConfig { progressive: true, neighbour_tables: false, ..config },
+    ] {
+        let (b, _, q) = rate::encode(&s, &c).unwrap();
+        assert_eq!(b[4], VERSION_MAJOR_SHARED);
+        let full = decode(&b).unwrap();
+        assert_eq!(full, quantise::dequantise(&q));
+        if c.progressive {
+            prefixes_decode_to_prefixes(&b, &full);
+        }
+    }
+    // A scene of SH degree 1 has no band to share with: band 1 alone, a file of before 9.0.
+    let (one, _, q1) = rate::encode(&s.with_sh_degree(1), &config).unwrap();
+    assert!(!q1.shared_index && one[4] < VERSION_MAJOR_SHARED);
+    assert_eq!(decode(&one).unwrap(), quantise::dequantise(&q1));
 }

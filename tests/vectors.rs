@@ -14,8 +14,23 @@ use gscodec_decoder::bitstream::{self, Header, VERSION_MAJOR_UNIFORM, VERSION_MI
 use gscodec_decoder::{decode, Decoder, Limits, Splats};
 use sha2::{Digest, Sha256};
 
-const NAMES: [&str; 14] =
-    ["empty", "empty3", "one", "hand", "edge", "tiny", "chunks", "quirks", "levels", "vq", "classes", "anchor", "neighbour", "nbedge"];
+const NAMES: [&str; 15] = [
+    "empty",
+    "empty3",
+    "one",
+    "hand",
+    "edge",
+    "tiny",
+    "chunks",
+    "quirks",
+    "levels",
+    "vq",
+    "classes",
+    "anchor",
+    "neighbour",
+    "nbedge",
+    "shared",
+];
 /// Vectors made by `bitstream-spec/make_bad_vectors.py`, not by our encoder.
 const SCRIPTED: [&str; 1] = ["quirks"];
 /// Vectors whose expected `.ply` is given by its SHA-256 only.
@@ -127,7 +142,7 @@ fn vector_scene(name: &str) -> Splats {
         "one" => one_scene(),
         "hand" => hand_scene(),
         "edge" | "nbedge" => edge_scene(),
-        "tiny" | "levels" | "vq" | "classes" | "anchor" | "neighbour" => {
+        "tiny" | "levels" | "vq" | "classes" | "anchor" | "neighbour" | "shared" => {
             gscodec::io::read_ply(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/tiny/truth.ply")).unwrap()
         }
         "chunks" => chunks_scene(),
@@ -159,7 +174,10 @@ fn regenerate() {
             // of its own, coded with twice the steps and a grid of one bit less (format 6.0:
             // parameters per level, SPEC §4). `neighbour`: `classes` with neighbour-context tables
             // (format 8.0, SPEC §4.3), codebook rows included; `nbedge`: `edge` with them, escapes
-            // included. The others are written without them, in the format they stand for.
+            // included. `shared`: the tiny scene with one codebook of 32 rows for its three SH
+            // bands, bands 2 and 3 sharing band 1's index, and its less significant half in a
+            // level of its own (format 9.0, SPEC §3.2), without neighbour-context tables. The
+            // others are written without them, in the format they stand for.
             let old = EncodeConfig { neighbour_tables: false, ..EncodeConfig::default() };
             let classes = EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], tail: CoarseTail { share: 0.5, factor: 2.0 }, ..old };
             let config = match name {
@@ -168,6 +186,7 @@ fn regenerate() {
                 "classes" => classes,
                 "neighbour" => EncodeConfig { neighbour_tables: true, ..classes },
                 "nbedge" => EncodeConfig::default(),
+                "shared" => EncodeConfig { sh_vq: [32, 0, 0], sh_joint: true, tail: CoarseTail { share: 0.5, factor: 2.0 }, ..old },
                 _ => old,
             };
             rate::encode(&vector_scene(name), &config).unwrap().0

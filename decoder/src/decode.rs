@@ -128,15 +128,17 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
                 None => {
                     // SH bands are split further into channel ranges of about JOB_CHANNELS so
                     // that the work balances over the threads even for a one-chunk scene; a
-                    // codebook band's one job (all its channels) decodes one row index per Gaussian.
+                    // codebook band's one job (all its channels) decodes one row index per Gaussian
+                    // (none for a band that shares the index of the band below: its data
+                    // sections are only checked to be empty).
                     let codebook = params[0].codebook.is_some();
-                    let k = g.channels();
+                    let k = if params[0].shares_index() { 0 } else { g.channels() };
                     let split = if codebook { 1 } else { k.div_ceil(JOB_CHANNELS) };
                     let jobs: Vec<(usize, Range<usize>)> =
                         (0..chunks).flat_map(|ch| (0..split).map(move |i| (ch, i * k / split..(i + 1) * k / split))).collect();
                     jobs.into_par_iter()
                         .map(|(ch, channels)| {
-                            let mut buf = vec![0.0; ranges[ch].len() * if codebook { 1 } else { channels.len() }];
+                            let mut buf = vec![0.0; ranges[ch].len() * if codebook { channels.len().min(1) } else { channels.len() }];
                             section(ch, channels.clone(), &mut buf).map(|()| (ch, channels, buf))
                         })
                         .collect::<Result<_, _>>()?
@@ -145,14 +147,24 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
             Ok((g, params, pieces))
         })
         .collect::<Result<_, DecodeError>>()?;
+    // A band that shares the index of the band below takes the indices of the nearest band below
+    // that has its own (SPEC §3.2), and looks them up in its own rows.
+    let own_index = |group: Group| {
+        let mut b = group.sh_band();
+        while decoded.iter().any(|d| d.0.sh_band() == b && d.1[0].shares_index()) {
+            b -= 1;
+        }
+        &decoded.iter().find(|d| d.0.sh_band() == b).expect("checked: a shared index has a band below with a codebook").2
+    };
     let pieces: Vec<Piece> = decoded
         .iter()
         .flat_map(|&(group, ref params, ref pieces)| {
             let codebook = params[0].codebook.as_deref().map(|cb| &cb.values[..]);
+            let pieces = if params[0].shares_index() { own_index(group) } else { pieces };
             pieces.iter().map(move |(ch, columns, values)| Piece {
                 group,
                 first: ranges[*ch].start,
-                columns: columns.clone(),
+                columns: if codebook.is_some() { 0..group.channels() } else { columns.clone() },
                 values,
                 codebook,
             })

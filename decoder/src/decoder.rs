@@ -124,6 +124,8 @@ pub struct FileInfo {
     pub neighbour_channels: Vec<String>,
     /// SH bands coded by vector quantisation (SPEC §3.2): (band, codebook rows K).
     pub codebooks: Vec<(u8, usize)>,
+    /// SH bands that share the row index of the band below (SPEC §3.2, format 9.0).
+    pub shared_index: Vec<u8>,
     /// A 6.0 file's parameters per level (SPEC §4): per level, its scale step over level 0's
     /// (importance classes: how much coarser the level is coded). Empty before 6.0.
     pub level_step_factors: Vec<f32>,
@@ -385,6 +387,7 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
         context_channels: Vec::new(),
         neighbour_channels: Vec::new(),
         codebooks: Vec::new(),
+        shared_index: Vec::new(),
         level_step_factors: Vec::new(),
         anchors: None,
     };
@@ -403,6 +406,9 @@ pub fn inspect(bytes: &[u8]) -> Result<FileInfo, DecodeError> {
         for (g, p) in set {
             if let Some(cb) = p.codebook.as_ref().filter(|_| l == 0) {
                 info.codebooks.push((g.sh_band(), cb.rows));
+                if p.shares_index() {
+                    info.shared_index.push(g.sh_band());
+                }
             }
             // Channel names carry the level of a 6.0 file's later parameter sets.
             let name = |i: usize| if l == 0 { format!("{}/{}", g.name(), i) } else { format!("{}/{}@{}", g.name(), i, l) };
@@ -444,6 +450,7 @@ fn inspect_anchors(c: &sections::Container<'_>, file_bytes: u64) -> Result<FileI
         context_channels: Vec::new(),
         neighbour_channels: Vec::new(),
         codebooks: Vec::new(),
+        shared_index: Vec::new(),
         level_step_factors: Vec::new(),
         anchors,
     })

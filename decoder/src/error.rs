@@ -232,7 +232,7 @@ impl fmt::Display for UnsupportedError {
                     f,
                     "unsupported format version {major}.{minor} (this decoder reads {}.x to {}.x)",
                     crate::bitstream::VERSION_MAJOR_UNIFORM,
-                    crate::bitstream::VERSION_MAJOR_NEIGHBOURS
+                    crate::bitstream::VERSION_MAJOR_SHARED
                 )
             }
             Unsupported::Section { id, offset } => {

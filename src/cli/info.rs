@@ -70,7 +70,8 @@ pub fn run(args: Args) -> crate::Result<()> {
             })),
             "sh_bands": (1..=h.sh_degree).map(|b| {
                 let k = info.codebooks.iter().find(|c| c.0 == b).map(|c| c.1);
-                json!({"band": b, "mode": if k.is_some() { "codebook" } else { "per-coefficient" }, "codebook_rows": k})
+                let shared = info.shared_index.contains(&b);
+                json!({"band": b, "mode": if k.is_some() { "codebook" } else { "per-coefficient" }, "codebook_rows": k, "index_of_band_below": shared})
             }).collect::<Vec<_>>(),
         });
         println!("{v}");
@@ -108,6 +109,9 @@ pub fn run(args: Args) -> crate::Result<()> {
         }
         for b in (1..=h.sh_degree).filter(|_| info.anchors.is_none()) {
             match info.codebooks.iter().find(|c| c.0 == b) {
+                Some((_, k)) if info.shared_index.contains(&b) => {
+                    println!("sh_band{b}    codebook of {k} rows, indexed by sh_band{}'s index", b - 1)
+                }
                 Some((_, k)) => println!("sh_band{b}    codebook of {k} rows, one index per Gaussian"),
                 None => println!("sh_band{b}    per coefficient"),
             }

@@ -18,7 +18,7 @@ use gscodec_decoder::bitstream::sections::write_padded;
 use gscodec_decoder::bitstream::stream::write_channel_streams;
 use gscodec_decoder::bitstream::{
     Header, Section, SECTION_OPTIONAL, VERSION_MAJOR, VERSION_MAJOR_CODEBOOKS, VERSION_MAJOR_LEVELS, VERSION_MAJOR_NEIGHBOURS,
-    VERSION_MAJOR_UNIFORM, VERSION_MINOR,
+    VERSION_MAJOR_SHARED, VERSION_MAJOR_UNIFORM, VERSION_MINOR,
 };
 use gscodec_decoder::entropy::ChannelTable;
 
@@ -140,11 +140,15 @@ fn plan(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], models: Models, 
             let refs: Vec<&ChannelTable> = cts.iter().map(|t| &t.table).collect();
             let values: Vec<&[i32]> = cols.iter().map(|c| &c[..]).collect();
             let book = write_codebook(k, &book_params, &write_channel_streams(&refs, &values));
-            let index: Vec<i32> = cb.index.iter().map(|&i| i as i32).collect();
-            let c = compare(&index, Some(chunks), &[]);
-            let (histogram_bits, learned_bits, context_bits) = (c.histogram_bits, c.learned_bits, c.context_bits);
-            let params = write_channel_params(&[1.0], [&c.best.bytes[..]].into_iter());
-            let tables = vec![c.best];
+            let (params, tables, histogram_bits, learned_bits, context_bits) = if shares_index(q, *g) {
+                // The index of band 1 (SPEC §3.2, format 9.0): no channel.
+                (write_channel_params(&[], std::iter::empty()), Vec::new(), 0.0, 0.0, 0.0)
+            } else {
+                let index: Vec<i32> = cb.index.iter().map(|&i| i as i32).collect();
+                let c = compare(&index, Some(chunks), &[]);
+                let params = write_channel_params(&[1.0], [&c.best.bytes[..]].into_iter());
+                (params, vec![c.best], c.histogram_bits, c.learned_bits, c.context_bits)
+            };
             let neighbours = uses_neighbours(&cts) || uses_neighbours(&tables);
             plans.push(GroupPlan {
                 group: *g,
@@ -233,7 +237,7 @@ fn group_key(q: &Quantised, chunks: &[Range<usize>], models: Models, i: usize) -
             let (g, steps, chans) = &q.groups[i - 1];
             (g.name(), steps.iter().map(|s| s.to_bits()).collect::<Vec<_>>(), chans).hash(h);
             if let Some((_, cb)) = q.codebooks.iter().find(|c| c.0 == *g) {
-                (cb.channels, &cb.rows, &cb.index).hash(h);
+                (cb.channels, &cb.rows, &cb.index, shares_index(q, *g)).hash(h);
             }
         }
     })
@@ -269,6 +273,8 @@ fn code_groups(q: &Quantised, chunks: &[Range<usize>], deltas: &[u64], models: M
 fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], range: Range<usize>) -> Vec<u8> {
     if p.group == Group::Position {
         write_position_stream(&p.tables[0].table, &deltas[range])
+    } else if shares_index(q, p.group) {
+        Vec::new()
     } else if let Some((_, cb)) = q.codebooks.iter().find(|c| c.0 == p.group) {
         let index: Vec<i32> = cb.index[range].iter().map(|&i| i as i32).collect();
         write_channel_streams(&[&p.tables[0].table], &[&index])
@@ -278,6 +284,11 @@ fn encode_chunk(q: &Quantised, p: &GroupPlan, deltas: &[u64], range: Range<usize
         let values: Vec<&[i32]> = chans.iter().map(|c| &c[range.clone()]).collect();
         write_channel_streams(&tables, &values)
     }
+}
+
+/// Whether SH group `g` of `q` shares band 1's row index (SPEC §3.2, format 9.0).
+fn shares_index(q: &Quantised, g: Group) -> bool {
+    q.shared_index && g.sh_band() >= 2
 }
 
 /// Level `l` of `q` (its Gaussians `r`) as a scene of its own, with that level's steps: what
@@ -299,6 +310,7 @@ fn level_part(q: &Quantised, l: usize, r: Range<usize>) -> Quantised {
         morton: q.morton[r].to_vec(),
         groups,
         codebooks,
+        shared_index: q.shared_index,
         level_factors: Vec::new(),
         level_grids: Vec::new(),
     }
@@ -314,7 +326,8 @@ fn level_part(q: &Quantised, l: usize, r: Range<usize>) -> Quantised {
 /// codebooks right after the parameter sections; importance classes make it 6.0. With
 /// `neighbour_tables`, channels (codebook rows included) may take neighbour-context tables
 /// where they are cheaper, and a file that has one is 8.0 (SPEC §4.3); never for a progressive
-/// file whose levels share one parameter set.
+/// file whose levels share one parameter set. A scene whose SH bands share band 1's row index
+/// ([`Quantised::shared_index`]) is a 9.0 file, with parameter sections per level.
 pub fn write(q: &Quantised, input: (usize, u8), learned_tables: bool, neighbour_tables: bool) -> (Vec<u8>, EncodeReport) {
     write_cached(q, input, learned_tables, neighbour_tables, None)
 }
@@ -331,7 +344,9 @@ pub fn write_cached(
     let n = q.len();
     let progressive = !q.levels.is_empty();
     let codebooks = n > 0 && !q.codebooks.is_empty();
-    let per_level = n > 0 && !q.level_factors.is_empty();
+    let shared = n > 0 && q.shared_index;
+    // A 9.0 file (a shared index) has parameter sections per level, like 6.0 and 8.0.
+    let per_level = n > 0 && (!q.level_factors.is_empty() || shared);
     // Neighbour contexts need a format-8.0 file, whose levels each have their own parameter
     // sections: so not for a progressive file whose levels share one set.
     let models = Models { learned: learned_tables, neighbours: neighbour_tables && (!progressive || per_level) };
@@ -427,6 +442,7 @@ pub fn write_cached(
     payloads.push((INFO_KIND, 0, SECTION_OPTIONAL, &info));
     let sections: Vec<Section> = payloads.iter().map(|(k, c, f, d)| Section { kind: *k, chunk: *c, flags: *f, data: d }).collect();
     let version_major = match (neighbours, per_level, codebooks, progressive) {
+        _ if shared => VERSION_MAJOR_SHARED,
         (true, ..) => VERSION_MAJOR_NEIGHBOURS,
         (false, true, ..) => VERSION_MAJOR,
         (false, false, true, _) => VERSION_MAJOR_CODEBOOKS,

@@ -43,6 +43,11 @@ pub struct EncodeConfig {
     /// Per SH band 1..=3: 0 = coded per coefficient; K > 0 = coded by vector quantisation with a
     /// codebook of at most K rows ([`vq`], SPEC §3.2, format 5.0; the RD search sets it).
     pub sh_vq: [u32; 3],
+    /// With `sh_vq[0] > 0`: every SH band kept is coded by **one** codebook of at most
+    /// `sh_vq[0]` rows, each row all the bands' coefficients, and one row index per Gaussian
+    /// ([`quantise::apply_codebooks`]; the bands above 1 share band 1's index, SPEC §3.2, format
+    /// 9.0); `sh_vq[1..]` are then not used. The RD search sets it.
+    pub sh_joint: bool,
     /// SH bands above this degree are left out.
     pub max_sh_degree: u8,
     /// Also fit the learned density per channel and store it where it is cheaper than the
@@ -130,6 +135,7 @@ impl Default for EncodeConfig {
             min_removal_error: 0.0,
             sh_drop: [0.0; 3],
             sh_vq: [0; 3],
+            sh_joint: false,
             max_sh_degree: 3,
             learned_tables: true,
             neighbour_tables: true,
@@ -252,7 +258,7 @@ pub fn encode_cached(
     let (mut q, order) = quantise::quantise_coarser_grids(&s, &config.steps, &level, &coarser);
     if config.sh_vq.iter().any(|&k| k > 0) {
         let w = sig.clone().unwrap_or_else(|| vec![1.0; s.len()]);
-        quantise::apply_codebooks(&mut q, &order, &w, config.sh_vq, cache.map(|c| &c.codebooks));
+        quantise::apply_codebooks(&mut q, &order, &w, config.sh_vq, config.sh_joint, cache.map(|c| &c.codebooks));
     }
     if let Some(factors) = factors {
         let nonempty: Vec<f32> = factors.into_iter().zip(&counts).filter(|x| *x.1 > 0).map(|x| x.0).collect();

@@ -80,6 +80,9 @@ pub struct Quantised {
     /// SH bands coded by vector quantisation (SPEC §3.2, format 5.0): the band's codebook, whose
     /// rows at its indices are the band's channels in [`Quantised::groups`].
     pub codebooks: Vec<(Group, super::vq::Codebook)>,
+    /// The SH bands above 1 share band 1's row index (one joint codebook split by band, SPEC
+    /// §3.2, format 9.0): their codebooks have band 1's K and its index.
+    pub shared_index: bool,
     /// Importance classes (SPEC §4, format 6.0: each level has its own parameter sections): per
     /// level, the factor its steps are [`Quantised::groups`]' steps multiplied by
     /// ([`Quantised::level_steps`]). Empty: every level uses those steps, and the file has one
@@ -245,6 +248,7 @@ pub fn quantise_coarser_grids(splats: &Splats, steps: &Steps, level: &[u8], coar
         morton: keyed.iter().map(|&(_, m, _)| m).collect(),
         groups,
         codebooks: Vec::new(),
+        shared_index: false,
         level_factors: Vec::new(),
         level_grids,
     };
@@ -323,13 +327,43 @@ pub fn apply_level_factors(q: &mut Quantised, splats: &Splats, order: &[usize], 
 /// the weight of scene row `j`, so the codebook does not depend on the file order (levels,
 /// importance classes).
 ///
+/// With `joint` (and `ks[0] > 0`), all of `q`'s SH bands together: one k-means of at most
+/// `ks[0]` rows over rows that hold every band's channels (band 1's first, the codebook of
+/// "band 1" to `memo`), split into one codebook per band with the same index
+/// ([`Quantised::shared_index`] when there is more than one band).
+///
 /// # Panics
 /// If `order` or `weights` is not one value per Gaussian of `q`.
-pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: [u32; 3], memo: Option<&super::vq::Memo>) {
+pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: [u32; 3], joint: bool, memo: Option<&super::vq::Memo>) {
     assert_eq!((order.len(), weights.len()), (q.len(), q.len()), "one order entry and weight per Gaussian");
     // File rows in scene order.
     let mut by_scene: Vec<usize> = (0..order.len()).collect();
     by_scene.sort_unstable_by_key(|&i| order[i]);
+    let in_file_order = |cb: &super::vq::Codebook| {
+        let mut index = vec![0; cb.index.len()];
+        by_scene.iter().zip(&cb.index).for_each(|(&i, &k)| index[i] = k);
+        index
+    };
+    if joint && ks[0] > 0 {
+        let bands: Vec<usize> = (0..q.groups.len()).filter(|&gi| q.groups[gi].0.sh_band() > 0).collect();
+        let rows: Vec<Vec<i32>> =
+            bands.iter().flat_map(|&gi| q.groups[gi].2.iter().map(|c| by_scene.iter().map(|&i| c[i]).collect())).collect();
+        if rows.is_empty() {
+            return;
+        }
+        let cb = super::vq::band_codebook(memo, 1, &rows, weights, ks[0] as usize);
+        let index = in_file_order(&cb);
+        let mut first = 0;
+        for &gi in &bands {
+            let (g, _, chans) = &mut q.groups[gi];
+            let part = cb.columns(first..first + chans.len(), index.clone());
+            first += chans.len();
+            *chans = part.decoded_channels();
+            q.codebooks.push((*g, part));
+        }
+        q.shared_index = bands.len() > 1;
+        return;
+    }
     for (g, _, chans) in q.groups.iter_mut() {
         let b = usize::from(g.sh_band());
         if b == 0 || ks[b - 1] == 0 {
@@ -337,9 +371,7 @@ pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: 
         }
         let rows: Vec<Vec<i32>> = chans.iter().map(|c| by_scene.iter().map(|&i| c[i]).collect()).collect();
         let cb = super::vq::band_codebook(memo, b, &rows, weights, ks[b - 1] as usize);
-        let mut index = vec![0; cb.index.len()];
-        by_scene.iter().zip(&cb.index).for_each(|(&i, &k)| index[i] = k);
-        let cb = super::vq::Codebook { channels: cb.channels, rows: cb.rows.clone(), index };
+        let cb = cb.columns(0..cb.channels, in_file_order(&cb));
         *chans = cb.decoded_channels();
         q.codebooks.push((*g, cb));
     }
@@ -616,7 +648,7 @@ mod tests {
         let memo = crate::rate::vq::Memo::default();
         let rows_by_scene = |level: &[u8]| {
             let (mut q, order) = quantise_ordered(&s, &Steps::default(), level);
-            apply_codebooks(&mut q, &order, &w, [16, 0, 0], Some(&memo));
+            apply_codebooks(&mut q, &order, &w, [16, 0, 0], false, Some(&memo));
             let (_, _, chans) = q.groups.iter().find(|g| g.0 == Group::Sh1).expect("band 1");
             let mut rows = vec![Vec::new(); s.len()];
             order.iter().enumerate().for_each(|(f, &i)| rows[i] = chans.iter().map(|c| c[f]).collect::<Vec<i32>>());

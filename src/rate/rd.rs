@@ -673,8 +673,10 @@ fn step_pass<F: FnMut(&Trial)>(
 }
 
 /// Per SH band up to `degree`, in order: a codebook of each of [`VQ_ROWS`] rows at each of
-/// [`VQ_STEPS`] × the band's step, or per-coefficient coding as in `start` (whole-file J; the
-/// start stays a candidate, so the result's J is never above the start's).
+/// [`VQ_STEPS`] × the band's step, or per-coefficient coding as in `start`; then, for two bands
+/// or more, one joint codebook for all of them (`sh_joint`) of each of [`VQ_ROWS`] rows at each
+/// of [`VQ_STEPS`] × `start`'s steps, or the bands as chosen (whole-file J; the start stays a
+/// candidate, so the result's J is never above the start's).
 fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: EncodeConfig, degree: u8) -> Result<EncodeConfig, SceneError> {
     let mut chosen = start;
     for b in 1..=chosen.max_sh_degree.min(degree).min(3) {
@@ -688,6 +690,20 @@ fn vq_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: Enco
                 c.sh_vq[bi] = k;
                 c.steps.sh_rest[bi] *= m;
                 (format!("sh_vq band{b} K={k} step×{m:.3}"), c)
+            })
+            .collect();
+        let keep = (log.j(bytes, d), chosen);
+        chosen = log.stage(trials, keep, cands)?.1;
+    }
+    if chosen.max_sh_degree.min(degree) >= 2 {
+        let Outcome { bytes, d, .. } = trials.one(&chosen)?;
+        let cands = VQ_ROWS
+            .iter()
+            .flat_map(|&k| VQ_STEPS.iter().map(move |&m| (k, m)))
+            .map(|(k, m)| {
+                let mut c = EncodeConfig { sh_vq: [k, 0, 0], sh_joint: true, ..start };
+                c.steps.sh_rest = c.steps.sh_rest.map(|s| s * m);
+                (format!("sh_vq joint K={k} step×{m:.3}"), c)
             })
             .collect();
         let keep = (log.j(bytes, d), chosen);
@@ -900,6 +916,12 @@ pub fn between(from: &EncodeConfig, to: &EncodeConfig) -> Vec<(String, EncodeCon
         c.sh_vq[band] = to.sh_vq[band];
         push(format!("SH band {}", band + 1), c);
     }
+    // One codebook for all bands or one per band: every band's choice together.
+    if from.sh_joint != to.sh_joint {
+        let mut c = EncodeConfig { sh_vq: to.sh_vq, sh_drop: to.sh_drop, sh_joint: to.sh_joint, ..*from };
+        c.steps.sh_rest = to.steps.sh_rest;
+        push("SH joint codebook".into(), c);
+    }
     out
 }
 
@@ -927,8 +949,15 @@ pub fn pruning_opacity(trials: &mut Trials, lambda: Lambda, config: &EncodeConfi
     // thresholds without removal errors, so the outcomes recorded under these configurations
     // are never wanted with codebooks of their own.)
     let memo = &trials.ev.cache.codebooks;
-    for (g, cb) in trials.ev.codebooks(&base)? {
-        memo.pin(usize::from(g.sh_band()), Some(&cb));
+    let books = trials.ev.codebooks(&base)?;
+    if base.sh_joint && !books.is_empty() {
+        // One codebook of all bands: "band 1"'s (`quantise::apply_codebooks`).
+        let parts: Vec<&super::vq::Codebook> = books.iter().map(|b| &b.1).collect();
+        memo.pin(1, Some(&super::vq::Codebook::beside(&parts)));
+    } else {
+        for (g, cb) in books {
+            memo.pin(usize::from(g.sh_band()), Some(&cb));
+        }
     }
     let cands =
         PRUNE_OPACITIES.iter().map(|&m| (format!("prune opacity<{m}/255"), EncodeConfig { min_opacity: m / 255.0, ..base })).collect();
@@ -1174,12 +1203,13 @@ mod tests {
     }
 
     /// The codebook stage keeps per-coefficient coding unless a codebook lowers J, and chooses a
-    /// codebook for some λ.
+    /// codebook for some λ. Its candidates: every K and step per band, then every K and step for
+    /// one joint codebook of the bands.
     #[test]
     fn the_search_picks_codebooks_only_when_j_is_lower() {
         let scene = crate::sample::scene(600, 3);
-        assert!(scene.sh_degree > 0);
-        let candidates = usize::from(scene.sh_degree) * VQ_ROWS.len() * VQ_STEPS.len();
+        assert!(scene.sh_degree >= 2);
+        let candidates = (usize::from(scene.sh_degree) + 1) * VQ_ROWS.len() * VQ_STEPS.len();
         let vq = |c: &EncodeConfig| c.sh_vq != [0; 3];
         let picked = stage_lowers_j(&scene, [0.0, 50.0, 2000.0], candidates, vq, |t, log, start| vq_stage(t, log, start, scene.sh_degree));
         assert!(picked, "no λ chose a codebook");

@@ -50,6 +50,25 @@ impl Codebook {
         (0..self.len()).map(|i| self.rows[i * self.channels + j]).collect()
     }
 
+    /// The codebook of channels `cols` of these rows (every row kept, duplicates too), with
+    /// `index`.
+    pub fn columns(&self, cols: std::ops::Range<usize>, index: Vec<u32>) -> Codebook {
+        let rows = self.rows.chunks_exact(self.channels.max(1)).flat_map(|r| r[cols.clone()].iter().copied()).collect();
+        Codebook { channels: cols.len(), rows, index }
+    }
+
+    /// The rows of `parts` side by side (each part's channels after the previous part's), with
+    /// the first part's index: the inverse of [`Codebook::columns`].
+    ///
+    /// # Panics
+    /// If the parts do not have the same number of rows.
+    pub fn beside(parts: &[&Codebook]) -> Codebook {
+        let k = parts.first().map_or(0, |p| p.len());
+        assert!(parts.iter().all(|p| p.len() == k), "parts of as many rows");
+        let rows = (0..k).flat_map(|r| parts.iter().flat_map(move |p| p.row(r).iter().copied())).collect();
+        Codebook { channels: parts.iter().map(|p| p.channels).sum(), rows, index: parts.first().map_or(Vec::new(), |p| p.index.clone()) }
+    }
+
     /// The rows the codebook restores, channel-major like [`super::Quantised::groups`]:
     /// `[channel][row]`.
     pub fn decoded_channels(&self) -> Vec<Vec<i32>> {

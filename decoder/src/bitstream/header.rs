@@ -2,7 +2,7 @@
 
 use super::{
     ByteReader, ByteWriter, MAGIC, MAX_GAUSSIANS, MAX_GAUSSIANS_PER_BYTE, MAX_SECTIONS, VERSION_MAJOR, VERSION_MAJOR_ANCHORS,
-    VERSION_MAJOR_CODEBOOKS, VERSION_MAJOR_LEVELS, VERSION_MAJOR_NEIGHBOURS, VERSION_MAJOR_UNIFORM,
+    VERSION_MAJOR_CODEBOOKS, VERSION_MAJOR_LEVELS, VERSION_MAJOR_NEIGHBOURS, VERSION_MAJOR_SHARED, VERSION_MAJOR_UNIFORM,
 };
 use crate::error::{self, DecodeError, FormatErrorKind, Limit, Place};
 
@@ -12,8 +12,8 @@ pub const HEADER_BYTES: usize = 16;
 /// The fixed header's fields (the section count is the section table's length).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Header {
-    /// Format major version (this crate reads 3 to 6 and 8, the explicit profile, and 7, the
-    /// anchor profile).
+    /// Format major version (this crate reads 3 to 6, 8 and 9, the explicit profile, and 7,
+    /// the anchor profile).
     pub version_major: u8,
     /// Format minor version (a reader accepts any).
     pub version_minor: u8,
@@ -24,7 +24,7 @@ pub struct Header {
 }
 
 impl Header {
-    /// Whether the file has a levels section (formats 4 to 6 and 8, SPEC §3.1); a 3.0 file's
+    /// Whether the file has a levels section (formats 4 to 6, 8 and 9, SPEC §3.1); a 3.0 file's
     /// layout is one level of 65,536-Gaussian chunks.
     pub fn has_levels(&self) -> bool {
         (VERSION_MAJOR_LEVELS..=VERSION_MAJOR).contains(&self.version_major) || self.has_neighbours()
@@ -35,20 +35,26 @@ impl Header {
         self.version_major == VERSION_MAJOR_ANCHORS
     }
 
-    /// Whether the file may hold SH codebooks (formats 5, 6 and 8, SPEC §3.2).
+    /// Whether the file may hold SH codebooks (formats 5, 6, 8 and 9, SPEC §3.2).
     pub fn has_codebooks(&self) -> bool {
         (VERSION_MAJOR_CODEBOOKS..=VERSION_MAJOR).contains(&self.version_major) || self.has_neighbours()
     }
 
-    /// Whether each level has its own parameter sections (formats 6 and 8, SPEC §4): level
+    /// Whether each level has its own parameter sections (formats 6, 8 and 9, SPEC §4): level
     /// `l`'s are the sections of chunk `l`; before 6.0 every level uses those of chunk 0.
     pub fn has_level_params(&self) -> bool {
         self.version_major == VERSION_MAJOR || self.has_neighbours()
     }
 
-    /// Whether channel tables may be neighbour-context tables (mode 3, format 8, SPEC §4.3).
+    /// Whether channel tables may be neighbour-context tables (mode 3, formats 8 and 9, SPEC
+    /// §4.3).
     pub fn has_neighbours(&self) -> bool {
-        self.version_major == VERSION_MAJOR_NEIGHBOURS
+        matches!(self.version_major, VERSION_MAJOR_NEIGHBOURS | VERSION_MAJOR_SHARED)
+    }
+
+    /// Whether an SH band may share the row index of the band below (format 9, SPEC §3.2).
+    pub fn has_shared_index(&self) -> bool {
+        self.version_major == VERSION_MAJOR_SHARED
     }
 
     /// The chunk of the parameter sections that level `level`'s data sections use.
@@ -72,7 +78,7 @@ pub fn read_header(bytes: &[u8]) -> Result<(Header, usize), DecodeError> {
     }
     let major = r.u8("version")?;
     let minor = r.u8("version")?;
-    if !(VERSION_MAJOR_UNIFORM..=VERSION_MAJOR_NEIGHBOURS).contains(&major) {
+    if !(VERSION_MAJOR_UNIFORM..=VERSION_MAJOR_SHARED).contains(&major) {
         return Err(error::unsupported_version(major, minor));
     }
     let count = r.u16("section count")? as usize;

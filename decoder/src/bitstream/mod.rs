@@ -47,8 +47,12 @@ pub const VERSION_MAJOR: u8 = 6;
 /// profile's levels, groups and codebooks.
 pub const VERSION_MAJOR_ANCHORS: u8 = 7;
 /// Format 8.0: the explicit profile of 6.0 with neighbour-context tables (table mode 3, SPEC
-/// §4.3), written for files that use one. The newest major version this crate reads.
+/// §4.3), written for files that use one.
 pub const VERSION_MAJOR_NEIGHBOURS: u8 = 8;
+/// Format 9.0: 8.0 with SH bands that share the row index of the band below (one codebook row
+/// per Gaussian for several bands, SPEC §3.2), written for files that have one. The newest
+/// major version this crate reads.
+pub const VERSION_MAJOR_SHARED: u8 = 9;
 /// Format 5.0: SH codebooks (SPEC §3.2), written for files with codebooks whose levels share one
 /// set of parameter sections.
 pub const VERSION_MAJOR_CODEBOOKS: u8 = 5;

@@ -33,6 +33,15 @@ pub struct GroupParams {
     pub codebook: Option<Arc<Codebook>>,
 }
 
+impl GroupParams {
+    /// Whether this SH band shares the row index of the band below (SPEC §3.2, format 9): a
+    /// band with a codebook whose parameter section holds no channel, so its data sections hold
+    /// no stream.
+    pub fn shares_index(&self) -> bool {
+        self.codebook.is_some() && self.tables.is_empty()
+    }
+}
+
 /// A decoded codebook (SPEC §3.2): `rows` rows of the band's channels, dequantised, row-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Codebook {
@@ -105,17 +114,23 @@ pub fn write_codebook(rows: usize, params: &[u8], streams: &[u8]) -> Vec<u8> {
 
 /// Reads the parameter section of group `g`; it must be consumed exactly. With `codebook` (an SH
 /// band coded by vector quantisation, SPEC §3.2) it holds one channel, the row index, whose
-/// step is ignored. `neighbours`: mode-3 tables are allowed (format 8).
+/// step is ignored, or — with `shared`, a band above 1 in a file of format 9 — no channel (the
+/// band shares the index of the band below, [`GroupParams::shares_index`]). `neighbours`:
+/// mode-3 tables are allowed (formats 8 and 9).
 pub fn read_params(
     g: Group,
     r: &mut ByteReader<'_>,
     codebook: Option<Arc<Codebook>>,
     neighbours: bool,
+    shared: bool,
 ) -> Result<GroupParams, DecodeError> {
     let channels = if codebook.is_some() { 1 } else { g.channels() };
+    let shares = shared && codebook.is_some() && r.clone().u8("channel count").is_ok_and(|c| c == 0);
     let mut p = GroupParams { steps: Vec::new(), tables: Vec::new(), grid: None, codebook };
     if g == Group::Position {
         p = read_position_params(r)?;
+    } else if shares {
+        r.u8("channel count")?;
     } else {
         read_channel_tables(r, channels, &mut p, neighbours)?;
     }
@@ -208,13 +223,29 @@ pub fn read_group_params(c: &Container<'_>, g: Group, chunks: usize) -> Result<V
         Some(mut r) => Some(Arc::new(read_codebook(g, &mut r, header.gaussians as usize, header.has_neighbours())?)),
         None => None,
     };
+    let shared = header.has_shared_index() && g.sh_band() >= 2;
     let read = |chunk: u16| {
         if c.section(g.params_kind(), chunk).is_none() {
             return Err(c.missing(SectionId { kind: g.params_kind(), chunk }, g.params_name()));
         }
-        read_params(g, &mut c.reader(g.params_kind(), chunk), codebook.clone(), header.has_neighbours())
+        read_params(g, &mut c.reader(g.params_kind(), chunk), codebook.clone(), header.has_neighbours(), shared)
     };
-    (0..chunks as u16).into_par_iter().map(read).collect()
+    let params: Vec<GroupParams> = (0..chunks as u16).into_par_iter().map(read).collect::<Result<_, _>>()?;
+    // A band that shares the index of the band below does so in every level, and the band
+    // below has a codebook of as many rows (SPEC §3.2).
+    if let Some(cb) = params.iter().find(|p| p.shares_index()).and_then(|p| p.codebook.as_ref()) {
+        if let Some(l) = params.iter().position(|p| !p.shares_index()) {
+            return Err(c.reader(g.params_kind(), l as u16).corrupt("a band that shares the index of the band below in some levels only"));
+        }
+        let below = match c.codebook(Group::for_band(g.sh_band() - 1))? {
+            Some(mut r) => r.varint("codebook rows")? as usize,
+            None => 0,
+        };
+        if below != cb.rows {
+            return Err(c.reader(g.params_kind(), 0).corrupt("a shared row index whose band below has no codebook of as many rows"));
+        }
+    }
+    Ok(params)
 }
 
 #[cfg(test)]
@@ -227,18 +258,18 @@ mod tests {
         ChannelTable::write_coded(&mut t, 0, &[3, 1, 1]);
         let grid = ([1.0, -2.0, 0.5], [0.25, 0.25, 0.125], 7);
         let bytes = write_position_params(&grid, &t.buf);
-        let p = read_params(Group::Position, &mut ByteReader::new(&bytes), None, false).unwrap();
+        let p = read_params(Group::Position, &mut ByteReader::new(&bytes), None, false, false).unwrap();
         assert_eq!(p.grid, Some(grid));
         assert_eq!(p.tables.len(), 1);
         let mut c = ByteWriter::new();
         ChannelTable::write_constant(&mut c, 4);
         let bytes = write_channel_params(&[0.5, 0.25, -1.0], [&c.buf[..], &t.buf, &c.buf].into_iter());
-        let p = read_params(Group::Scale, &mut ByteReader::new(&bytes), None, false).unwrap();
+        let p = read_params(Group::Scale, &mut ByteReader::new(&bytes), None, false, false).unwrap();
         assert_eq!((p.steps, p.tables[0].clone()), (vec![0.5, 0.25, -1.0], ChannelTable::Constant(4)));
         // Scale has 3 channels, not 1; and a parameter section must be consumed exactly.
-        assert_eq!(read_params(Group::Opacity, &mut ByteReader::new(&bytes), None, false).unwrap_err().class(), "format");
+        assert_eq!(read_params(Group::Opacity, &mut ByteReader::new(&bytes), None, false, false).unwrap_err().class(), "format");
         let mut longer = bytes.clone();
         longer.push(0);
-        assert_eq!(read_params(Group::Scale, &mut ByteReader::new(&longer), None, false).unwrap_err().class(), "format");
+        assert_eq!(read_params(Group::Scale, &mut ByteReader::new(&longer), None, false, false).unwrap_err().class(), "format");
     }
 }

@@ -327,7 +327,7 @@ pub fn write_padded(header: &Header, sections: &[Section<'_>]) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bitstream::{VERSION_MAJOR, VERSION_MAJOR_NEIGHBOURS, VERSION_MAJOR_UNIFORM, VERSION_MINOR};
+    use crate::bitstream::{VERSION_MAJOR, VERSION_MAJOR_SHARED, VERSION_MAJOR_UNIFORM, VERSION_MINOR};
 
     /// A 3.0 header.
     fn header(gaussians: u32) -> Header {
@@ -428,10 +428,10 @@ mod tests {
     fn errors_name_their_class_and_place() {
         let bytes = sample();
         let mut b = bytes.clone();
-        b[4] = VERSION_MAJOR_NEIGHBOURS + 1;
+        b[4] = VERSION_MAJOR_SHARED + 1;
         let e = parse(&b).unwrap_err();
         let DecodeError::Unsupported(u) = &e else { panic!("{e}") };
-        assert_eq!(u.version(), Some((VERSION_MAJOR_NEIGHBOURS + 1, VERSION_MINOR)));
+        assert_eq!(u.version(), Some((VERSION_MAJOR_SHARED + 1, VERSION_MINOR)));
         // A flipped payload byte: the checksum of that section, at its payload's offset.
         let mut b = bytes.clone();
         let last = b.len() - 1;

@@ -220,6 +220,8 @@ pub(crate) fn decode_data_section(
             rotations_in_place(out).map_err(|what| r.corrupt(what))?;
         }
         _ => match &p.codebook {
+            // An SH band that shares the index of the band below (SPEC §3.2): no stream.
+            Some(_) if p.shares_index() => {}
             // Vector-quantised SH band (SPEC §3.2): one index channel, checked; the assembler
             // looks the rows up.
             Some(cb) => {
