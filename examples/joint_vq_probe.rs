@@ -3,10 +3,10 @@
 //! `cargo run --release --example joint_vq_probe -- SCENE.ply LAMBDA [K,K,…]`
 //!
 //! Runs the RD search at λ, then codes the chosen file's SH bands 1..=D two ways, both with the
-//! same weighted k-means (Lloyd from a deterministic sample of rows, squared error in SH units,
-//! each row weighted by its Gaussian's significance): each band by its own codebook of the K the
-//! search chose (the file as it is), and all bands by one codebook whose row holds every band's
-//! coefficients, one index per Gaussian. Bytes are estimated by the file's own table coder
+//! project's k-means ([`vq::kmeans`]: integer rows, each weighted by its Gaussian's significance):
+//! each band by its own codebook of the K the search chose (the file's codebooks, computed again
+//! with these weights), and all bands by one codebook whose row holds every band's coefficients,
+//! one index per Gaussian (what `EncodeConfig::sh_joint` now codes, format 9.0). Bytes are estimated by the file's own table coder
 //! (codebook columns with neighbour contexts, rows sorted; indices in file order), D on the
 //! search's views; prints ΔR, ΔD and ΔJ of the joint codebook against the separate ones.
 //! Importance classes are off in both (they do not touch codebook bands).
@@ -110,7 +110,7 @@ fn main() {
         }
         let d = ev.distortion(&dequantise(&jq));
         let dr = (bb + ib - sep_bits) / 8.0;
-        let dj = d - d_sep + lambda.get() * (dr * 8.0 / 1e6);
+        let dj = d - d_sep + lambda.get() * dr * 8.0 / 1e6; // λ is per megabit
         println!(
             "joint K {k} ({} used): codebook {:.0} B + index {:.0} B, ΔR {dr:+.0} B, ΔD {:+.4}, ΔJ {dj:+.4}",
             rows.len() / dims_all,
