@@ -138,7 +138,9 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
                         (0..chunks).flat_map(|ch| (0..split).map(move |i| (ch, i * k / split..(i + 1) * k / split))).collect();
                     jobs.into_par_iter()
                         .map(|(ch, channels)| {
-                            let mut buf = vec![0.0; ranges[ch].len() * if codebook { channels.len().min(1) } else { channels.len() }];
+                            // A codebook band: one index per Gaussian (a shared index: none).
+                            let width = if codebook { usize::from(k > 0) } else { channels.len() };
+                            let mut buf = vec![0.0; ranges[ch].len() * width];
                             section(ch, channels.clone(), &mut buf).map(|()| (ch, channels, buf))
                         })
                         .collect::<Result<_, _>>()?

@@ -371,7 +371,7 @@ pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: 
         }
         let rows: Vec<Vec<i32>> = chans.iter().map(|c| by_scene.iter().map(|&i| c[i]).collect()).collect();
         let cb = super::vq::band_codebook(memo, b, &rows, weights, ks[b - 1] as usize);
-        let cb = cb.columns(0..cb.channels, in_file_order(&cb));
+        let cb = super::vq::Codebook { channels: cb.channels, rows: cb.rows.clone(), index: in_file_order(&cb) };
         *chans = cb.decoded_channels();
         q.codebooks.push((*g, cb));
     }
