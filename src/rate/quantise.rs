@@ -351,7 +351,10 @@ pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: 
         if rows.is_empty() {
             return;
         }
-        let cb = super::vq::band_codebook(memo, 1, &rows, weights, ks[0] as usize);
+        // Each channel in its dequantised units: an SH coefficient's error moves the colour
+        // alike in every band (orthonormal basis), and the bands' steps differ.
+        let scale: Vec<f32> = bands.iter().flat_map(|&gi| q.groups[gi].1.iter().copied()).collect();
+        let cb = super::vq::band_codebook(memo, 1, &rows, &scale, weights, ks[0] as usize);
         let index = in_file_order(&cb);
         let mut first = 0;
         for &gi in &bands {
@@ -370,7 +373,7 @@ pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: 
             continue;
         }
         let rows: Vec<Vec<i32>> = chans.iter().map(|c| by_scene.iter().map(|&i| c[i]).collect()).collect();
-        let cb = super::vq::band_codebook(memo, b, &rows, weights, ks[b - 1] as usize);
+        let cb = super::vq::band_codebook(memo, b, &rows, &vec![1.0; rows.len()], weights, ks[b - 1] as usize);
         let cb = super::vq::Codebook { channels: cb.channels, rows: cb.rows.clone(), index: in_file_order(&cb) };
         *chans = cb.decoded_channels();
         q.codebooks.push((*g, cb));

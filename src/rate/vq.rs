@@ -350,7 +350,18 @@ fn training_rows(pal: &Codebook, weights: &[f32], rng: &mut Rng) -> (Vec<usize>,
 /// # Panics
 /// If `weights` is not one value per row, or `k` is 0.
 pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codebook {
+    kmeans_scaled(chans, &vec![1.0; chans.len()], weights, k, seed)
+}
+
+/// [`kmeans`] with the distance of channel `j` measured in units of `scale[j]` (a row's value
+/// `x` counts as `x · scale[j]`): a codebook of channels quantised with different steps, in
+/// the dequantised values' squared error. All scales 1: [`kmeans`].
+///
+/// # Panics
+/// As [`kmeans`], and if `scale` is not one positive value per channel.
+pub fn kmeans_scaled(chans: &[Vec<i32>], scale: &[f32], weights: &[f32], k: usize, seed: u64) -> Codebook {
     assert!(k > 0, "k ≥ 1");
+    assert!(scale.len() == chans.len() && scale.iter().all(|&s| s > 0.0), "one positive scale per channel");
     let n = chans.first().map_or(0, Vec::len);
     assert_eq!(weights.len(), n, "one weight per row");
     let pal = palette(chans);
@@ -360,7 +371,7 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     let c = chans.len();
     let mut rng = Rng::new(seed);
     let (train, w) = training_rows(&pal, weights, &mut rng);
-    let rows: Vec<f32> = pal.rows.iter().map(|&x| x as f32).collect();
+    let rows: Vec<f32> = pal.rows.iter().enumerate().map(|(i, &x)| x as f32 * scale[i % c]).collect();
     let row = |d: usize| &rows[d * c..][..c];
     // k-means++ seeding (weighted D² sampling), distances kept up to date per new centre.
     let mut centroids: Vec<f32> = Vec::with_capacity(k * c);
@@ -454,19 +465,19 @@ pub fn kmeans(chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Codeb
     }
     // Integer codebook, then every distinct row to its nearest integer centroid, and every row
     // to its distinct row's.
-    let int_rows: Vec<i32> = centroids.iter().map(|&x| x.round() as i32).collect();
+    let int_rows: Vec<i32> = centroids.iter().enumerate().map(|(i, &x)| (x / scale[i % c]).round() as i32).collect();
     // A training row's last assignment is its hint (the rounded centres moved little).
     let mut hints = vec![0u32; pal.len()];
     train.iter().zip(&assign).for_each(|(&d, &a)| hints[d] = a);
-    coded_by(&pal, &rows, int_rows, &basis, &hints)
+    coded_by(&pal, &rows, int_rows, scale, &basis, &hints)
 }
 
 /// The codebook `rows` (integer, row-major) for the rows `pal` is the palette of, `values` its
-/// rows as `f32`: each distinct row to its nearest codebook row (searched in `basis`, starting
+/// rows as `f32` in units of `scale` (per channel): each distinct row to its nearest codebook row (searched in `basis`, starting
 /// from `hints[d]`), every row to its distinct row's, rows no index uses dropped ([`compact`]).
-fn coded_by(pal: &Codebook, values: &[f32], rows: Vec<i32>, basis: &Basis, hints: &[u32]) -> Codebook {
+fn coded_by(pal: &Codebook, values: &[f32], rows: Vec<i32>, scale: &[f32], basis: &Basis, hints: &[u32]) -> Codebook {
     let c = pal.channels;
-    let cen: Vec<f32> = rows.iter().map(|&x| x as f32).collect();
+    let cen: Vec<f32> = rows.iter().enumerate().map(|(i, &x)| x as f32 * scale[i % c]).collect();
     let centres = Centres::new(&cen, c, basis, (0..(cen.len() / c.max(1)) as u32).collect());
     let nearest: Vec<u32> = (0..pal.len())
         .into_par_iter()
@@ -518,46 +529,50 @@ impl Memo {
     }
 }
 
-/// The codebook of SH band `band` (1..=3) for its rows `chans[channel][row]`: the rows `memo`
-/// pins the band to when it does ([`nearest_rows`]), else [`kmeans_memo`].
+/// The codebook of SH band `band` (1..=3) for its rows `chans[channel][row]`, channel `j` in
+/// units of `scale[j]`: the rows `memo` pins the band to when it does ([`nearest_rows`]), else
+/// [`kmeans_memo`].
 ///
 /// # Panics
 /// If a pinned codebook does not have one value per channel of `chans` in each row.
-pub fn band_codebook(memo: Option<&Memo>, band: usize, chans: &[Vec<i32>], weights: &[f32], k: usize) -> Arc<Codebook> {
+pub fn band_codebook(memo: Option<&Memo>, band: usize, chans: &[Vec<i32>], scale: &[f32], weights: &[f32], k: usize) -> Arc<Codebook> {
     match memo.and_then(|m| m.pinned(band)) {
         Some(p) => {
             assert_eq!(p.0, chans.len(), "a pinned codebook of the band's channels");
-            Arc::new(nearest_rows(chans, &p.1))
+            Arc::new(nearest_rows(chans, scale, &p.1))
         }
-        None => kmeans_memo(memo, chans, weights, k, band as u64),
+        None => kmeans_memo(memo, chans, scale, weights, k, band as u64),
     }
 }
 
 /// `rows` (row-major integer rows of `chans.len()` values) as the codebook of `chans`: each row
-/// indexes its nearest (the first of equals), and rows no index uses are dropped ([`compact`]).
+/// indexes its nearest (the first of equals; channel `j` in units of `scale[j]`, as
+/// [`kmeans_scaled`]), and rows no index uses are dropped ([`compact`]).
 ///
 /// # Panics
 /// If `rows` is empty while `chans` has rows.
-pub fn nearest_rows(chans: &[Vec<i32>], rows: &[i32]) -> Codebook {
+pub fn nearest_rows(chans: &[Vec<i32>], scale: &[f32], rows: &[i32]) -> Codebook {
     let c = chans.len();
     let pal = palette(chans);
     assert!(pal.is_empty() || !rows.is_empty(), "rows to code the band with");
-    let cen: Vec<f32> = rows.iter().map(|&x| x as f32).collect();
+    let scaled = |v: &[i32]| -> Vec<f32> { v.iter().enumerate().map(|(i, &x)| x as f32 * scale[i % c]).collect() };
+    let cen = scaled(rows);
     let k: Vec<usize> = (0..rows.len() / c.max(1)).collect();
     let basis = Basis::principal(&cen, c, &k);
-    let values: Vec<f32> = pal.rows.iter().map(|&x| x as f32).collect();
-    coded_by(&pal, &values, rows.to_vec(), &basis, &vec![0; pal.len()])
+    coded_by(&pal, &scaled(&pal.rows), rows.to_vec(), scale, &basis, &vec![0; pal.len()])
 }
 
-/// [`kmeans`] of the same arguments, taken from `memo` when it holds it (keyed by a 128-bit
-/// hash of every row value, weight bit pattern, `k` and `seed`) and added to it otherwise.
-pub fn kmeans_memo(memo: Option<&Memo>, chans: &[Vec<i32>], weights: &[f32], k: usize, seed: u64) -> Arc<Codebook> {
-    let Some(memo) = memo else { return Arc::new(kmeans(chans, weights, k, seed)) };
-    let key = super::encode::key128(|h| (chans, weights.iter().map(|w| w.to_bits()).collect::<Vec<_>>(), k, seed).hash(h));
+/// [`kmeans_scaled`] of the same arguments, taken from `memo` when it holds it (keyed by a
+/// 128-bit hash of every row value, scale and weight bit pattern, `k` and `seed`) and added to
+/// it otherwise.
+pub fn kmeans_memo(memo: Option<&Memo>, chans: &[Vec<i32>], scale: &[f32], weights: &[f32], k: usize, seed: u64) -> Arc<Codebook> {
+    let Some(memo) = memo else { return Arc::new(kmeans_scaled(chans, scale, weights, k, seed)) };
+    let bits = |v: &[f32]| v.iter().map(|w| w.to_bits()).collect::<Vec<_>>();
+    let key = super::encode::key128(|h| (chans, bits(scale), bits(weights), k, seed).hash(h));
     if let Some(cb) = memo.codebooks.lock().expect("not poisoned").get(&key) {
         return cb.clone();
     }
-    let cb = Arc::new(kmeans(chans, weights, k, seed));
+    let cb = Arc::new(kmeans_scaled(chans, scale, weights, k, seed));
     memo.codebooks.lock().expect("not poisoned").insert(key, cb.clone());
     cb
 }
@@ -645,9 +660,10 @@ mod tests {
         // A third of the rows, as a pruning candidate keeps them.
         let sub: Vec<Vec<i32>> = chans.iter().map(|c| c.iter().step_by(3).copied().collect()).collect();
         let wsub: Vec<f32> = w.iter().step_by(3).copied().collect();
+        let ones = vec![1.0; sub.len()];
         let memo = Memo::default();
         memo.pin(2, Some(&base));
-        let cb = band_codebook(Some(&memo), 2, &sub, &wsub, 64);
+        let cb = band_codebook(Some(&memo), 2, &sub, &ones, &wsub, 64);
         assert!(cb.index.iter().all(|&i| (i as usize) < cb.len()));
         let base_rows: Vec<&[i32]> = (0..base.len()).map(|i| base.row(i)).collect();
         let d2 = |a: &[i32], b: &[i32]| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<i32>();
@@ -663,13 +679,33 @@ mod tests {
         let mut far = base.clone();
         far.rows.extend([1000; 9]);
         memo.pin(2, Some(&far));
-        let with_far = band_codebook(Some(&memo), 2, &sub, &wsub, 64);
+        let with_far = band_codebook(Some(&memo), 2, &sub, &ones, &wsub, 64);
         assert_eq!(with_far.decoded_channels(), cb.decoded_channels());
         assert!((0..with_far.len()).all(|i| with_far.row(i) != [1000; 9]));
         // Only the pinned band is pinned, and unpinning restores the k-means.
-        assert_eq!(*band_codebook(Some(&memo), 1, &sub, &wsub, 64), kmeans(&sub, &wsub, 64, 1));
+        assert_eq!(*band_codebook(Some(&memo), 1, &sub, &ones, &wsub, 64), kmeans(&sub, &wsub, 64, 1));
         memo.pin(2, None);
-        assert_eq!(*band_codebook(Some(&memo), 2, &sub, &wsub, 64), kmeans(&sub, &wsub, 64, 2));
+        assert_eq!(*band_codebook(Some(&memo), 2, &sub, &ones, &wsub, 64), kmeans(&sub, &wsub, 64, 2));
+    }
+
+    /// Channels of a larger scale are coded closer (their error counts more), and every row
+    /// indexes a nearest codebook row in the scaled distance.
+    #[test]
+    fn scaled_channels_are_coded_in_their_units() {
+        let (chans, w) = band(2000, 6, 5);
+        let scale = [8.0, 8.0, 8.0, 1.0, 1.0, 1.0];
+        let (plain, scaled) = (kmeans(&chans, &w, 64, 3), kmeans_scaled(&chans, &scale, &w, 64, 3));
+        let err = |cb: &Codebook, js: std::ops::Range<usize>| -> f64 {
+            let d = cb.decoded_channels();
+            js.map(|j| chans[j].iter().zip(&d[j]).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>()).sum()
+        };
+        assert!(err(&scaled, 0..3) < 0.5 * err(&plain, 0..3), "{} {}", err(&scaled, 0..3), err(&plain, 0..3));
+        assert!(err(&scaled, 3..6) > err(&plain, 3..6));
+        let d2 = |i: usize, r: &[i32]| -> f64 { (0..6).map(|j| (f64::from(chans[j][i] - r[j]) * f64::from(scale[j])).powi(2)).sum() };
+        for (i, &k) in scaled.index.iter().enumerate() {
+            let best = (0..scaled.len()).map(|r| d2(i, scaled.row(r))).fold(f64::INFINITY, f64::min);
+            assert!(d2(i, scaled.row(k as usize)) <= best * (1.0 + 1e-6), "row {i}");
+        }
     }
 
     #[test]
