@@ -371,7 +371,7 @@ pub fn kmeans_scaled(chans: &[Vec<i32>], scale: &[f32], weights: &[f32], k: usiz
     let c = chans.len();
     let mut rng = Rng::new(seed);
     let (train, w) = training_rows(&pal, weights, &mut rng);
-    let rows: Vec<f32> = pal.rows.iter().enumerate().map(|(i, &x)| x as f32 * scale[i % c]).collect();
+    let rows = scaled(&pal.rows, scale);
     let row = |d: usize| &rows[d * c..][..c];
     // k-means++ seeding (weighted D² sampling), distances kept up to date per new centre.
     let mut centroids: Vec<f32> = Vec::with_capacity(k * c);
@@ -472,12 +472,17 @@ pub fn kmeans_scaled(chans: &[Vec<i32>], scale: &[f32], weights: &[f32], k: usiz
     coded_by(&pal, &rows, int_rows, scale, &basis, &hints)
 }
 
+/// Row-major integer rows of `scale.len()` channels as `f32`, channel `j` times `scale[j]`.
+fn scaled(rows: &[i32], scale: &[f32]) -> Vec<f32> {
+    rows.iter().zip(scale.iter().cycle()).map(|(&x, &s)| x as f32 * s).collect()
+}
+
 /// The codebook `rows` (integer, row-major) for the rows `pal` is the palette of, `values` its
 /// rows as `f32` in units of `scale` (per channel): each distinct row to its nearest codebook row (searched in `basis`, starting
 /// from `hints[d]`), every row to its distinct row's, rows no index uses dropped ([`compact`]).
 fn coded_by(pal: &Codebook, values: &[f32], rows: Vec<i32>, scale: &[f32], basis: &Basis, hints: &[u32]) -> Codebook {
     let c = pal.channels;
-    let cen: Vec<f32> = rows.iter().enumerate().map(|(i, &x)| x as f32 * scale[i % c]).collect();
+    let cen = scaled(&rows, scale);
     let centres = Centres::new(&cen, c, basis, (0..(cen.len() / c.max(1)) as u32).collect());
     let nearest: Vec<u32> = (0..pal.len())
         .into_par_iter()
@@ -555,11 +560,10 @@ pub fn nearest_rows(chans: &[Vec<i32>], scale: &[f32], rows: &[i32]) -> Codebook
     let c = chans.len();
     let pal = palette(chans);
     assert!(pal.is_empty() || !rows.is_empty(), "rows to code the band with");
-    let scaled = |v: &[i32]| -> Vec<f32> { v.iter().enumerate().map(|(i, &x)| x as f32 * scale[i % c]).collect() };
-    let cen = scaled(rows);
+    let cen = scaled(rows, scale);
     let k: Vec<usize> = (0..rows.len() / c.max(1)).collect();
     let basis = Basis::principal(&cen, c, &k);
-    coded_by(&pal, &scaled(&pal.rows), rows.to_vec(), scale, &basis, &vec![0; pal.len()])
+    coded_by(&pal, &scaled(&pal.rows, scale), rows.to_vec(), scale, &basis, &vec![0; pal.len()])
 }
 
 /// [`kmeans_scaled`] of the same arguments, taken from `memo` when it holds it (keyed by a
