@@ -76,13 +76,16 @@ fn progressive_encode_writes_levels_that_info_shows() {
     let (a, b) = (info(&one), info(&levels));
     // 3.0 for one level, 4.0 with levels; 5.0 (levels too) when the search coded a band by a
     // codebook; 6.0 when it chose importance classes (parameters per level); 8.0 when a channel
-    // has a neighbour-context table.
+    // has a neighbour-context table; 9.0 when SH bands share one codebook's index.
     let codebooks = |v: &serde_json::Value| v["sh_bands"].as_array().unwrap().iter().any(|b| b["mode"] == "codebook");
     // A 6.0 or 8.0 file lists a step factor per level (one level: [1.0]); classes are two.
     let classes = |v: &serde_json::Value| v["level_step_factors"].as_array().unwrap().len() > 1;
     let neighbours = |v: &serde_json::Value| !v["neighbour_channels"].as_array().unwrap().is_empty();
+    let shared = |v: &serde_json::Value| v["sh_bands"].as_array().unwrap().iter().any(|b| b["index_of_band_below"] == true);
     let version = |v: &serde_json::Value, plain: &str| {
-        if neighbours(v) {
+        if shared(v) {
+            "9.0".to_string()
+        } else if neighbours(v) {
             "8.0".to_string()
         } else if classes(v) {
             "6.0".to_string()

@@ -264,6 +264,9 @@ impl Encoder {
             // A .ply already has its structure: the term runs from the start.
             let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
+            // Training rendered the SH rest as coded (`RateTerm::render_params`) and fitted the
+            // DC to it: the DC fit would take back the rounding a second time (docs/codec.md §29).
+            config.dc_fit = false;
             stages.train_s = r.train_seconds;
             config = self.retune_tail(&s, RdViews::orbit(&s), config, &mut stages)?.0;
             trained = Some(s);
@@ -481,6 +484,7 @@ impl Encoder {
             // Its time series continues the main run's iterations.
             series[first..].iter_mut().for_each(|p| p.iteration += iters);
             config.steps = learned_steps(config.steps, &r2);
+            config.dc_fit = false; // as for a fine-tuned scene (`encode_scene_with`)
             stages.train_s += r2.train_seconds;
             let (c, sig) = self.retune_tail(&s, views.clone(), config, &mut stages)?;
             config = c;
@@ -674,6 +678,7 @@ impl Encoder {
             min_opacity: config.min_opacity,
             min_removal_error: config.min_removal_error,
             tail: config.tail,
+            dc_fit: config.dc_fit,
             orbit_psnr,
             stages,
             train,

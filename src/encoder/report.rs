@@ -105,6 +105,9 @@ pub struct EncodeReport {
     /// Importance classes of the file (format 6.0): the least significant `share` of the
     /// Gaussians with every step × `factor` (share 0: none).
     pub tail: crate::rate::CoarseTail,
+    /// Whether each DC took back the mean colour its coded SH rest bands lost over the views
+    /// (`EncodeConfig::dc_fit`, an encoder-only choice the RD search makes).
+    pub dc_fit: bool,
     /// Mean PSNR of the decoded scene against the input scene (for a dataset: against the trained
     /// scene before coding) over the 8 orbit views at 256×256, as `eval --reference --orbit 8`.
     pub orbit_psnr: f64,

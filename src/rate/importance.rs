@@ -70,20 +70,47 @@ fn sum_over<const K: usize>(
     per_view: impl Fn(&gscodec_decoder::Camera) -> [Vec<f32>; K] + Sync + Send,
 ) -> [Vec<f32>; K] {
     let views: Vec<[Vec<f32>; K]> = cams.par_iter().map(&per_view).collect();
-    std::array::from_fn(|k| {
-        let mut sum = vec![0.0f64; n];
-        for view in &views {
-            for (s, &c) in sum.iter_mut().zip(&view[k]) {
-                *s += c as f64;
-            }
+    std::array::from_fn(|k| sum_in_order(n, views.iter().map(|v| &v[k])))
+}
+
+/// The per-Gaussian sum of `views` (`n` values each), in their order, in f64.
+fn sum_in_order<'a>(n: usize, views: impl Iterator<Item = &'a Vec<f32>>) -> Vec<f32> {
+    let mut sum = vec![0.0f64; n];
+    for view in views {
+        for (s, &c) in sum.iter_mut().zip(view) {
+            *s += c as f64;
         }
-        sum.into_iter().map(|v| v as f32).collect()
-    })
+    }
+    sum.into_iter().map(|v| v as f32).collect()
+}
+
+/// [`Importance::view_basis`] of `scene` seen from `cams`, `weights` each camera's blending
+/// weight per Gaussian ([`contributions`]). Each Gaussian sums its views in order, in f64.
+fn view_basis<'a>(scene: &Splats, cams: &[gscodec_decoder::Camera], weights: impl Iterator<Item = &'a [f32]>) -> Vec<[f32; 15]> {
+    let weights: Vec<&[f32]> = weights.collect();
+    let centres: Vec<glam::Vec3> = cams.iter().map(gscodec_decoder::Camera::center).collect();
+    (0..scene.len())
+        .into_par_iter()
+        .map(|i| {
+            let p = glam::Vec3::from(scene.positions[i]);
+            let (mut sum, mut total) = ([0.0f64; 15], 0.0f64);
+            for (w, c) in weights.iter().map(|w| w[i]).zip(&centres).filter(|x| x.0 > 0.0) {
+                let basis = gscodec_decoder::math::sh_basis(3, (p - *c).normalize_or_zero());
+                sum.iter_mut().zip(&basis[1..]).for_each(|(s, &b)| *s += f64::from(w) * f64::from(b));
+                total += f64::from(w);
+            }
+            if total > 0.0 {
+                sum.map(|s| (s / total) as f32)
+            } else {
+                [0.0; 15]
+            }
+        })
+        .collect()
 }
 
 /// Both measures of a scene's Gaussians from one set of views: `significance` (coverage, which
 /// orders the importance classes and weights SH band dropping) and `removal` (what pruning
-/// ranks by).
+/// ranks by); and where each Gaussian is seen from, `view_basis`.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Importance {
     /// [`significance_on`].
@@ -91,6 +118,13 @@ pub struct Importance {
     /// Per Gaussian, the sum over the views of the squared colour error its removal alone causes
     /// ([`gscodec_decoder::render::removal_errors`]).
     pub removal: Vec<f32>,
+    /// Per Gaussian, the SH rest basis functions `Y_1 … Y_15` ([`gscodec_decoder::math::sh_basis`]
+    /// at degree 3) at its view direction, averaged over the views with its blending weight in
+    /// each as the weight; zeros for a Gaussian no view sees. The colour a change `Δc_k` of its
+    /// rest coefficients adds is, in the least-squares sense over those views, the constant
+    /// `Σ_k Δc_k · view_basis[k]`, which the DC can take back ([`super::quantise::compensate_dc`]).
+    /// Empty for a scene without SH rest bands.
+    pub view_basis: Vec<[f32; 15]>,
 }
 
 impl Importance {
@@ -103,11 +137,16 @@ impl Importance {
     /// view's pixels ([`contributions_and_removal_errors`]).
     pub fn on(scene: &Splats, cams: &[gscodec_decoder::Camera], background: [f32; 3]) -> Self {
         let opts = RenderOptions { background, ..RenderOptions::default() };
-        let [significance, removal] = sum_over(scene.len(), cams, |cam| {
-            let (weights, errors) = contributions_and_removal_errors(scene, cam, &opts);
-            [weights, errors]
-        });
-        Importance { significance, removal }
+        let views: Vec<[Vec<f32>; 2]> = cams
+            .par_iter()
+            .map(|cam| {
+                let (weights, errors) = contributions_and_removal_errors(scene, cam, &opts);
+                [weights, errors]
+            })
+            .collect();
+        let [significance, removal] = std::array::from_fn(|k| sum_in_order(scene.len(), views.iter().map(|v| &v[k])));
+        let view_basis = if scene.sh_degree == 0 { Vec::new() } else { view_basis(scene, cams, views.iter().map(|v| &v[0][..])) };
+        Importance { significance, removal, view_basis }
     }
 
     /// Gaussians measured.
@@ -182,6 +221,32 @@ mod tests {
         let total: f64 = sig.iter().map(|&v| v as f64).sum();
         assert!(covered > 1000.0, "{covered}");
         assert!((total - covered).abs() < 1e-4 * covered, "Σ significance {total} vs covered {covered}");
+    }
+
+    /// A Gaussian at the orbit's centre is seen from every view at the same angle below the
+    /// horizon, so its mean direction is straight down along the up axis and the band-1 basis
+    /// averages to `(−C1·sin e, 0, 0)` (Y₁ = −C1·y); a Gaussian no view sees gets zeros.
+    #[test]
+    fn the_view_basis_is_the_basis_at_the_mean_view() {
+        let mut s = Splats::new(1);
+        s.push([0.0; 3], [-2.0; 3], [1.0, 0.0, 0.0, 0.0], 4.0, [0.0; 3], &[0.0; 9]);
+        // Around it, far enough not to hide it, and seen: the orbit frames the robust extent.
+        for p in [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.0, 0.3, 0.0], [0.0, -0.3, 0.0]] {
+            s.push(p, [-3.0; 3], [1.0, 0.0, 0.0, 0.0], 4.0, [0.0; 3], &[0.0; 9]);
+        }
+        let (centre, _) = crate::views::orbit_frame(&s);
+        s.positions[0] = centre.into();
+        let cams = orbit_cameras(&s, 8, 64, 64, UpAxis::NegY.vector());
+        s.push([0.0, -1000.0, 0.0], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 4.0, [0.0; 3], &[0.0; 9]);
+        let m = Importance::on(&s, &cams, [0.0; 3]);
+        let c1 = gscodec_decoder::math::sh_basis(1, glam::Vec3::Y)[1].abs();
+        let e = crate::views::ORBIT_ELEVATION;
+        let vb = m.view_basis[0];
+        assert!(m.significance[0] > 8.0, "every view sees it");
+        assert!((vb[0] - (-c1 * e.sin())).abs() < 1e-4, "{vb:?}, elevation {e}");
+        assert!(vb[1].abs() < 1e-3 && vb[2].abs() < 1e-3, "{vb:?}");
+        assert_eq!(m.view_basis[7], [0.0; 15], "unseen");
+        assert!(Importance::on(&Splats::new(0), &cams, [0.0; 3]).view_basis.is_empty(), "no rest bands, no basis");
     }
 
     #[test]

@@ -63,6 +63,11 @@ pub struct EncodeConfig {
     /// Importance classes: the least significant Gaussians coded with coarser steps
     /// ([`CoarseTail`]; the RD search sets it).
     pub tail: CoarseTail,
+    /// Each Gaussian's DC takes back the mean colour, over the views it is seen from, that
+    /// coding its SH rest bands lost (band dropping and the degree cut: [`quantise::fit_dc`];
+    /// codebooks and rounding: [`quantise::compensate_dc`]). Needs the input's importance (its
+    /// view basis). The RD search sets it where it lowers `J`.
+    pub dc_fit: bool,
 }
 
 /// Importance classes (format 6.0, SPEC §4): the least significant `share` of the Gaussians kept
@@ -141,6 +146,7 @@ impl Default for EncodeConfig {
             neighbour_tables: true,
             progressive: false,
             tail: CoarseTail::OFF,
+            dc_fit: false,
         }
     }
 }
@@ -161,7 +167,11 @@ impl EncodeConfig {
     /// removal error, SH band dropping, or SH vector quantisation, whose k-means weighs rows by
     /// significance).
     pub fn needs_importance(&self) -> bool {
-        self.min_removal_error > 0.0 || self.sh_drop.iter().any(|&t| t > 0.0) || self.sh_vq.iter().any(|&k| k > 0) || !self.tail.is_off()
+        self.min_removal_error > 0.0
+            || self.sh_drop.iter().any(|&t| t > 0.0)
+            || self.sh_vq.iter().any(|&k| k > 0)
+            || !self.tail.is_off()
+            || self.dc_fit
     }
 }
 
@@ -172,16 +182,26 @@ impl EncodeConfig {
 /// # Panics
 /// If `importance` does not measure every Gaussian of `splats`.
 pub fn pruned(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> (Splats, Option<Vec<f32>>) {
+    let keep = kept(splats, config, importance);
+    let mut out = splats.clone();
+    out.retain_indices(|i| keep[i]);
+    (out, importance.map(|m| kept_of(&m.significance, &keep)))
+}
+
+/// The entries of `v` (one per Gaussian) that `keep` keeps.
+fn kept_of<T: Copy>(v: &[T], keep: &[bool]) -> Vec<T> {
+    v.iter().zip(keep).filter(|x| *x.1).map(|x| *x.0).collect()
+}
+
+/// Per Gaussian of `splats`, whether [`pruned`] keeps it.
+fn kept(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> Vec<bool> {
     assert!(importance.is_none_or(|m| m.len() == splats.len() && m.removal.len() == splats.len()), "one measure per Gaussian");
-    let keep: Vec<bool> = (0..splats.len())
+    (0..splats.len())
         .map(|i| {
             opaque_enough(splats, i, config)
                 && (config.min_removal_error <= 0.0 || importance.is_none_or(|m| m.removal[i] >= config.min_removal_error))
         })
-        .collect();
-    let mut out = splats.clone();
-    out.retain_indices(|i| keep[i]);
-    (out, importance.map(|m| m.significance.iter().zip(&keep).filter(|x| *x.1).map(|x| *x.0).collect()))
+        .collect()
 }
 
 /// Whether Gaussian `i` of `splats` passes `config`'s opacity threshold, [`pruned`]'s first test.
@@ -197,8 +217,16 @@ pub fn prepared(splats: &Splats, config: &EncodeConfig, importance: Option<&Impo
     prepared_with_significance(splats, config, importance).0
 }
 
-/// [`prepared`], and the significance of the Gaussians it keeps when there is one.
-fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> (Splats, Option<Vec<f32>>) {
+/// [`prepared`], the significance of the Gaussians it keeps when there is one, and, with
+/// [`EncodeConfig::dc_fit`] and SH rest bands, the kept Gaussians' view basis
+/// ([`Importance::view_basis`]), with which their DC has taken back the mean colour the dropped
+/// bands and the degree cut took away ([`quantise::fit_dc`]) and quantisation will take back
+/// what rounding and codebooks take ([`quantise::compensate_dc`]).
+fn prepared_with_significance(
+    splats: &Splats,
+    config: &EncodeConfig,
+    importance: Option<&Importance>,
+) -> (Splats, Option<Vec<f32>>, Option<Vec<[f32; 15]>>) {
     let own;
     let importance = match importance {
         None if config.needs_importance() => {
@@ -207,16 +235,24 @@ fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, importance
         }
         m => m,
     };
-    let (mut s, sig) = pruned(splats, config, importance);
+    let keep = kept(splats, config, importance);
+    let mut s = splats.clone();
+    s.retain_indices(|i| keep[i]);
+    let sig = importance.map(|m| kept_of(&m.significance, &keep));
+    let basis = importance.filter(|m| config.dc_fit && !m.view_basis.is_empty()).map(|m| kept_of(&m.view_basis, &keep));
+    let before = basis.as_ref().map(|_| (s.sh_rest.clone(), s.sh_degree));
     if let Some(w) = sig.as_ref().filter(|_| config.sh_drop.iter().any(|&t| t > 0.0)) {
         quantise::drop_sh_bands(&mut s, w, config.sh_drop);
     }
     if s.sh_degree > config.max_sh_degree {
         s = s.with_sh_degree(config.max_sh_degree);
     }
+    if let (Some(basis), Some((rest, degree))) = (&basis, &before) {
+        quantise::fit_dc(&mut s, rest, *degree, basis);
+    }
     quantise::canonical_axes(&mut s);
     quantise::cap_opacities(&mut s, config.steps.opacity);
-    (s, sig)
+    (s, sig, basis)
 }
 
 /// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
@@ -244,7 +280,7 @@ pub fn encode_cached(
 ) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let (s, sig) = prepared_with_significance(splats, config, importance);
+    let (s, sig, view_basis) = prepared_with_significance(splats, config, importance);
     let level = match &sig {
         _ if config.progressive => importance::levels(&importance::significance(&s)),
         Some(sig) => config.tail.levels(sig),
@@ -263,6 +299,9 @@ pub fn encode_cached(
     if let Some(factors) = factors {
         let nonempty: Vec<f32> = factors.into_iter().zip(&counts).filter(|x| *x.1 > 0).map(|x| x.0).collect();
         quantise::apply_level_factors(&mut q, &s, &order, &config.steps, &nonempty);
+    }
+    if let Some(view_basis) = &view_basis {
+        quantise::compensate_dc(&mut q, &s, &order, view_basis);
     }
     let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, config.neighbour_tables, cache);
     Ok((bytes, report, q))

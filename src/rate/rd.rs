@@ -746,6 +746,16 @@ fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: En
     Ok(log.stage(trials, (log.j(b, d), start), tail_variants(&start))?.1)
 }
 
+/// The search's last stage: [`EncodeConfig::dc_fit`] turned off where that lowers `J` (the
+/// search chooses everything else with it on, for a scene with SH rest bands).
+fn dc_fit_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: EncodeConfig) -> Result<EncodeConfig, SceneError> {
+    if !start.dc_fit {
+        return Ok(start);
+    }
+    let Outcome { bytes: b, d, .. } = trials.one(&start)?;
+    Ok(log.stage(trials, (log.j(b, d), start), vec![("dc_fit off".into(), EncodeConfig { dc_fit: false, ..start })])?.1)
+}
+
 /// The importance classes of `config` chosen again for `trials`' scene, as the search's last
 /// stage ([`tail_stage`]) chooses them, from `config` without classes, with `D` on the trials'
 /// views; every other choice of `config` stays. For a scene that changed after the search (the
@@ -769,7 +779,8 @@ pub fn retune_tail(trials: &mut Trials, lambda: Lambda, config: EncodeConfig) ->
 /// step is chosen separately: first the significance pruning threshold, then the SH degree and
 /// the per-Gaussian SH band dropping (whole-file J), then per group the multiplier of the fine
 /// step minimising `ΔD_g + λ·R_g`, then the SH rest dead zone, then per SH band a codebook
-/// (vector quantisation) or none, then the importance classes ([`CoarseTail`]) or none.
+/// (vector quantisation) or none, then the importance classes ([`CoarseTail`]) or none, all
+/// with the DC fit ([`EncodeConfig::dc_fit`]) on, and last whether it stays on.
 /// `on_step` sees each trial.
 ///
 /// The trials of each stage are independent and run in parallel; the result (and the trial
@@ -805,7 +816,9 @@ pub fn search_with(
     }
     let mut clock = Clock::new(trials);
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
-    let fine = EncodeConfig { steps: fine, learned_tables: false, ..EncodeConfig::default() };
+    // The DC fit from the start: with it, leaving SH bands out and coarser SH steps cost less,
+    // which every choice below weighs (docs/codec.md §29).
+    let fine = EncodeConfig { steps: fine, learned_tables: false, dc_fit: scene.sh_degree > 0, ..EncodeConfig::default() };
     trials.calibrate(&fine)?;
     // 1. Pruning by removal error (at fine steps): the colour error that dropping the Gaussian
     //    alone causes in the views. It subsumes opacity, footprint and coverage thresholds,
@@ -878,6 +891,9 @@ pub fn search_with(
     // 7. Importance classes: the least significant Gaussians with coarser steps.
     let chosen = tail_stage(trials, &mut log, chosen)?;
     clock.lap(trials, "importance classes");
+    // 8. The DC fit (each DC takes back the mean colour its coded SH rest lost) off, tried last.
+    let chosen = dc_fit_stage(trials, &mut log, chosen)?;
+    clock.lap(trials, "DC fit");
     Ok((EncodeConfig { learned_tables: true, ..chosen }, log.path))
 }
 
@@ -909,6 +925,7 @@ pub fn between(from: &EncodeConfig, to: &EncodeConfig) -> Vec<(String, EncodeCon
         push(format!("{} step", g.name()), c);
     }
     push("importance classes".into(), EncodeConfig { tail: to.tail, ..*from });
+    push("DC fit".into(), EncodeConfig { dc_fit: to.dc_fit, ..*from });
     for band in 0..3 {
         let mut c = *from;
         c.steps.sh_rest[band] = to.steps.sh_rest[band];
@@ -1041,7 +1058,8 @@ mod tests {
         let (_, path) = search(&scene, Lambda::new(20.0).unwrap(), |_| {}).unwrap();
         let orbit = |size| RdViews::cameras(orbit_cameras(&scene, VIEWS, size, size, UpAxis::NegY.vector()), [0.0; 3]);
         let (fine, coarse) = (Evaluator::with_views(&scene, orbit(PRUNING_SIZE)), Evaluator::new(&scene));
-        let fine_config = EncodeConfig { steps: fine_steps(), learned_tables: false, ..EncodeConfig::default() };
+        let fine_config =
+            EncodeConfig { steps: fine_steps(), learned_tables: false, dc_fit: scene.sh_degree > 0, ..EncodeConfig::default() };
         for (name, t) in [("prune none", 0.0), ("prune all", f32::INFINITY)] {
             let config = EncodeConfig { min_removal_error: t, ..fine_config };
             let trial = path.iter().find(|p| p.change == name).unwrap();
@@ -1148,6 +1166,7 @@ mod tests {
         configs.push((None, EncodeConfig { steps: Steps { rest_deadzone: 0.3, ..start.steps }, ..start }));
         configs.push((None, EncodeConfig { sh_vq: [16, 0, 0], ..start }));
         configs.push((None, EncodeConfig { sh_vq: [16, 8, 0], ..start }));
+        configs.push((None, EncodeConfig { sh_vq: [16, 8, 0], max_sh_degree: 2, dc_fit: true, ..start }));
         let mut cached = Evaluator::new(&scene);
         cached.eval_as_base(&start).unwrap();
         assert!(cached.cache.len() >= 5, "{} groups", cached.cache.len());
@@ -1168,7 +1187,7 @@ mod tests {
             let dec = dequantise(&super::super::encode_with(&scene, c, Some(&cached.importance)).unwrap().2);
             replayed += usize::from(same_geometry(&cached.base.as_ref().unwrap().0, &dec));
         }
-        assert!(replayed >= 7, "{replayed} trials replayed"); // SH DC, 3 bands, degree, dead zone, 2 codebooks
+        assert!(replayed >= 8, "{replayed} trials replayed"); // SH DC, 3 bands, degree, dead zone, 2 codebooks, DC fit
     }
 
     /// Runs `stage` from the default configuration at each of `lambdas` on `scene`: it tries
