@@ -70,18 +70,20 @@ fn sum_over<const K: usize>(
     per_view: impl Fn(&gscodec_decoder::Camera) -> [Vec<f32>; K] + Sync + Send,
 ) -> [Vec<f32>; K] {
     let views: Vec<[Vec<f32>; K]> = cams.par_iter().map(&per_view).collect();
-    std::array::from_fn(|k| sum_in_order(n, views.iter().map(|v| &v[k])))
+    sums(n, &views)
 }
 
-/// The per-Gaussian sum of `views` (`n` values each), in their order, in f64.
-fn sum_in_order<'a>(n: usize, views: impl Iterator<Item = &'a Vec<f32>>) -> Vec<f32> {
-    let mut sum = vec![0.0f64; n];
-    for view in views {
-        for (s, &c) in sum.iter_mut().zip(view) {
-            *s += c as f64;
+/// The per-Gaussian sums of `views` (`K` vectors of `n` values each), in their order, in f64.
+fn sums<const K: usize>(n: usize, views: &[[Vec<f32>; K]]) -> [Vec<f32>; K] {
+    std::array::from_fn(|k| {
+        let mut sum = vec![0.0f64; n];
+        for view in views {
+            for (s, &c) in sum.iter_mut().zip(&view[k]) {
+                *s += c as f64;
+            }
         }
-    }
-    sum.into_iter().map(|v| v as f32).collect()
+        sum.into_iter().map(|v| v as f32).collect()
+    })
 }
 
 /// [`Importance::view_basis`] of `scene` seen from `cams`, `weights` each camera's blending
@@ -144,7 +146,7 @@ impl Importance {
                 [weights, errors]
             })
             .collect();
-        let [significance, removal] = std::array::from_fn(|k| sum_in_order(scene.len(), views.iter().map(|v| &v[k])));
+        let [significance, removal] = sums(scene.len(), &views);
         let view_basis = if scene.sh_degree == 0 { Vec::new() } else { view_basis(scene, cams, views.iter().map(|v| &v[0][..])) };
         Importance { significance, removal, view_basis }
     }

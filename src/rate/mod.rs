@@ -182,10 +182,16 @@ impl EncodeConfig {
 /// # Panics
 /// If `importance` does not measure every Gaussian of `splats`.
 pub fn pruned(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> (Splats, Option<Vec<f32>>) {
+    let (out, sig, _) = pruned_with_mask(splats, config, importance);
+    (out, sig)
+}
+
+/// [`pruned`], and per Gaussian of `splats` whether it is kept.
+fn pruned_with_mask(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> (Splats, Option<Vec<f32>>, Vec<bool>) {
     let keep = kept(splats, config, importance);
     let mut out = splats.clone();
     out.retain_indices(|i| keep[i]);
-    (out, importance.map(|m| kept_of(&m.significance, &keep)))
+    (out, importance.map(|m| kept_of(&m.significance, &keep)), keep)
 }
 
 /// The entries of `v` (one per Gaussian) that `keep` keeps.
@@ -235,10 +241,7 @@ fn prepared_with_significance(
         }
         m => m,
     };
-    let keep = kept(splats, config, importance);
-    let mut s = splats.clone();
-    s.retain_indices(|i| keep[i]);
-    let sig = importance.map(|m| kept_of(&m.significance, &keep));
+    let (mut s, sig, keep) = pruned_with_mask(splats, config, importance);
     let basis = importance.filter(|m| config.dc_fit && !m.view_basis.is_empty()).map(|m| kept_of(&m.view_basis, &keep));
     let before = basis.as_ref().map(|_| (s.sh_rest.clone(), s.sh_degree));
     if let Some(w) = sig.as_ref().filter(|_| config.sh_drop.iter().any(|&t| t > 0.0)) {

@@ -590,22 +590,20 @@ pub fn compensate_dc(q: &mut Quantised, splats: &Splats, order: &[usize], view_b
     let bands: Vec<usize> = (0..q.groups.len()).filter(|&gi| q.groups[gi].0.sh_band() > 0).collect();
     let mut new_dc: Vec<[i32; 3]> = Vec::with_capacity(q.len());
     for (l, r) in q.level_ranges().into_iter().enumerate() {
-        // The coded rest of this level's Gaussians, per band present: (band, values).
-        let coded: Vec<(usize, Vec<f32>)> = bands
-            .iter()
-            .map(|&gi| {
-                let (g, _, ch) = &q.groups[gi];
-                let ch: Vec<&[i32]> = ch.iter().map(|c| &c[r.clone()]).collect();
-                (usize::from(g.sh_band()), dequantise_channels(*g, &q.level_steps(gi, l), &ch).expect("an SH band"))
-            })
-            .collect();
+        // The coded rest of this level's Gaussians, indexed by band (none: a band not coded).
+        let mut coded: [Option<Vec<f32>>; 4] = Default::default();
+        for &gi in &bands {
+            let (g, _, ch) = &q.groups[gi];
+            let ch: Vec<&[i32]> = ch.iter().map(|c| &c[r.clone()]).collect();
+            coded[usize::from(g.sh_band())] = Some(dequantise_channels(*g, &q.level_steps(gi, l), &ch).expect("an SH band"));
+        }
         let steps = q.level_steps(dc, l);
         for (t, j) in r.enumerate() {
             let i = order[j];
             let coded_at = |k: usize, ch: usize| {
                 let b = (k + 1).isqrt();
                 let m = k + 1 - b * b;
-                coded.iter().find(|x| x.0 == b).map_or(0.0, |x| x.1[t * 3 * (2 * b + 1) + 3 * m + ch])
+                coded[b].as_ref().map_or(0.0, |v| v[t * 3 * (2 * b + 1) + 3 * m + ch])
             };
             let shift = dc_shift(&splats.sh_rest[i * k_c * 3..][..k_c * 3], k_c, coded_at, &view_basis[i]);
             new_dc.push(std::array::from_fn(|ch| self::q(splats.sh_dc[i][ch] + shift[ch], steps[ch])));
