@@ -232,7 +232,7 @@ impl Encoder {
         let mut series = Vec::new();
         // The RD search's PSNR is against the input scene's own renders, the error the user
         // cares about, so its trials go into the time series.
-        let (mut config, _) = rate::rd::search_with(trials, self.config.lambda, rate::rd::fine_steps(), |p| {
+        let record = |series: &mut Vec<SeriesPoint>, p: &rate::rd::Trial| {
             series.push(SeriesPoint {
                 iteration: p.step,
                 trial: p.change.clone(),
@@ -241,10 +241,17 @@ impl Encoder {
                 d: Some(p.d),
                 heldout_psnr: Some(p.psnr),
             });
-        })
-        .map_err(|e| Error::Input(e.to_string()))?;
+        };
+        let search = |trials: &mut rate::rd::Trials, dc_fit: bool, series: &mut Vec<SeriesPoint>| {
+            rate::rd::search_with(trials, self.config.lambda, rate::rd::fine_steps(), dc_fit, |p| record(series, p))
+                .map(|r| r.0)
+                .map_err(|e| Error::Input(e.to_string()))
+        };
+        let searched = search(trials, true, &mut series)?;
+        // Fine-tuning starts from a search without the DC fit: training fits the DC itself, and
+        // from the fit's choices (more SH left out) it ended worse (docs/codec.md §30).
+        let mut config = if iters > 0 { search(trials, false, &mut series)? } else { searched };
         stages.rd_search_s = start.elapsed().as_secs_f64();
-        let searched = config;
         let mut trained = None;
         let mut train_report = None;
         // Fine-tune what the search chose to code (pruned, SH bands dropped), so that the
@@ -264,16 +271,13 @@ impl Encoder {
             // A .ply already has its structure: the term runs from the start.
             let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
-            // Training rendered the SH rest as coded (`RateTerm::render_params`) and fitted the
-            // DC to it: the DC fit would take back the rounding a second time (docs/codec.md §29).
-            config.dc_fit = false;
             stages.train_s = r.train_seconds;
             config = self.retune_tail(&s, RdViews::orbit(&s), config, &mut stages)?.0;
             trained = Some(s);
             train_report = Some(r);
         }
         let Some(trained) = trained else {
-            return self.finish(orbit, scene, &config, iters, start, stages, series, None, None, Some(trials.importance()));
+            return self.finish(orbit, scene, &searched, iters, start, stages, series, None, None, Some(trials.importance()));
         };
         let tuned = self.finish(orbit, &trained, &config, iters, start, stages, series, train_report, None, None)?;
         // Fine-tuning must pay: where the RD search's own file has the lower J on the orbit
@@ -457,8 +461,10 @@ impl Encoder {
             .ok_or_else(|| Error::Input("the dataset has no training views".into()))?
             .measuring(self.search_distortion());
         let mut trials = rate::rd::Trials::with_views(trained, views.clone()).map_err(|e| Error::Input(e.to_string()))?;
+        // With the DC fit, unlike fine-tuning's search (retraining against the images from a
+        // search without it: lego-200 `--init` λ 6 +7 % bytes for +0.06 dB, docs/codec.md §30).
         let (mut config, _) =
-            rate::rd::search_with(&mut trials, self.config.lambda, steps, |_| {}).map_err(|e| Error::Input(e.to_string()))?;
+            rate::rd::search_with(&mut trials, self.config.lambda, steps, true, |_| {}).map_err(|e| Error::Input(e.to_string()))?;
         // Pruning and the importance classes take the Gaussians in the order of their removal
         // error and significance from the dataset's training cameras, in the search and in the
         // file.
@@ -484,7 +490,7 @@ impl Encoder {
             // Its time series continues the main run's iterations.
             series[first..].iter_mut().for_each(|p| p.iteration += iters);
             config.steps = learned_steps(config.steps, &r2);
-            config.dc_fit = false; // as for a fine-tuned scene (`encode_scene_with`)
+            config.dc_fit = false; // as for a fine-tuned scene (`encode_explicit`)
             stages.train_s += r2.train_seconds;
             let (c, sig) = self.retune_tail(&s, views.clone(), config, &mut stages)?;
             config = c;
@@ -758,19 +764,23 @@ impl<'a> Orbit<'a> {
 mod tests {
     use super::*;
 
-    /// Fine-tuning a `.ply` trains what the RD search chose to code (pruned, SH bands dropped),
-    /// not the whole input, so the Gaussians left can cover for those pruned.
+    /// Fine-tuning a `.ply` trains what the RD search (without the DC fit) chose to code (pruned,
+    /// SH bands dropped), not the whole input, so the Gaussians left can cover for those pruned.
     #[test]
     fn fine_tuning_starts_from_what_the_search_codes() {
         let scene = crate::sample::scene(300, 5);
         let lambda = Lambda::new(200.0).unwrap();
-        let (config, _) = rate::rd::search(&scene, lambda, |_| {}).unwrap();
+        // The search without the DC fit: training fits the DC itself.
+        let mut trials = rate::rd::Trials::new(&scene).unwrap();
+        let (config, _) = rate::rd::search_with(&mut trials, lambda, rate::rd::fine_steps(), false, |_| {}).unwrap();
+        assert!(!config.dc_fit);
         let searched = rate::prepared(&scene, &config, None).len();
         assert!(0 < searched && searched < scene.len(), "the search prunes at this λ: {searched} of {}", scene.len());
         let encoder = Encoder::new(EncoderConfig { lambda, iters: Some(2), backend: Backend::Cpu, ..EncoderConfig::default() }).unwrap();
         let e = encoder.encode_scene(&scene, &mut |_| {}).unwrap();
         let trained = e.report.train.as_ref().expect("fine-tuned").gaussians;
         assert_eq!(trained, searched);
+        assert!(!e.report.dc_fit || e.report.fine_tuning_kept == Some(false), "a fine-tuned file is coded without the fit");
         assert!(
             e.report.gaussians <= trained && e.report.input_gaussians == scene.len(),
             "{:?}",

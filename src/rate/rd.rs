@@ -786,7 +786,7 @@ pub fn retune_tail(trials: &mut Trials, lambda: Lambda, config: EncodeConfig) ->
 /// The trials of each stage are independent and run in parallel; the result (and the trial
 /// list) is the same for any number of threads.
 pub fn search(scene: &Splats, lambda: Lambda, on_step: impl FnMut(&Trial)) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
-    search_with(&mut Trials::new(scene)?, lambda, fine_steps(), on_step)
+    search_with(&mut Trials::new(scene)?, lambda, fine_steps(), true, on_step)
 }
 
 /// The fine steps [`search`] starts from.
@@ -797,7 +797,8 @@ pub fn fine_steps() -> Steps {
 /// [`search`] on `trials`' scene and views, with the per-group step multipliers applied to
 /// `fine` (e.g. steps learned in training) instead of [`fine_steps`] (multiplier 1 keeps a step
 /// as it is), reusing (and adding to) the evaluated configurations of `trials`: the same choice
-/// and trial list as a fresh search, with fewer encodes and renders.
+/// and trial list as a fresh search, with fewer encodes and renders. `dc_fit` false searches
+/// without the DC fit ([`EncodeConfig::dc_fit`]), for a scene that training will fit.
 ///
 /// # Errors
 /// A trial's encode (none for a scene [`Trials::new`] took).
@@ -805,6 +806,7 @@ pub fn search_with(
     trials: &mut Trials,
     lambda: Lambda,
     fine: Steps,
+    dc_fit: bool,
     mut on_step: impl FnMut(&Trial),
 ) -> Result<(EncodeConfig, Vec<Trial>), SceneError> {
     let scene = trials.ev.scene;
@@ -818,7 +820,7 @@ pub fn search_with(
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     // The DC fit from the start: with it, leaving SH bands out and coarser SH steps cost less,
     // which every choice below weighs (docs/codec.md §29).
-    let fine = EncodeConfig { steps: fine, learned_tables: false, dc_fit: scene.sh_degree > 0, ..EncodeConfig::default() };
+    let fine = EncodeConfig { steps: fine, learned_tables: false, dc_fit: dc_fit && scene.sh_degree > 0, ..EncodeConfig::default() };
     trials.calibrate(&fine)?;
     // 1. Pruning by removal error (at fine steps): the colour error that dropping the Gaussian
     //    alone causes in the views. It subsumes opacity, footprint and coverage thresholds,
@@ -1325,7 +1327,7 @@ mod tests {
         for l in [20.0, 200.0, 60.0] {
             let lambda = Lambda::new(l).unwrap();
             let before = shared.len();
-            let (a, pa) = search_with(&mut shared, lambda, fine, |_| {}).unwrap();
+            let (a, pa) = search_with(&mut shared, lambda, fine, true, |_| {}).unwrap();
             added.push(shared.len() - before);
             let (b, pb) = search(&scene, lambda, |_| {}).unwrap();
             assert_eq!(a, b, "λ {l}");
