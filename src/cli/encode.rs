@@ -30,8 +30,9 @@ pub struct Args {
     /// held-out (test) views' PSNR as `gscodec eval OUTPUT DATASET` measures it; the scene is
     /// trained from the images once, at the default λ (or is --init), and each probe runs the
     /// RD search, the retraining and the coding at its λ. With --iters on a scene, the RD
-    /// search alone brackets λ first, and the fine-tuned encodes start from the λ it found.
-    /// Each encode prints a line as it finishes (not with --quiet).
+    /// search alone brackets λ first, and the fine-tuned encodes start from the λ it found;
+    /// the file is the better of both phases' (never worse than without --iters). Each encode
+    /// prints a line as it finishes (not with --quiet).
     #[arg(long, value_name = "DB", conflicts_with_all = ["lambda", "target_bytes"])]
     pub target_psnr: Option<f64>,
     /// Instead of a λ: the best PSNR (measured as for --target-psnr) among files of at most N
