@@ -251,6 +251,11 @@ impl<'e, F: ProbeFn> Search<'e, F> {
     }
 }
 
+/// An encode's (bytes, PSNR), as a target reads it.
+fn outcome(e: &Encoded) -> (usize, f64) {
+    (e.bytes.len(), e.report.orbit_psnr)
+}
+
 /// The λ a search on λ starts at for a scene of `gaussians` Gaussians ([`START_LAMBDA_GAUSSIANS`]).
 fn start_lambda(gaussians: usize) -> f64 {
     (START_LAMBDA_GAUSSIANS / gaussians.max(1) as f64).min(MAX_LAMBDA)
@@ -452,7 +457,6 @@ impl Encoder {
         let mix = two_phase || self.config.iters_for(false) == 0;
         let mut between = Vec::new();
         let mut out: Option<Encoded> = None;
-        let outcome = |e: &Encoded| (e.bytes.len(), e.report.orbit_psnr);
         for phase in phases {
             let Some(e) = self.mixed(&trials, &orbit, target, phase, mix, &mut between, events)? else { continue };
             if out.as_ref().is_none_or(|o| !target.better(outcome(o), outcome(&e))) {
@@ -552,7 +556,6 @@ impl Encoder {
             };
             events(TargetEvent::Mixing);
             let filled = self.fill(mix_on, orbit, target, &best, bad, between)?;
-            let outcome = |e: &Encoded| (e.bytes.len(), e.report.orbit_psnr);
             if let Some(filled) = filled.filter(|f| target.better(outcome(f), outcome(&best))) {
                 let r = best.report;
                 // What made the scene it codes: the fine-tuning's, when it ran.
@@ -666,7 +669,7 @@ impl Encoder {
         )?;
         e.report.stages.total_s += searched;
         // The decoded scene, hence the PSNR, is the trial's; learned tables only shrink the file.
-        Ok(target.met((e.bytes.len(), e.report.orbit_psnr)).then_some(e))
+        Ok(target.met(outcome(&e)).then_some(e))
     }
 }
 
