@@ -271,6 +271,10 @@ impl Encoder {
             // A .ply already has its structure: the term runs from the start.
             let (s, r) = self.train(&dataset, Some(init), &cfg, &config, 0, start, &mut series, progress)?;
             config.steps = learned_steps(config.steps, &r);
+            // The DC fit for what training did not see: bands the coding leaves out, codebook
+            // rows, the importance classes' coarser steps (docs/codec.md §30).
+            config.dc_fit = scene.sh_degree > 0;
+            config.dc_fit_trained = true;
             stages.train_s = r.train_seconds;
             config = self.retune_tail(&s, RdViews::orbit(&s), config, &mut stages)?.0;
             trained = Some(s);
@@ -780,7 +784,8 @@ mod tests {
         let e = encoder.encode_scene(&scene, &mut |_| {}).unwrap();
         let trained = e.report.train.as_ref().expect("fine-tuned").gaussians;
         assert_eq!(trained, searched);
-        assert!(!e.report.dc_fit || e.report.fine_tuning_kept == Some(false), "a fine-tuned file is coded without the fit");
+        // A fine-tuned file is coded with the fit of what training did not see.
+        assert!(e.report.fine_tuning_kept != Some(true) || e.report.dc_fit == (scene.sh_degree > 0), "{:?}", e.report.fine_tuning_kept);
         assert!(
             e.report.gaussians <= trained && e.report.input_gaussians == scene.len(),
             "{:?}",

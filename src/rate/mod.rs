@@ -68,6 +68,11 @@ pub struct EncodeConfig {
     /// codebooks and rounding: [`quantise::compensate_dc`]). Needs the input's importance (its
     /// view basis). The RD search sets it where it lowers `J`.
     pub dc_fit: bool,
+    /// With `dc_fit`, for a scene trained rendering its SH rest rounded at `steps` with the dead
+    /// zone ([`term::RateTerm::render_params`]): the DC takes back only what the file codes
+    /// differently from that (codebook rows, the importance classes' coarser steps), not the
+    /// rounding training already fitted the DC to ([`quantise::rest_as_trained`]).
+    pub dc_fit_trained: bool,
 }
 
 /// Importance classes (format 6.0, SPEC §4): the least significant `share` of the Gaussians kept
@@ -147,6 +152,7 @@ impl Default for EncodeConfig {
             progressive: false,
             tail: CoarseTail::OFF,
             dc_fit: false,
+            dc_fit_trained: false,
         }
     }
 }
@@ -304,7 +310,8 @@ pub fn encode_cached(
         quantise::apply_level_factors(&mut q, &s, &order, &config.steps, &nonempty);
     }
     if let Some(view_basis) = &view_basis {
-        quantise::compensate_dc(&mut q, &s, &order, view_basis);
+        let trained = config.dc_fit_trained.then(|| quantise::rest_as_trained(&s, &config.steps));
+        quantise::compensate_dc(&mut q, trained.as_ref().unwrap_or(&s), &order, view_basis);
     }
     let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, config.neighbour_tables, cache);
     Ok((bytes, report, q))

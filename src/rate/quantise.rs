@@ -575,6 +575,26 @@ pub fn fit_dc(splats: &mut Splats, before: &[f32], degree: u8, view_basis: &[[f3
     }
 }
 
+/// Group `g` of `splats` rounded in place to multiples of `step`, with dead zone `dz` ([`q_dz`]):
+/// what the decoder restores from a value coded at that step.
+pub(crate) fn round_group(splats: &mut Splats, g: Group, step: f32, dz: f32) {
+    let (stride, r) = layout(g, splats.sh_degree);
+    for v in values_mut(splats, g).chunks_exact_mut(stride).flat_map(|c| &mut c[r.clone()]) {
+        *v = q_dz(*v, step, dz) as f32 * step;
+    }
+}
+
+/// `splats` with its SH rest as a scene trained for `steps` renders it (each band rounded at
+/// its step with the dead zone, [`super::term::RateTerm::render_params`]): the reference
+/// [`compensate_dc`] takes back from for such a scene ([`super::EncodeConfig::dc_fit_trained`]).
+pub fn rest_as_trained(splats: &Splats, steps: &Steps) -> Splats {
+    let mut out = splats.clone();
+    for b in 1..=splats.sh_degree {
+        round_group(&mut out, Group::for_band(b), steps.sh_rest[usize::from(b) - 1], steps.rest_deadzone);
+    }
+    out
+}
+
 /// [`fit_dc`] for what quantisation changes: every Gaussian of `q` (`splats` quantised, `order`
 /// its file order, [`quantise_ordered`]) gets the DC of `splats` plus the [`dc_shift`] from
 /// `splats`' SH rest to the coded one (codebook rows, rounding with the dead zone), quantised
@@ -784,6 +804,27 @@ mod tests {
         // Only the DC changed.
         let others = |q: &Quantised| q.groups.iter().filter(|g| g.0 != Group::ShDc).cloned().collect::<Vec<_>>();
         assert_eq!((others(&comp), &comp.morton), (others(&plain), &plain.morton));
+    }
+
+    /// A scene trained for its steps was rendered with its rest rounded (with the dead zone):
+    /// coded by that rounding alone, the DC takes back nothing from the rest as trained, while
+    /// from the float rest it would take back the rounding a second time.
+    #[test]
+    fn a_trained_scene_s_dc_takes_back_only_what_training_did_not_see() {
+        let s = gscodec_decoder::testkit::random_splats(300, 3, 11);
+        let m = super::super::Importance::of(&s);
+        let steps = Steps { sh_rest: [0.05, 0.08, 0.1], rest_deadzone: 0.2, ..Steps::default() };
+        let (plain, order) = quantise_ordered(&s, &steps, &[]);
+        let trained = rest_as_trained(&s, &steps);
+        assert_eq!(trained.sh_dc, s.sh_dc);
+        let (same, _) = quantise_ordered(&trained, &steps, &[]);
+        assert_eq!(same, plain, "the rest as trained is on the steps' grid");
+        let mut comp = plain.clone();
+        compensate_dc(&mut comp, &trained, &order, &m.view_basis);
+        assert_eq!(comp, plain, "nothing to take back");
+        let mut twice = plain.clone();
+        compensate_dc(&mut twice, &s, &order, &m.view_basis);
+        assert_ne!(twice, plain, "from the float rest the rounding moves the DC");
     }
 
     #[test]

@@ -14,7 +14,7 @@ use serde::Serialize;
 use super::group::{self, Group, GroupMap};
 use super::lambda::Lambda;
 use super::model::LearnedChannel;
-use super::quantise::{q_dz, Steps};
+use super::quantise::{q_dz, round_group, Steps};
 use crate::optim::AdamRule;
 
 /// A rate (or any regulariser) term added to the image loss; the codec plugs quantisation and
@@ -198,11 +198,7 @@ impl RateTerm {
         let mut out = params.clone();
         let degree = out.sh_degree;
         for g in LEARNED_GROUPS.into_iter().filter(|g| g.sh_band() <= degree) {
-            let (stride, r) = group::layout(g, degree);
-            let (s, dz) = (self.steps.of(g), self.deadzone(g));
-            for v in group::values_mut(&mut out, g).chunks_exact_mut(stride).flat_map(|c| &mut c[r.clone()]) {
-                *v = q_dz(*v, s, dz) as f32 * s;
-            }
+            round_group(&mut out, g, self.steps.of(g), self.deadzone(g));
         }
         Some(out)
     }
