@@ -106,7 +106,8 @@ pub struct EncodeReport {
     /// Gaussians with every step × `factor` (share 0: none).
     pub tail: crate::rate::CoarseTail,
     /// Whether each DC took back the mean colour its coded SH rest bands lost over the views
-    /// (`EncodeConfig::dc_fit`, an encoder-only choice the RD search makes).
+    /// (`EncodeConfig::dc_fit`, an encoder-only choice: the RD search's, and on for a
+    /// fine-tuned file, where it takes back only what training did not see).
     pub dc_fit: bool,
     /// Mean PSNR of the decoded scene against the input scene (for a dataset: against the trained
     /// scene before coding) over the 8 orbit views at 256×256, as `eval --reference --orbit 8`.
