@@ -79,7 +79,8 @@ pub struct Probe {
 /// (without learned tables) and orbit PSNR.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Between {
-    /// Round of `Encoder::fill`'s search (each starts from the best of the one before).
+    /// Round of `Encoder::fill`'s search (each starts from the best of the one before); 0: the
+    /// nearest miss with one step nudged towards the target, tried beside the rounds.
     pub round: usize,
     pub change: String,
     pub bytes: usize,
@@ -591,8 +592,10 @@ impl Encoder {
     /// [`rd::step_nudges`]); of
     /// those that meet the target and beat the best, the best one, then the others added one
     /// after another (most bytes saved, or PSNR gained, first), each kept if the result still
-    /// meets the target and is better. A round that finds nothing better ends the search. Every
-    /// configuration tried goes into `tried`. Returns the encode of the best when it beats `good`.
+    /// meets the target and is better. A round that finds nothing better ends the search. Beside
+    /// the rounds, `bad` with one group's step nudged the other way (finer for a PSNR target),
+    /// kept where it meets the target and beats the rounds' best. Every configuration tried
+    /// goes into `tried`. Returns the encode of the best when it beats `good`.
     fn fill(
         &self,
         trials: &Trials,
@@ -613,6 +616,21 @@ impl Encoder {
         let start = (good.config, eval(&good.config)?);
         // Steps nudged the way that spends the best's margin: coarser for fewer bytes.
         let nudges = |c: &EncodeConfig| rd::step_nudges(c, matches!(target, Target::Psnr(_)), scene.sh_degree);
+        // From the other side (round 0): the miss with one step nudged the way that gains what
+        // it lacks. Where the curve steps, a miss can fall just short of the target while the
+        // best lies far beyond it; the rounds below cannot cross such a step from the best.
+        let back: Vec<_> = rd::step_nudges(bad, !matches!(target, Target::Psnr(_)), scene.sh_degree)
+            .into_iter()
+            .map(|(knob, c)| (format!("miss's {knob}"), c))
+            .collect();
+        let outcomes = back.par_iter().map(|(_, c)| eval(c)).collect::<Result<Vec<_>>>()?;
+        let mut from_miss: Option<(EncodeConfig, (usize, f64))> = None;
+        for ((knob, c), &o) in back.iter().zip(&outcomes) {
+            tried.push(Between { round: 0, change: knob.clone(), bytes: o.0, psnr: o.1 });
+            if target.met(o) && from_miss.is_none_or(|m| target.better(o, m.1)) {
+                from_miss = Some((*c, o));
+            }
+        }
         let mut cur = start;
         for round in 1..=FILL_ROUNDS {
             // One knob as in the miss, another choice of importance classes or one step nudged
@@ -646,6 +664,9 @@ impl Encoder {
                 }
             }
             debug_assert!(target.better(cur.1, from.1));
+        }
+        if let Some(m) = from_miss.filter(|m| target.better(m.1, cur.1)) {
+            cur = m;
         }
         if cur.0 == start.0 {
             return Ok(None);
@@ -756,10 +777,16 @@ mod tests {
         if s.probes.iter().all(|p| p.bytes > e.bytes.len()) {
             assert!(s.between.iter().any(|b| b.psnr == e.report.orbit_psnr && b.bytes >= e.bytes.len()), "{s:?}");
         }
+        // The mixes come from both sides: the miss, too, with one step nudged finer (round 0).
+        let from_miss = |s: &TargetSearch, dir: &str| {
+            s.between.iter().any(|b| b.round == 0 && b.change.starts_with("miss's ") && b.change.ends_with(dir))
+        };
+        assert!(from_miss(&s, "step finer"), "{s:?}");
         // A size target: half the file the PSNR target gave.
         let budget = e.bytes.len() as u64 / 2;
         let f = enc.encode_scene_to(&scene, Target::Bytes(budget), &mut |_| {}).unwrap();
         let s = f.report.target.clone().unwrap();
+        assert!(from_miss(&s, "step coarser"), "{s:?}");
         assert!(f.bytes.len() as u64 <= budget);
         assert!(s.probes.iter().filter(|p| p.bytes as u64 <= budget).all(|p| p.psnr <= f.report.orbit_psnr), "{s:?}");
         // Unreachable: more than the finest setting gives.

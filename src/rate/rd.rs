@@ -778,7 +778,9 @@ pub fn retune_tail(trials: &mut Trials, lambda: Lambda, config: EncodeConfig) ->
 /// (each group's coarsening is measured alone) and group rates as independent, so each group's
 /// step is chosen separately: first the significance pruning threshold, then the SH degree and
 /// the per-Gaussian SH band dropping (whole-file J), then per group the multiplier of the fine
-/// step minimising `ΔD_g + λ·R_g`, then the SH rest dead zone, then per SH band a codebook
+/// step minimising `ΔD_g + λ·R_g` (where the degree left a band out at fine steps, the scene's
+/// own degree also goes through the band dropping and the first of these passes, choosing the
+/// degree again, and the lower J goes on), then the SH rest dead zone, then per SH band a codebook
 /// (vector quantisation) or none, then the importance classes ([`CoarseTail`]) or none, all
 /// with the DC fit ([`EncodeConfig::dc_fit`]) on, and last whether it stays on.
 /// `on_step` sees each trial.
@@ -837,11 +839,51 @@ pub fn search_with(
     if b0 < 200 {
         return Ok((EncodeConfig { learned_tables: true, ..base }, log.path)); // nothing (or almost nothing) left to allocate
     }
-    // 2. SH degree (at fine steps): keep the degree with the lowest J.
-    let cands =
-        (0..=scene.sh_degree.min(3)).rev().map(|deg| (format!("sh_degree={deg}"), EncodeConfig { max_sh_degree: deg, ..base })).collect();
-    let mut base = log.stage(trials, (f64::INFINITY, base), cands)?.1;
+    // 2. SH degree (at fine steps): the degree of lowest J. At fine steps a band costs the
+    //    most it will, so this can leave out a band that the coarser steps chosen next make
+    //    worth its bits: where it does, the scene's own degree also goes through stages 3 and 4's
+    //    first pass and the degree is chosen again there, and the search goes on from the lower
+    //    J of the two (docs/codec.md §31).
+    let top = scene.sh_degree.min(3);
+    let cands = (0..=top).rev().map(|deg| (format!("sh_degree={deg}"), with_degree(&base, deg, &fine.steps))).collect();
+    let early = log.stage(trials, (f64::INFINITY, base), cands)?.1;
     clock.lap(trials, "SH degree");
+    let mut chosen = coarse_steps(trials, &mut log, &mut clock, early, early.max_sh_degree == top, &fine.steps)?;
+    if early.max_sh_degree < top {
+        let full = coarse_steps(trials, &mut log, &mut clock, with_degree(&base, top, &fine.steps), true, &fine.steps)?;
+        let mut j = |c: &EncodeConfig| trials.base(c).map(|o| log.j(o.bytes, o.d));
+        if j(&full)? < j(&chosen)? {
+            chosen = full;
+        }
+    }
+    let chosen = finish(trials, &mut log, &mut clock, chosen)?;
+    Ok((EncodeConfig { learned_tables: true, ..chosen }, log.path))
+}
+
+/// `c` with SH degree `deg`: the bands above it left out, their drop thresholds cleared and
+/// their steps `fine`'s, so that one choice has one configuration whichever path reached it.
+fn with_degree(c: &EncodeConfig, deg: u8, fine: &Steps) -> EncodeConfig {
+    let mut c = EncodeConfig { max_sh_degree: deg, ..*c };
+    for b in usize::from(deg)..3 {
+        c.sh_drop[b] = 0.0;
+        c.steps.sh_rest[b] = fine.sh_rest[b];
+    }
+    c
+}
+
+/// The search's stages after the SH degree up to the first step pass, from `base` (pruned, at
+/// fine steps): per-Gaussian band dropping and the coarse step pass. `late_degree`: the SH
+/// degree is then chosen again (among `base`'s and those below it), at steps near the final
+/// ones.
+fn coarse_steps<F: FnMut(&Trial)>(
+    trials: &mut Trials,
+    log: &mut Log<F>,
+    clock: &mut Clock,
+    mut base: EncodeConfig,
+    late_degree: bool,
+    fine: &Steps,
+) -> Result<EncodeConfig, SceneError> {
+    let scene = trials.ev.scene;
     // 3. Per-Gaussian SH band dropping (whole-file J, at fine steps so the steps adapt to it),
     //    band by band: thresholds at quantiles of the kept Gaussians' band contributions
     //    weighted by significance.
@@ -865,11 +907,32 @@ pub fn search_with(
             clock.lap(trials, &format!("SH band {b} dropping"));
         }
     }
-    // 4. Per group step multipliers: a coarse pass from the fine steps, then a refining pass
-    //    (half-octave moves around the first choice), then quarter-octave moves.
-    let mut chosen = base;
-    for (pass, mults) in [(0, &MULTIPLIERS[..]), (1, &REFINE[..]), (2, &REFINE_FINE[..])] {
-        chosen = step_pass(trials, &mut log, &chosen, pass, mults)?;
+    // 4. Per group step multipliers: a coarse pass from the fine steps (here), then a refining
+    //    pass (half-octave moves around the first choice), then quarter-octave moves ([`finish`]).
+    let mut chosen = step_pass(trials, log, &base, 0, &MULTIPLIERS)?;
+    clock.lap(trials, "step pass 0");
+    if late_degree && chosen.max_sh_degree > 0 {
+        let Outcome { bytes, d, .. } = trials.base(&chosen)?;
+        let keep = (log.j(bytes, d), chosen);
+        let cands =
+            (0..chosen.max_sh_degree).rev().map(|deg| (format!("sh_degree={deg} after pass 0"), with_degree(&chosen, deg, fine))).collect();
+        chosen = log.stage(trials, keep, cands)?.1;
+        clock.lap(trials, "SH degree after pass 0");
+    }
+    Ok(chosen)
+}
+
+/// The search's stages after [`coarse_steps`]: the finer step passes, the dead zone,
+/// codebooks, importance classes and the DC fit.
+fn finish<F: FnMut(&Trial)>(
+    trials: &mut Trials,
+    log: &mut Log<F>,
+    clock: &mut Clock,
+    mut chosen: EncodeConfig,
+) -> Result<EncodeConfig, SceneError> {
+    let scene = trials.ev.scene;
+    for (pass, mults) in [(1, &REFINE[..]), (2, &REFINE_FINE[..])] {
+        chosen = step_pass(trials, log, &chosen, pass, mults)?;
         clock.lap(trials, &format!("step pass {pass}"));
     }
     // 5. SH rest dead zone (whole-file J: it changes only the SH band groups).
@@ -888,15 +951,15 @@ pub fn search_with(
         clock.lap(trials, "SH dead zone");
     }
     // 6. SH vector quantisation, band by band.
-    let chosen = vq_stage(trials, &mut log, chosen, scene.sh_degree)?;
+    let chosen = vq_stage(trials, log, chosen, scene.sh_degree)?;
     clock.lap(trials, "SH codebooks");
     // 7. Importance classes: the least significant Gaussians with coarser steps.
-    let chosen = tail_stage(trials, &mut log, chosen)?;
+    let chosen = tail_stage(trials, log, chosen)?;
     clock.lap(trials, "importance classes");
     // 8. The DC fit (each DC takes back the mean colour its coded SH rest lost) off, tried last.
-    let chosen = dc_fit_stage(trials, &mut log, chosen)?;
+    let chosen = dc_fit_stage(trials, log, chosen)?;
     clock.lap(trials, "DC fit");
-    Ok((EncodeConfig { learned_tables: true, ..chosen }, log.path))
+    Ok(chosen)
 }
 
 /// Configurations between two search results, `from` and `to` (e.g. the choices at two
@@ -1135,6 +1198,61 @@ mod tests {
         }
     }
 
+    /// Where the SH degree stage leaves a band out at fine steps, the scene's own degree also
+    /// goes through band dropping and the first step pass, the degree is chosen again there, and
+    /// the search goes on from the lower J of the two.
+    #[test]
+    fn a_band_left_out_at_fine_steps_is_tried_again_at_coarser_steps() {
+        // Bands 1 and 2 weak, band 3 strong: dear at fine steps, worth its bits at coarser ones.
+        let mut scene = crate::sample::scene(300, 5);
+        let k = scene.sh_rest.len() / scene.len();
+        scene.sh_rest.iter_mut().enumerate().for_each(|(i, v)| *v *= if i % k < 24 { 0.3 } else { 4.0 });
+        let top = scene.sh_degree.min(3);
+        let fine = EncodeConfig { steps: fine_steps(), learned_tables: false, dc_fit: true, ..EncodeConfig::default() };
+        let (mut both, mut full_won, mut early_won) = (0, false, false);
+        for l in [100.0, 400.0, 1000.0] {
+            let lambda = Lambda::new(l).unwrap();
+            let (chosen, path) = search(&scene, lambda, |_| {}).unwrap();
+            let lowest = |stage: &dyn Fn(&str) -> bool| {
+                let t: Vec<&Trial> = path.iter().filter(|p| stage(&p.change)).collect();
+                t.iter().fold(t[0], |b, p| if p.j < b.j { p } else { b }).change.clone()
+            };
+            let early = lowest(&|c| c.starts_with("sh_degree=") && !c.ends_with("after pass 0"));
+            let early: u8 = early["sh_degree=".len()..].parse().unwrap();
+            // Band `top`'s dropping runs on the scene's own degree only, which is always searched.
+            assert!(path.iter().any(|p| p.change.starts_with(&format!("sh_drop band{top}<"))), "λ {l}");
+            assert!(path.iter().any(|p| p.change.ends_with("after pass 0")), "λ {l}: the degree is chosen again");
+            if early == top {
+                continue;
+            }
+            both += 1;
+            // Both starts through the first step pass, from the same pruning, then the rest.
+            let mut trials = Trials::new(&scene).unwrap();
+            let errs =
+                sorted((0..scene.len()).filter(|&i| opaque_enough(&scene, i, &fine)).map(|i| trials.importance().removal[i]).collect());
+            let pruning = lowest(&|c| c.starts_with("prune"));
+            let (_, pruned) = prune_candidates(&errs, &fine).into_iter().find(|(n, _)| *n == pruning).unwrap();
+            let mut on_step = |_: &Trial| {};
+            let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
+            let mut clock = Clock::new(&trials);
+            let mut coarse = |deg, late| {
+                coarse_steps(&mut trials, &mut log, &mut clock, with_degree(&pruned, deg, &fine.steps), late, &fine.steps).unwrap()
+            };
+            let (alone, full) = (coarse(early, false), coarse(top, true));
+            let mut j = |c: &EncodeConfig| trials.one(c).map(|o| lambda.rate_cost(o.bytes) + o.d).unwrap();
+            let (j_alone, j_full) = (j(&alone), j(&full));
+            let start = if j_full < j_alone { full } else { alone };
+            let expected = finish(&mut trials, &mut log, &mut clock, start).unwrap();
+            assert_eq!(EncodeConfig { learned_tables: false, ..chosen }, expected, "λ {l}: from the lower J of the two");
+            full_won |= j_full < j_alone;
+            early_won |= j_alone < j_full;
+        }
+        assert!(
+            both > 0 && full_won && early_won,
+            "{both} λ left a band out at fine steps; each start won somewhere: {full_won}, {early_won}"
+        );
+    }
+
     /// λ measured end to end: the search's chosen file shrinks and its distortion grows as λ
     /// grows (replaces a test that only checked the final multiply by λ).
     #[test]
@@ -1317,25 +1435,26 @@ mod tests {
     }
 
     /// Searches sharing their trials (as `--target-psnr`'s probes do) choose, record and code
-    /// exactly what fresh searches do, and the later ones evaluate fewer new configurations.
+    /// exactly what fresh searches do, and the later ones evaluate fewer new configurations than
+    /// a fresh search does.
     #[test]
     fn shared_trials_change_no_choice() {
         let scene = crate::sample::scene(300, 6);
         let mut shared = Trials::new(&scene).unwrap();
         let fine = fine_steps();
-        let mut added = Vec::new();
-        for l in [20.0, 200.0, 60.0] {
+        for (i, l) in [20.0, 200.0, 60.0].into_iter().enumerate() {
             let lambda = Lambda::new(l).unwrap();
             let before = shared.len();
             let (a, pa) = search_with(&mut shared, lambda, fine, true, |_| {}).unwrap();
-            added.push(shared.len() - before);
-            let (b, pb) = search(&scene, lambda, |_| {}).unwrap();
+            let mut fresh = Trials::new(&scene).unwrap();
+            let (b, pb) = search_with(&mut fresh, lambda, fine, true, |_| {}).unwrap();
             assert_eq!(a, b, "λ {l}");
             let key = |p: &[Trial]| p.iter().map(|t| (t.change.clone(), t.bytes, t.d.to_bits())).collect::<Vec<_>>();
             assert_eq!(key(&pa), key(&pb), "λ {l}");
             assert_eq!(super::super::encode(&scene, &a).unwrap().0, super::super::encode(&scene, &b).unwrap().0);
+            let added = shared.len() - before;
+            assert!(i == 0 && added == fresh.len() || i > 0 && added < fresh.len(), "λ {l}: {added} new of {}", fresh.len());
         }
-        assert!(added[1] < added[0] && added[2] < added[0], "configurations evaluated per search: {added:?}");
     }
 
     #[test]
