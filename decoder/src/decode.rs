@@ -4,8 +4,6 @@
 use std::ops::Range;
 use std::sync::{Arc, Mutex};
 
-use rayon::prelude::*;
-
 use crate::bitstream::anchors::{expand, read_anchors, ANCHORS_KIND};
 use crate::bitstream::assemble::{assemble, scatter_sh, Piece};
 use crate::bitstream::layout::Group;
@@ -14,18 +12,22 @@ use crate::bitstream::params::{read_group_params, GroupParams};
 use crate::bitstream::stream::decode_data_section;
 use crate::bitstream::Container;
 use crate::error::{DecodeError, SectionId};
+use crate::par;
 use crate::Splats;
 
 /// SH bands are decoded in jobs of about this many channels (a band has 9, 15 or 21).
 const JOB_CHANNELS: usize = 8;
 
-/// Runs `f` on a pool of `threads` threads (0 = rayon's global pool). A pool is built
-/// the first time a thread count is asked for and kept for later decodes.
+/// Runs `f` on a pool of `threads` threads (0 = rayon's global pool; 1 = on the calling thread,
+/// its loops sequential, [`par::one_thread`]). A pool is built the first time a thread count is
+/// asked for and kept for later decodes.
 pub(crate) fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
     static POOLS: Mutex<Vec<(usize, Arc<rayon::ThreadPool>)>> = Mutex::new(Vec::new());
     let threads = threads.min(256);
-    if threads == 0 {
-        return f();
+    match threads {
+        0 => return f(),
+        1 => return par::one_thread(f),
+        _ => {}
     }
     let pool = {
         let mut pools = POOLS.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
@@ -112,43 +114,38 @@ pub(crate) fn decode_chunks(c: &Container<'_>, layout: &Layout, chunks: usize, d
     // Per group: the group, its parameters and, for an SH band, its decoded pieces (chunk,
     // channels, values).
     type Decoded = (Group, Vec<GroupParams>, Vec<(usize, Range<usize>, Vec<f32>)>);
-    let decoded: Vec<Decoded> = groups
-        .into_par_iter()
-        .map(|(g, runs)| {
-            let params = read_group_params(c, g, params_chunks)?;
-            let section = |ch: usize, channels: Range<usize>, dst: &mut [f32]| {
-                let mut r = c.reader(g.data_kind(), ch as u16);
-                decode_data_section(g, &params[params_of[ch]], &mut r, channels, dst)
-            };
-            let pieces = match runs {
-                Some(runs) => {
-                    runs.into_par_iter().enumerate().try_for_each(|(ch, dst)| section(ch, 0..g.channels(), dst))?;
-                    Vec::new()
-                }
-                None => {
-                    // SH bands are split further into channel ranges of about JOB_CHANNELS so
-                    // that the work balances over the threads even for a one-chunk scene; a
-                    // codebook band's one job (all its channels) decodes one row index per Gaussian
-                    // (none for a band that shares the index of the band below: its data
-                    // sections are only checked to be empty).
-                    let codebook = params[0].codebook.is_some();
-                    let k = if params[0].shares_index() { 0 } else { g.channels() };
-                    let split = if codebook { 1 } else { k.div_ceil(JOB_CHANNELS) };
-                    let jobs: Vec<(usize, Range<usize>)> =
-                        (0..chunks).flat_map(|ch| (0..split).map(move |i| (ch, i * k / split..(i + 1) * k / split))).collect();
-                    jobs.into_par_iter()
-                        .map(|(ch, channels)| {
-                            // A codebook band: one index per Gaussian (a shared index: none).
-                            let width = if codebook { usize::from(k > 0) } else { channels.len() };
-                            let mut buf = vec![0.0; ranges[ch].len() * width];
-                            section(ch, channels.clone(), &mut buf).map(|()| (ch, channels, buf))
-                        })
-                        .collect::<Result<_, _>>()?
-                }
-            };
-            Ok((g, params, pieces))
-        })
-        .collect::<Result<_, DecodeError>>()?;
+    let decoded: Vec<Decoded> = par::try_map(groups, |(g, runs)| {
+        let params = read_group_params(c, g, params_chunks)?;
+        let section = |ch: usize, channels: Range<usize>, dst: &mut [f32]| {
+            let mut r = c.reader(g.data_kind(), ch as u16);
+            decode_data_section(g, &params[params_of[ch]], &mut r, channels, dst)
+        };
+        let pieces = match runs {
+            Some(runs) => {
+                par::try_map(runs.into_iter().enumerate().collect(), |(ch, dst)| section(ch, 0..g.channels(), dst))?;
+                Vec::new()
+            }
+            None => {
+                // SH bands are split further into channel ranges of about JOB_CHANNELS so
+                // that the work balances over the threads even for a one-chunk scene; a
+                // codebook band's one job (all its channels) decodes one row index per Gaussian
+                // (none for a band that shares the index of the band below: its data
+                // sections are only checked to be empty).
+                let codebook = params[0].codebook.is_some();
+                let k = if params[0].shares_index() { 0 } else { g.channels() };
+                let split = if codebook { 1 } else { k.div_ceil(JOB_CHANNELS) };
+                let jobs: Vec<(usize, Range<usize>)> =
+                    (0..chunks).flat_map(|ch| (0..split).map(move |i| (ch, i * k / split..(i + 1) * k / split))).collect();
+                par::try_map(jobs, |(ch, channels)| {
+                    // A codebook band: one index per Gaussian (a shared index: none).
+                    let width = if codebook { usize::from(k > 0) } else { channels.len() };
+                    let mut buf = vec![0.0; ranges[ch].len() * width];
+                    section(ch, channels.clone(), &mut buf).map(|()| (ch, channels, buf))
+                })?
+            }
+        };
+        Ok::<_, DecodeError>((g, params, pieces))
+    })?;
     // A band that shares the index of the band below takes the indices of the nearest band below
     // that has its own (SPEC §3.2), and looks them up in its own rows.
     let own_index = |group: Group| {
@@ -187,4 +184,20 @@ fn by_chunk<'a>(mut values: &'a mut [f32], ranges: &[Range<usize>], width: usize
             run
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One thread decodes on the caller, its loops sequential; more go to a pool of their own.
+    #[test]
+    fn a_one_thread_decode_stays_on_the_calling_thread() {
+        let me = std::thread::current().id();
+        assert_eq!(in_pool(1, || (std::thread::current().id(), par::sequential())), (me, true));
+        assert!(!par::sequential());
+        let (on, threads, sequential) = in_pool(3, || (std::thread::current().id(), rayon::current_num_threads(), par::sequential()));
+        assert_ne!(on, me);
+        assert_eq!((threads, sequential), (3, false));
+    }
 }

@@ -188,8 +188,9 @@ impl<R: Read> Decoder<R> {
         self
     }
 
-    /// Worker threads of the decode (at most 256); 0 (the default) = rayon's global pool. The
-    /// result is identical for every value; the pool for a count is built on first use and kept.
+    /// Worker threads of the decode (at most 256); 0 (the default) = rayon's global pool, 1 = the
+    /// calling thread alone (no pool, nothing handed to another thread). The result is identical
+    /// for every value; the pool for a count of two or more is built on first use and kept.
     pub fn set_threads(&mut self, threads: usize) -> &mut Self {
         self.threads = threads;
         self

@@ -44,6 +44,7 @@ mod decoder;
 pub mod entropy;
 mod error;
 pub mod math;
+mod par;
 pub mod render;
 #[doc(hidden)]
 pub mod rng;

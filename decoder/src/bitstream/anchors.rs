@@ -416,24 +416,33 @@ pub fn expand(set: &AnchorSet, d: u8, degree: u8, out: &mut Splats) -> Result<()
     s.sh_rest = vec![0.0; n * rest];
     let rest_rows: Vec<&mut [f32]> =
         if rest == 0 { (0..n).map(|_| &mut [][..]).collect() } else { s.sh_rest.chunks_exact_mut(rest).collect() };
-    let bad = (s.log_scales.par_iter_mut(), s.rotations.par_iter_mut(), s.opacity_logits.par_iter_mut(), s.sh_dc.par_iter_mut(), rest_rows)
-        .into_par_iter()
-        .enumerate()
-        .map_init(Scratch::default, |scratch, (i, (ls, rot, op, dc, rs))| {
-            let a = set.anchor_of[i] as usize;
-            let o = eval.eval(a, &set.feature_values[a * f..][..f], set.local[i], scratch);
-            let v = |c: usize| o[c] as f32 * set.out_steps[c];
-            *op = v(0);
-            *ls = std::array::from_fn(|j| v(1 + j) + set.base[3 * a + j]);
-            *rot = std::array::from_fn(|j| v(4 + j));
-            if rot.iter().all(|&c| c == 0.0) {
-                *rot = [1.0, 0.0, 0.0, 0.0];
-            }
-            *dc = std::array::from_fn(|c| v(8 + c));
-            rs.iter_mut().enumerate().for_each(|(c, r)| *r = v(11 + c));
-            !(op.is_finite() && ls.iter().chain(rot.iter()).chain(dc.iter()).chain(rs.iter()).all(|x| x.is_finite()))
-        })
-        .any(|bad| bad);
+    // Gaussian i from its anchor's MLP; true where a value is not finite.
+    type Row<'r> = (&'r mut [f32; 3], &'r mut [f32; 4], &'r mut f32, &'r mut [f32; 3], &'r mut [f32]);
+    let gaussian = |scratch: &mut Scratch, i: usize, (ls, rot, op, dc, rs): Row| {
+        let a = set.anchor_of[i] as usize;
+        let o = eval.eval(a, &set.feature_values[a * f..][..f], set.local[i], scratch);
+        let v = |c: usize| o[c] as f32 * set.out_steps[c];
+        *op = v(0);
+        *ls = std::array::from_fn(|j| v(1 + j) + set.base[3 * a + j]);
+        *rot = std::array::from_fn(|j| v(4 + j));
+        if rot.iter().all(|&c| c == 0.0) {
+            *rot = [1.0, 0.0, 0.0, 0.0];
+        }
+        *dc = std::array::from_fn(|c| v(8 + c));
+        rs.iter_mut().enumerate().for_each(|(c, r)| *r = v(11 + c));
+        !(op.is_finite() && ls.iter().chain(rot.iter()).chain(dc.iter()).chain(rs.iter()).all(|x| x.is_finite()))
+    };
+    let bad = if crate::par::sequential() {
+        let mut scratch = Scratch::default();
+        let rows = s.log_scales.iter_mut().zip(&mut s.rotations).zip(&mut s.opacity_logits).zip(&mut s.sh_dc).zip(rest_rows);
+        rows.enumerate().fold(false, |bad, (i, ((((ls, rot), op), dc), rs))| gaussian(&mut scratch, i, (ls, rot, op, dc, rs)) || bad)
+    } else {
+        (s.log_scales.par_iter_mut(), s.rotations.par_iter_mut(), s.opacity_logits.par_iter_mut(), s.sh_dc.par_iter_mut(), rest_rows)
+            .into_par_iter()
+            .enumerate()
+            .map_init(Scratch::default, |scratch, (i, row)| gaussian(scratch, i, row))
+            .any(|bad| bad)
+    };
     if bad {
         return Err("decoded Gaussian value is not finite");
     }

@@ -116,12 +116,12 @@ pub fn assemble(n: usize, degree: u8, pieces: &[Piece<'_>], out: &mut Splats) {
     }
     let Splats { positions, log_scales, rotations, opacity_logits, sh_dc, sh_rest, .. } = out;
     let scatter_sh = || scatter_sh(n, degree, pieces, sh_rest);
-    rayon::join(
-        || rayon::join(|| rows(positions, &of(Group::Position), n), || rows(log_scales, &of(Group::Scale), n)),
+    crate::par::join(
+        || crate::par::join(|| rows(positions, &of(Group::Position), n), || rows(log_scales, &of(Group::Scale), n)),
         || {
-            rayon::join(
+            crate::par::join(
                 || {
-                    rayon::join(
+                    crate::par::join(
                         || rows(rotations, &of(Group::Rotation), n),
                         || {
                             opacity_logits.clear();
@@ -129,7 +129,7 @@ pub fn assemble(n: usize, degree: u8, pieces: &[Piece<'_>], out: &mut Splats) {
                         },
                     )
                 },
-                || rayon::join(|| rows(sh_dc, &of(Group::ShDc), n), scatter_sh),
+                || crate::par::join(|| rows(sh_dc, &of(Group::ShDc), n), scatter_sh),
             )
         },
     );
@@ -165,21 +165,32 @@ pub fn scatter_sh(n: usize, degree: u8, pieces: &[Piece<'_>], sh_rest: &mut Vec<
         blocks.push((w[0], block));
         rest = tail;
     }
-    blocks.into_par_iter().for_each(|(start, rows)| {
+    // Row `i` of the block at `start`, from the pieces `mine` that cover the block.
+    let fill = |start: usize, mine: &[(usize, &Piece)], i: usize, dst: &mut [f32]| {
+        for &(col, p) in mine {
+            let (w, at) = (p.columns.len(), start - p.first + i);
+            let src = match p.codebook {
+                Some(rows) => &rows[p.values[at] as usize * w..][..w],
+                None => &p.values[at * w..][..w],
+            };
+            dst[col..col + w].copy_from_slice(src);
+        }
+    };
+    let covering = |start: usize, rows: &[f32]| -> Vec<(usize, &Piece)> {
         let count = rows.len() / row;
-        let mine: Vec<(usize, &Piece)> =
-            sh.iter().filter(|(_, p)| p.first <= start && p.first + p.count() >= start + count).copied().collect();
-        rows.par_chunks_mut(row).enumerate().with_min_len(1024).for_each(|(i, dst)| {
-            for &(col, p) in &mine {
-                let (w, at) = (p.columns.len(), start - p.first + i);
-                let src = match p.codebook {
-                    Some(rows) => &rows[p.values[at] as usize * w..][..w],
-                    None => &p.values[at * w..][..w],
-                };
-                dst[col..col + w].copy_from_slice(src);
-            }
+        sh.iter().filter(|(_, p)| p.first <= start && p.first + p.count() >= start + count).copied().collect()
+    };
+    if crate::par::sequential() {
+        for (start, rows) in blocks {
+            let mine = covering(start, rows);
+            rows.chunks_exact_mut(row).enumerate().for_each(|(i, dst)| fill(start, &mine, i, dst));
+        }
+    } else {
+        blocks.into_par_iter().for_each(|(start, rows)| {
+            let mine = covering(start, rows);
+            rows.par_chunks_mut(row).enumerate().with_min_len(1024).for_each(|(i, dst)| fill(start, &mine, i, dst));
         });
-    });
+    }
 }
 
 #[cfg(test)]

@@ -230,7 +230,7 @@ pub fn read_group_params(c: &Container<'_>, g: Group, chunks: usize) -> Result<V
         }
         read_params(g, &mut c.reader(g.params_kind(), chunk), codebook.clone(), header.has_neighbours(), shared)
     };
-    let params: Vec<GroupParams> = (0..chunks as u16).into_par_iter().map(read).collect::<Result<_, _>>()?;
+    let params: Vec<GroupParams> = crate::par::try_map((0..chunks as u16).collect(), read)?;
     // A band that shares the index of the band below does so in every level, and the band
     // below has a codebook of as many rows (SPEC §3.2).
     if let Some(cb) = params.iter().find(|p| p.shares_index()).and_then(|p| p.codebook.as_ref()) {
