@@ -53,8 +53,8 @@ typedef struct GscLimits {
 GscLimits gsc_default_limits(void);
 
 /* Decodes `len` bytes at `data` with the default limits. `max_sh_degree` (0..3) skips higher SH
- * bands; `threads` = 0 uses all cores (the result is identical for every thread count). On
- * success *out owns a new scene; on failure *out is NULL. */
+ * bands; `threads` = 0 uses all cores, 1 decodes on the calling thread (the result is identical
+ * for every thread count). On success *out owns a new scene; on failure *out is NULL. */
 int gsc_decode(const uint8_t *data, size_t len, int max_sh_degree, int threads, GscScene **out);
 
 /* As gsc_decode, with *limits (NULL: the defaults). */

@@ -119,7 +119,8 @@ unsafe fn bytes<'a>(data: *const u8, len: usize) -> Option<&'a [u8]> {
 }
 
 /// Decodes `len` bytes at `data` into a new scene stored in `*out` (NULL on failure), with the
-/// default limits. `max_sh_degree` (0..=3) skips higher SH bands; `threads` = 0 uses all cores.
+/// default limits. `max_sh_degree` (0..=3) skips higher SH bands; `threads` = 0 uses all cores,
+/// 1 decodes on the calling thread.
 ///
 /// # Safety
 /// `data` must point to `len` readable bytes; `out` must be a valid pointer to write to.
