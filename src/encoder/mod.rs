@@ -70,6 +70,10 @@ pub struct Encoded {
     /// The encoder's choices that [`Encoded::bytes`] codes with (the RD search's, with the
     /// steps fine-tuning learned).
     pub config: EncodeConfig,
+    /// A fine-tuned file's scene as training left it, before coding: coded again with
+    /// [`Encoded::config`] it gives the same file. `None` where the file codes the input scene
+    /// (no fine-tuning, or the search's own file was kept) or a dataset's.
+    pub trained: Option<Splats>,
 }
 
 /// A scene trained from a dataset's images, before the RD search ([`Encoder::train_dataset`]).
@@ -220,7 +224,7 @@ impl Encoder {
             anchor: Some(a.report),
             ..e.report
         };
-        Ok(Encoded { bytes: a.bytes, decoded: a.decoded, report, config: e.config })
+        Ok(Encoded { bytes: a.bytes, decoded: a.decoded, report, config: e.config, trained: None })
     }
 
     /// [`Encoder::encode_scene_with`] in the explicit profile.
@@ -313,7 +317,7 @@ impl Encoder {
             };
             return Ok(Encoded { report, ..plain });
         }
-        Ok(Encoded { report: EncodeReport { fine_tuning_kept: Some(true), ..tuned.report }, ..tuned })
+        Ok(Encoded { report: EncodeReport { fine_tuning_kept: Some(true), ..tuned.report }, trained: Some(trained), ..tuned })
     }
 
     /// Trains a scene from a posed-image dataset under `D + λ·R` (the rate term from half way,
@@ -700,7 +704,7 @@ impl Encoder {
             anchor: None,
             explicit_alternative: None,
         };
-        Ok(Encoded { bytes, decoded, report, config: *config })
+        Ok(Encoded { bytes, decoded, report, config: *config, trained: None })
     }
 }
 

@@ -198,7 +198,8 @@ fn empty_file_bytes() -> u64 {
 struct Searched {
     probes: Vec<Probe>,
     best: Option<(f64, Encoded, f64)>,
-    missed: Vec<(f64, EncodeConfig)>,
+    /// With the scene a fine-tuned miss coded ([`Encoded::trained`]).
+    missed: Vec<(f64, EncodeConfig, Option<Splats>)>,
 }
 
 impl Searched {
@@ -243,7 +244,7 @@ impl<'e, F: ProbeFn> Search<'e, F> {
         (self.events)(TargetEvent::Probe { probe: &probe, met });
         let margin = target.margin(outcome);
         if !met {
-            self.found.missed.push((t, e.config));
+            self.found.missed.push((t, e.config, e.trained));
         } else if self.found.best_outcome().is_none_or(|b| target.better(outcome, b)) {
             self.found.best = Some((t, e, psnr));
         }
@@ -542,22 +543,20 @@ impl Encoder {
         let Some((best_t, mut best, _)) = best else { return Ok(None) };
         // The RD curve has steps (the search's choices are discrete): between the best probe
         // and the nearest that missed, try configurations mixing their choices. A fine-tuned
-        // file's are mixed on the scene it decodes to (its trained Gaussians as coded: coding
-        // them again with the same choices gives them back), with its nearest fine-tuned miss.
+        // probe's choices are tried on the scene its training left (coding it again with them
+        // gives its file back), the best's mixes on the best's, the miss's nudges on the miss's.
         let nearest_miss = missed.iter().min_by(|a, b| (a.0 - best_t).abs().total_cmp(&(b.0 - best_t).abs()));
-        let fine_tuned = best.report.fine_tuning_kept == Some(true);
-        if let Some((_, bad)) = nearest_miss.filter(|_| mix) {
-            let own;
-            let mix_on = match fine_tuned {
-                true => {
-                    own = Trials::new(&best.decoded).map_err(|e| crate::Error::Input(e.to_string()))?;
-                    &own
-                }
-                false => trials,
-            };
+        if let Some((_, bad, bad_trained)) = nearest_miss.filter(|_| mix) {
+            fn own(trained: &Option<Splats>) -> Result<Option<Trials<'_>>> {
+                trained.as_ref().map(|s| Trials::new(s).map_err(|e| crate::Error::Input(e.to_string()))).transpose()
+            }
+            let (best_own, bad_own) = (own(&best.trained)?, own(bad_trained)?);
+            let sides = [best_own.as_ref().unwrap_or(trials), bad_own.as_ref().unwrap_or(trials)];
             events(TargetEvent::Mixing);
-            let filled = self.fill(mix_on, orbit, target, &best, bad, between)?;
-            if let Some(filled) = filled.filter(|f| target.better(outcome(f), outcome(&best))) {
+            let filled = self.fill(sides, orbit, target, &best, bad, between)?;
+            drop((best_own, bad_own));
+            if let Some((filled, from_miss)) = filled.filter(|f| target.better(outcome(&f.0), outcome(&best))) {
+                let trained = if from_miss { bad_trained.clone() } else { best.trained.take() };
                 let r = best.report;
                 // What made the scene it codes: the fine-tuning's, when it ran.
                 let report = EncodeReport {
@@ -577,15 +576,15 @@ impl Encoder {
                     },
                     ..filled.report
                 };
-                best = Encoded { report, ..filled };
+                best = Encoded { report, trained, ..filled };
             }
         }
         Ok(Some(best))
     }
 
-    /// Between `good` (the best encode meeting `target`, of `trials`' scene: the input, or the
-    /// scene a fine-tuned probe decodes to) and `bad` (the choices of the nearest probe that
-    /// missed it), up to [`FILL_ROUNDS`] rounds from the
+    /// Between `good` (the best encode meeting `target`, of `sides[0]`'s scene: the input, or
+    /// the scene a fine-tuned probe trained) and `bad` (the choices of the nearest probe that
+    /// missed it, of `sides[1]`'s scene), up to [`FILL_ROUNDS`] rounds from the
     /// best so far: the best with each one of its knobs set as in `bad` ([`rd::between`]),
     /// with another choice of importance classes ([`rd::tail_variants`]) or with one group's
     /// step an eighth of an octave coarser (for a PSNR target) or finer (for a size target,
@@ -595,25 +594,35 @@ impl Encoder {
     /// meets the target and is better. A round that finds nothing better ends the search. Beside
     /// the rounds, `bad` with one group's step nudged the other way (finer for a PSNR target),
     /// kept where it meets the target and beats the rounds' best. Every configuration tried
-    /// goes into `tried`. Returns the encode of the best when it beats `good`.
+    /// goes into `tried`, after the two it starts from (round 0, "best's choices" and "miss's
+    /// choices"). Returns the encode of the best when it beats `good`, and whether it
+    /// is a nudged miss (of `sides[1]`'s scene).
     fn fill(
         &self,
-        trials: &Trials,
+        sides: [&Trials; 2],
         orbit: &Orbit,
         target: Target,
         good: &Encoded,
         bad: &EncodeConfig,
         tried: &mut Vec<Between>,
-    ) -> Result<Option<Encoded>> {
+    ) -> Result<Option<(Encoded, bool)>> {
+        let [trials, miss_trials] = sides;
         let scene = trials.scene();
         let began = Instant::now();
-        let eval = |c: &EncodeConfig| -> Result<(usize, f64)> {
+        let eval_on = |trials: &Trials, c: &EncodeConfig| -> Result<(usize, f64)> {
             let c = EncodeConfig { learned_tables: false, ..self.file_config(c) };
             let (bytes, decoded) = trials.code(&c).map_err(|e| crate::Error::Input(e.to_string()))?;
             Ok((bytes, orbit.psnr(&decoded)))
         };
+        let eval = |c: &EncodeConfig| eval_on(trials, c);
         // Compared like for like: without learned tables (as every trial), same PSNR.
         let start = (good.config, eval(&good.config)?);
+        // Where the two sides start, as the trials code them (a fine-tuned probe's on its own
+        // trained scene: its file's PSNR).
+        let miss = eval_on(miss_trials, bad)?;
+        for (change, o) in [("best's choices", start.1), ("miss's choices", miss)] {
+            tried.push(Between { round: 0, change: change.into(), bytes: o.0, psnr: o.1 });
+        }
         // Steps nudged the way that spends the best's margin: coarser for fewer bytes.
         let nudges = |c: &EncodeConfig| rd::step_nudges(c, matches!(target, Target::Psnr(_)), scene.sh_degree);
         // From the other side (round 0): the miss with one step nudged the way that gains what
@@ -623,7 +632,7 @@ impl Encoder {
             .into_iter()
             .map(|(knob, c)| (format!("miss's {knob}"), c))
             .collect();
-        let outcomes = back.par_iter().map(|(_, c)| eval(c)).collect::<Result<Vec<_>>>()?;
+        let outcomes = back.par_iter().map(|(_, c)| eval_on(miss_trials, c)).collect::<Result<Vec<_>>>()?;
         let mut from_miss: Option<(EncodeConfig, (usize, f64))> = None;
         for ((knob, c), &o) in back.iter().zip(&outcomes) {
             tried.push(Between { round: 0, change: knob.clone(), bytes: o.0, psnr: o.1 });
@@ -665,20 +674,21 @@ impl Encoder {
             }
             debug_assert!(target.better(cur.1, from.1));
         }
-        if let Some(m) = from_miss.filter(|m| target.better(m.1, cur.1)) {
+        let miss_won = from_miss.is_some_and(|m| target.better(m.1, cur.1));
+        if let Some(m) = from_miss.filter(|_| miss_won) {
             cur = m;
-        }
-        if cur.0 == start.0 {
+        } else if cur.0 == start.0 {
             return Ok(None);
         }
         let config = cur.0;
+        let side = if miss_won { miss_trials } else { trials };
         let enc = Encoder { config: self.config.clone().with_lambda(good.report.lambda) };
         // Its search: the best probe's RD search, then this one.
         let searched = good.report.stages.rd_search_s + began.elapsed().as_secs_f64();
         let stages = EncodeStages { rd_search_s: searched, ..EncodeStages::default() };
         let mut e = enc.finish(
             orbit,
-            scene,
+            side.scene(),
             &config,
             0,
             Instant::now(),
@@ -686,11 +696,11 @@ impl Encoder {
             good.report.series.clone(),
             None,
             None,
-            Some(trials.importance()),
+            Some(side.importance()),
         )?;
         e.report.stages.total_s += searched;
         // The decoded scene, hence the PSNR, is the trial's; learned tables only shrink the file.
-        Ok(target.met(outcome(&e)).then_some(e))
+        Ok(target.met(outcome(&e)).then_some((e, miss_won)))
     }
 }
 
@@ -855,6 +865,42 @@ mod tests {
         assert!((start_lambda(92_000) - 2.5).abs() < 1e-12);
         assert_eq!(start_lambda(0), start_lambda(1));
         assert!(start_lambda(1) <= MAX_LAMBDA && start_lambda(usize::MAX) > 0.0);
+    }
+
+    /// A fine-tuned probe's choices are mixed on the scene its training left: the mixing starts
+    /// from the best probe's file (its PSNR exactly) and nudges the miss from the miss's file,
+    /// each on its own trained scene, not on the input nor on what a file decodes to.
+    #[test]
+    fn fine_tuned_probes_are_mixed_on_the_scenes_their_training_left() {
+        let input = crate::sample::scene(300, 3);
+        let orbit = Orbit::new(&input);
+        // Two "trained" scenes: the input with its colours and opacities moved, as training
+        // would move them, each coded at its own λ.
+        let enc = |lambda: f64| Encoder::new(EncoderConfig { lambda: Lambda::new(lambda).unwrap(), ..EncoderConfig::default() }).unwrap();
+        let tuned = |k: f32, lambda: f64| {
+            let mut s = input.clone();
+            s.sh_dc.iter_mut().flatten().for_each(|c| *c += k);
+            s.opacity_logits.iter_mut().for_each(|o| *o -= k);
+            let mut e = enc(lambda).encode_scene(&s, &mut |_| {}).unwrap();
+            e.report.orbit_psnr = orbit.psnr(&e.decoded);
+            e.report.fine_tuning_kept = Some(true);
+            e.trained = Some(s);
+            e
+        };
+        let (best, miss) = (tuned(0.02, 5.0), tuned(-0.03, 60.0));
+        let want = (best.report.orbit_psnr + miss.report.orbit_psnr) / 2.0;
+        assert!(miss.report.orbit_psnr < want && want < best.report.orbit_psnr, "{want}");
+        let (best_file, miss_file) = (outcome(&best), outcome(&miss));
+        let found = Searched { probes: Vec::new(), best: Some((1.0, best, best_file.1)), missed: vec![(2.0, miss.config, miss.trained)] };
+        let trials = Trials::new(&input).unwrap();
+        let mut between = Vec::new();
+        let out = enc(5.0).mixed(&trials, &orbit, Target::Psnr(want), found, true, &mut between, &mut |_| {}).unwrap().unwrap();
+        let start = |name: &str| between.iter().find(|b| b.round == 0 && b.change == name).map(|b| b.psnr);
+        assert_eq!(start("best's choices"), Some(best_file.1), "{between:?}");
+        assert_eq!(start("miss's choices"), Some(miss_file.1), "{between:?}");
+        // The file is the best probe's or one of the mixes, at or above the target.
+        assert!(out.report.orbit_psnr >= want && out.bytes.len() <= best_file.0, "{:?}", outcome(&out));
+        assert!(out.trained.is_some(), "the file codes a trained scene");
     }
 
     /// Where the searches on synthetic curves start.
