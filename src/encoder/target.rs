@@ -628,7 +628,7 @@ impl Encoder {
         // From the other side (round 0): the miss with one step nudged the way that gains what
         // it lacks. Where the curve steps, a miss can fall just short of the target while the
         // best lies far beyond it; the rounds below cannot cross such a step from the best.
-        let back: Vec<_> = rd::step_nudges(bad, !matches!(target, Target::Psnr(_)), scene.sh_degree)
+        let back: Vec<_> = rd::step_nudges(bad, !matches!(target, Target::Psnr(_)), miss_trials.scene().sh_degree)
             .into_iter()
             .map(|(knob, c)| (format!("miss's {knob}"), c))
             .collect();
