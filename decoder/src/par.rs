@@ -25,9 +25,10 @@ pub(crate) fn one_thread<T>(f: impl FnOnce() -> T) -> T {
     f()
 }
 
-/// Whether this thread is inside [`one_thread`].
+/// Whether this thread is inside [`one_thread`], or the target has no threads to hand work to
+/// (WebAssembly without atomics, where rayon would run every job here through its queues).
 pub(crate) fn sequential() -> bool {
-    ONE_THREAD.with(Cell::get)
+    cfg!(all(target_arch = "wasm32", not(target_feature = "atomics"))) || ONE_THREAD.with(Cell::get)
 }
 
 /// `rayon::join`, or `a` then `b` inside [`one_thread`].

@@ -11,8 +11,8 @@ pub use gscodec_decoder::{math, DecodeError, FileInfo, Header, Splats};
 use gscodec_decoder::{FormatErrorKind, Limits};
 
 /// The decoder's default limits, SH bands above `max_sh_degree` skipped. The browser has one
-/// thread: the decode runs on the calling thread (rayon falls back to it on
-/// `wasm32-unknown-unknown`).
+/// thread: on `wasm32-unknown-unknown` the decoder runs its loops as plain loops on the calling
+/// thread, as a one-thread decode does natively (rayon's job queues are not used).
 fn limits(max_sh_degree: u8) -> Limits {
     Limits { max_sh_degree, ..Limits::default() }
 }
