@@ -628,16 +628,43 @@ impl Encoder {
         // From the other side (round 0): the miss with one step nudged the way that gains what
         // it lacks. Where the curve steps, a miss can fall just short of the target while the
         // best lies far beyond it; the rounds below cannot cross such a step from the best.
-        let back: Vec<_> = rd::step_nudges(bad, !matches!(target, Target::Psnr(_)), miss_trials.scene().sh_degree)
-            .into_iter()
-            .map(|(knob, c)| (format!("miss's {knob}"), c))
-            .collect();
+        let psnr_target = matches!(target, Target::Psnr(_));
+        let miss_nudges = |c: &EncodeConfig| rd::step_nudges(c, !psnr_target, miss_trials.scene().sh_degree);
+        let back = miss_nudges(bad);
         let outcomes = back.par_iter().map(|(_, c)| eval_on(miss_trials, c)).collect::<Result<Vec<_>>>()?;
         let mut from_miss: Option<(EncodeConfig, (usize, f64))> = None;
         for ((knob, c), &o) in back.iter().zip(&outcomes) {
-            tried.push(Between { round: 0, change: knob.clone(), bytes: o.0, psnr: o.1 });
+            tried.push(Between { round: 0, change: format!("miss's {knob}"), bytes: o.0, psnr: o.1 });
             if target.met(o) && from_miss.is_none_or(|m| target.better(o, m.1)) {
                 from_miss = Some((*c, o));
+            }
+        }
+        // No nudge met the target alone: the nudges that moved towards it, one after another
+        // (most PSNR per byte first for a PSNR target, most bytes saved per dB lost for a size
+        // target), each kept where it moved further, until the miss meets the target.
+        if from_miss.is_none() {
+            let towards = |from: (usize, f64), o: (usize, f64)| if psnr_target { o.1 > from.1 } else { o.0 < from.0 };
+            let rate = |o: (usize, f64)| match psnr_target {
+                true => (o.1 - miss.1) / (o.0 as f64 - miss.0 as f64).max(1.0),
+                false => (miss.0 as f64 - o.0 as f64) / (miss.1 - o.1).max(1e-6),
+            };
+            let mut order: Vec<_> = back.iter().zip(&outcomes).filter(|(_, &o)| towards(miss, o)).collect();
+            order.sort_by(|a, b| rate(*b.1).total_cmp(&rate(*a.1)));
+            if let Some(&((_, first), &o)) = order.first() {
+                // The miss with the best nudge, then each further one on top.
+                let mut at = (*first, o);
+                for ((knob, _), _) in &order[1..] {
+                    let Some((_, c)) = miss_nudges(&at.0).into_iter().find(|(name, _)| name == knob) else { continue };
+                    let o = eval_on(miss_trials, &c)?;
+                    tried.push(Between { round: 0, change: format!("+ miss's {knob}"), bytes: o.0, psnr: o.1 });
+                    if towards(at.1, o) {
+                        at = (c, o);
+                    }
+                    if target.met(at.1) {
+                        from_miss = Some(at);
+                        break;
+                    }
+                }
             }
         }
         let mut cur = start;
@@ -901,6 +928,36 @@ mod tests {
         // The file is the best probe's or one of the mixes, at or above the target.
         assert!(out.report.orbit_psnr >= want && out.bytes.len() <= best_file.0, "{:?}", outcome(&out));
         assert!(out.trained.is_some(), "the file codes a trained scene");
+    }
+
+    /// Where no single nudge of the miss meets the target, the nudges are stacked, the most
+    /// PSNR per byte first (round 0, `+ miss's …`), until the miss meets it; where one meets it
+    /// alone, none are.
+    #[test]
+    fn a_miss_short_of_every_single_nudge_is_nudged_step_by_step() {
+        let scene = crate::sample::scene(300, 11);
+        let orbit = Orbit::new(&scene);
+        let trials = Trials::new(&scene).unwrap();
+        let enc = |lambda: f64| Encoder::new(EncoderConfig { lambda: Lambda::new(lambda).unwrap(), ..EncoderConfig::default() }).unwrap();
+        let (best, miss) = (enc(2.0).encode_scene(&scene, &mut |_| {}).unwrap(), enc(80.0).encode_scene(&scene, &mut |_| {}).unwrap());
+        let psnr = |c: &EncodeConfig| orbit.psnr(&trials.code(&EncodeConfig { learned_tables: false, ..*c }).unwrap().1);
+        let single = rd::step_nudges(&miss.config, false, scene.sh_degree).iter().map(|(_, c)| psnr(c)).fold(f64::MIN, f64::max);
+        assert!(single < best.report.orbit_psnr - 0.01, "{single} {}", best.report.orbit_psnr);
+        let stacked = |want: f64| {
+            let found = Searched { probes: Vec::new(), best: Some((1.0, best.clone(), 0.0)), missed: vec![(2.0, miss.config, None)] };
+            let mut between = Vec::new();
+            enc(2.0).mixed(&trials, &orbit, Target::Psnr(want), found, true, &mut between, &mut |_| {}).unwrap().unwrap();
+            let singles_met =
+                between.iter().any(|b| b.round == 0 && b.change.starts_with("miss's ") && b.change.ends_with("finer") && b.psnr >= want);
+            let stacked: Vec<f64> = between.iter().filter(|b| b.round == 0 && b.change.starts_with("+ miss's ")).map(|b| b.psnr).collect();
+            (singles_met, stacked)
+        };
+        // Just above every single nudge: they are stacked.
+        let (met, tried) = stacked(single + 1e-6);
+        assert!(!met && !tried.is_empty(), "{tried:?}");
+        // At the best single nudge's PSNR: it meets alone, nothing is stacked.
+        let (met, tried) = stacked(single);
+        assert!(met && tried.is_empty(), "{tried:?}");
     }
 
     /// Where the searches on synthetic curves start.
