@@ -624,11 +624,11 @@ impl Encoder {
             tried.push(Between { round: 0, change: change.into(), bytes: o.0, psnr: o.1 });
         }
         // Steps nudged the way that spends the best's margin: coarser for fewer bytes.
-        let nudges = |c: &EncodeConfig| rd::step_nudges(c, matches!(target, Target::Psnr(_)), scene.sh_degree);
+        let psnr_target = matches!(target, Target::Psnr(_));
+        let nudges = |c: &EncodeConfig| rd::step_nudges(c, psnr_target, scene.sh_degree);
         // From the other side (round 0): the miss with one step nudged the way that gains what
         // it lacks. Where the curve steps, a miss can fall just short of the target while the
         // best lies far beyond it; the rounds below cannot cross such a step from the best.
-        let psnr_target = matches!(target, Target::Psnr(_));
         let miss_nudges = |c: &EncodeConfig| rd::step_nudges(c, !psnr_target, miss_trials.scene().sh_degree);
         let back = miss_nudges(bad);
         let outcomes = back.par_iter().map(|(_, c)| eval_on(miss_trials, c)).collect::<Result<Vec<_>>>()?;
