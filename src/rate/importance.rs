@@ -151,6 +151,16 @@ impl Importance {
         Importance { significance, removal, view_basis }
     }
 
+    /// Per Gaussian, what the importance classes' coarse tail ranks by ([`super::CoarseTail`]):
+    /// `√(removal × significance)`, the geometric mean of the squared error its removal causes
+    /// and its coverage. Quantisation noise on a Gaussian costs in proportion to neither alone:
+    /// coverage is linear in the blending weight where a colour error's cost is quadratic, and
+    /// the removal error is the largest change, not a step's (docs/codec.md §34 measured both
+    /// and this mean).
+    pub fn tail_rank(&self) -> Vec<f32> {
+        self.removal.iter().zip(&self.significance).map(|(&r, &s)| (r.max(0.0) * s.max(0.0)).sqrt()).collect()
+    }
+
     /// Gaussians measured.
     pub fn len(&self) -> usize {
         self.significance.len()
@@ -249,6 +259,28 @@ mod tests {
         assert!(vb[1].abs() < 1e-3 && vb[2].abs() < 1e-3, "{vb:?}");
         assert_eq!(m.view_basis[7], [0.0; 15], "unseen");
         assert!(Importance::on(&Splats::new(0), &cams, [0.0; 3]).view_basis.is_empty(), "no rest bands, no basis");
+    }
+
+    /// The coarse tail takes a Gaussian that covers much but whose removal costs nothing (a
+    /// large one the colour of the background, nothing behind it) before a small distinct one
+    /// that covers less: coverage alone would take the small one first.
+    #[test]
+    fn the_tail_ranks_by_removal_error_and_coverage_together() {
+        let mut s = Splats::new(0);
+        // Colour 0.5 + C₀·dc clamps to black, the background of `Importance::of`. It lies 1.5
+        // below the other along the up axis (−y): the views look 10–40° down, so no line of
+        // sight meets both.
+        s.push([0.0, 1.5, 0.0], [-1.5; 3], [1.0, 0.0, 0.0, 0.0], 6.0, [-2.0; 3], &[]);
+        s.push([0.0; 3], [-3.0; 3], [1.0, 0.0, 0.0, 0.0], 6.0, [2.0, -1.0, -1.0], &[]);
+        let m = Importance::of(&s);
+        assert!(m.significance[0] > 4.0 * m.significance[1], "the black one covers more: {:?}", m.significance);
+        assert!(m.removal[1] > 0.0 && m.removal[0] == 0.0, "only the red one's removal shows: {:?}", m.removal);
+        let rank = m.tail_rank();
+        assert!(rank[0] < rank[1], "{rank:?}");
+        assert_eq!(rank[1], (m.removal[1] * m.significance[1]).sqrt());
+        let tail = crate::rate::CoarseTail { share: 0.5, factor: 2.0 };
+        assert_eq!(tail.levels(&rank), vec![1, 0], "the red one keeps the fine steps");
+        assert_eq!(tail.levels(&m.significance), vec![0, 1], "by coverage alone it would not");
     }
 
     #[test]

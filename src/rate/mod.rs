@@ -97,19 +97,19 @@ impl CoarseTail {
         !(self.share > 0.0 && self.share < 1.0) || self.factor == 1.0
     }
 
-    /// Per Gaussian of a scene with significance `sig`: 1 for the ⌊share·n⌋ least significant
-    /// (ties: the later index first), else 0. Empty when the tail is off or either level would
-    /// be empty.
-    pub fn levels(&self, sig: &[f32]) -> Vec<u8> {
-        let n = sig.len();
+    /// Per Gaussian of a scene ranked by `rank` ([`Importance::tail_rank`]): 1 for the
+    /// ⌊share·n⌋ lowest (ties: the later index first), else 0. Empty when the tail is off or
+    /// either level would be empty.
+    pub fn levels(&self, rank: &[f32]) -> Vec<u8> {
+        let n = rank.len();
         let cut = (f64::from(self.share) * n as f64) as usize;
         if self.is_off() || cut == 0 || cut >= n {
             return Vec::new();
         }
-        let mut rank: Vec<usize> = (0..n).collect();
-        rank.sort_by(|&a, &b| sig[a].total_cmp(&sig[b]).then(b.cmp(&a)));
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by(|&a, &b| rank[a].total_cmp(&rank[b]).then(b.cmp(&a)));
         let mut level = vec![0u8; n];
-        rank[..cut].iter().for_each(|&i| level[i] = 1);
+        order[..cut].iter().for_each(|&i| level[i] = 1);
         level
     }
 
@@ -226,19 +226,28 @@ fn opaque_enough(splats: &Splats, i: usize, config: &EncodeConfig) -> bool {
 /// cheapest rotation ([`quantise::canonical_axes`]: the same Gaussians). `importance` is that
 /// of `splats` ([`Importance::of`]; computed here when `config` needs it and it is `None`).
 pub fn prepared(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> Splats {
-    prepared_with_significance(splats, config, importance).0
+    prepared_with_significance(splats, config, importance).scene
 }
 
-/// [`prepared`], the significance of the Gaussians it keeps when there is one, and, with
-/// [`EncodeConfig::dc_fit`] and SH rest bands, the kept Gaussians' view basis
-/// ([`Importance::view_basis`]), with which their DC has taken back the mean colour the dropped
-/// bands and the degree cut took away ([`quantise::fit_dc`]) and quantisation will take back
-/// what rounding and codebooks take ([`quantise::compensate_dc`]).
-fn prepared_with_significance(
-    splats: &Splats,
-    config: &EncodeConfig,
-    importance: Option<&Importance>,
-) -> (Splats, Option<Vec<f32>>, Option<Vec<[f32; 15]>>) {
+/// [`prepared`]'s scene and, where the input's [`Importance`] was measured, its kept Gaussians'
+/// measures.
+struct Prepared {
+    scene: Splats,
+    /// [`Importance::significance`] of the kept Gaussians.
+    significance: Option<Vec<f32>>,
+    /// [`Importance::tail_rank`] of the kept Gaussians.
+    tail_rank: Option<Vec<f32>>,
+    /// [`Importance::view_basis`] of the kept Gaussians, with [`EncodeConfig::dc_fit`] and SH
+    /// rest bands.
+    view_basis: Option<Vec<[f32; 15]>>,
+}
+
+/// [`prepared`], the kept Gaussians' measures when there are some, and, with
+/// [`EncodeConfig::dc_fit`] and SH rest bands, their view basis, with which their DC has taken
+/// back the mean colour the dropped bands and the degree cut took away ([`quantise::fit_dc`])
+/// and quantisation will take back what rounding and codebooks take
+/// ([`quantise::compensate_dc`]).
+fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> Prepared {
     let own;
     let importance = match importance {
         None if config.needs_importance() => {
@@ -261,7 +270,8 @@ fn prepared_with_significance(
     }
     quantise::canonical_axes(&mut s);
     quantise::cap_opacities(&mut s, config.steps.opacity);
-    (s, sig, basis)
+    let tail_rank = importance.map(|m| kept_of(&m.tail_rank(), &keep));
+    Prepared { scene: s, significance: sig, tail_rank, view_basis: basis }
 }
 
 /// Prunes, quantises and encodes a scene. Refuses scenes with NaN/Inf or invalid arrays.
@@ -289,10 +299,10 @@ pub fn encode_cached(
 ) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let (s, sig, view_basis) = prepared_with_significance(splats, config, importance);
-    let level = match &sig {
+    let Prepared { scene: s, significance: sig, tail_rank, view_basis } = prepared_with_significance(splats, config, importance);
+    let level = match &tail_rank {
         _ if config.progressive => importance::levels(&importance::significance(&s)),
-        Some(sig) => config.tail.levels(sig),
+        Some(rank) => config.tail.levels(rank),
         None => Vec::new(),
     };
     // Importance classes: the step factor of each level value, and its coarser position grid.
@@ -347,10 +357,10 @@ mod tests {
         assert!((0..s.len()).any(|i| (0..s.len()).any(|j| m.significance[i] > m.significance[j] && err[i] < err[j])));
     }
 
-    /// The tail is exactly the ⌊share·n⌋ least significant Gaussians (ties: later ones first), and
+    /// The tail is exactly the ⌊share·n⌋ lowest-ranked Gaussians (ties: later ones first), and
     /// takes its factor only in the levels wholly inside it.
     #[test]
-    fn the_tail_is_the_least_significant_share() {
+    fn the_tail_is_the_lowest_ranked_share() {
         let sig = [5.0, 1.0, 3.0, 1.0, 9.0, 0.0, 2.0, 7.0];
         let tail = CoarseTail { share: 0.5, factor: 2.0 };
         assert_eq!(tail.levels(&sig), vec![0, 1, 0, 1, 0, 1, 1, 0]);
