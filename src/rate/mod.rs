@@ -226,7 +226,7 @@ fn opaque_enough(splats: &Splats, i: usize, config: &EncodeConfig) -> bool {
 /// cheapest rotation ([`quantise::canonical_axes`]: the same Gaussians). `importance` is that
 /// of `splats` ([`Importance::of`]; computed here when `config` needs it and it is `None`).
 pub fn prepared(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> Splats {
-    prepared_with_significance(splats, config, importance).scene
+    prepared_with_measures(splats, config, importance).scene
 }
 
 /// [`prepared`]'s scene and, where the input's [`Importance`] was measured, its kept Gaussians'
@@ -235,7 +235,7 @@ struct Prepared {
     scene: Splats,
     /// [`Importance::significance`] of the kept Gaussians.
     significance: Option<Vec<f32>>,
-    /// [`Importance::tail_rank`] of the kept Gaussians.
+    /// [`Importance::tail_rank`] of the kept Gaussians, where [`EncodeConfig::tail`] is on.
     tail_rank: Option<Vec<f32>>,
     /// [`Importance::view_basis`] of the kept Gaussians, with [`EncodeConfig::dc_fit`] and SH
     /// rest bands.
@@ -247,7 +247,7 @@ struct Prepared {
 /// back the mean colour the dropped bands and the degree cut took away ([`quantise::fit_dc`])
 /// and quantisation will take back what rounding and codebooks take
 /// ([`quantise::compensate_dc`]).
-fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> Prepared {
+fn prepared_with_measures(splats: &Splats, config: &EncodeConfig, importance: Option<&Importance>) -> Prepared {
     let own;
     let importance = match importance {
         None if config.needs_importance() => {
@@ -270,7 +270,7 @@ fn prepared_with_significance(splats: &Splats, config: &EncodeConfig, importance
     }
     quantise::canonical_axes(&mut s);
     quantise::cap_opacities(&mut s, config.steps.opacity);
-    let tail_rank = importance.map(|m| kept_of(&m.tail_rank(), &keep));
+    let tail_rank = importance.filter(|_| !config.tail.is_off()).map(|m| kept_of(&m.tail_rank(), &keep));
     Prepared { scene: s, significance: sig, tail_rank, view_basis: basis }
 }
 
@@ -299,7 +299,7 @@ pub fn encode_cached(
 ) -> Result<(Vec<u8>, EncodeReport, Quantised), SceneError> {
     splats.validate()?;
     let input = (splats.len(), splats.sh_degree);
-    let Prepared { scene: s, significance: sig, tail_rank, view_basis } = prepared_with_significance(splats, config, importance);
+    let Prepared { scene: s, significance: sig, tail_rank, view_basis } = prepared_with_measures(splats, config, importance);
     let level = match &tail_rank {
         _ if config.progressive => importance::levels(&importance::significance(&s)),
         Some(rank) => config.tail.levels(rank),
