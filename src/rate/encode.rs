@@ -202,6 +202,9 @@ pub struct GroupCache {
     groups: Mutex<HashMap<(u64, u64), Arc<CodedGroup>>>,
     /// The trials' SH codebooks.
     pub codebooks: super::vq::Memo,
+    /// The trials' rate-aware roundings ([`super::rdoq::round_groups`]), by group, targets and
+    /// the values rounded to nearest.
+    pub(crate) rounded: Mutex<HashMap<(u64, u64), Arc<Vec<Vec<i32>>>>>,
 }
 
 impl GroupCache {

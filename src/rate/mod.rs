@@ -15,10 +15,12 @@ pub mod lambda;
 pub mod model;
 pub mod quantise;
 pub mod rd;
+pub mod rdoq;
 pub mod tables;
 pub mod term;
 pub mod vq;
 
+use gscodec_decoder::bitstream::layout::Group;
 use gscodec_decoder::{SceneError, Splats};
 pub use importance::Importance;
 
@@ -73,6 +75,10 @@ pub struct EncodeConfig {
     /// differently from that (codebook rows, the importance classes' coarser steps), not the
     /// rounding training already fitted the DC to ([`quantise::rest_as_trained`]).
     pub dc_fit_trained: bool,
+    /// Rate-aware rounding ([`rdoq`]): a value may take the integer on the other side of its
+    /// target where its channel's table makes that cheaper by more than the extra error is
+    /// worth. Off: every value is rounded to nearest.
+    pub rate_rounding: bool,
 }
 
 /// Importance classes (format 6.0, SPEC §4): the least significant `share` of the Gaussians kept
@@ -153,6 +159,7 @@ impl Default for EncodeConfig {
             tail: CoarseTail::OFF,
             dc_fit: false,
             dc_fit_trained: false,
+            rate_rounding: true,
         }
     }
 }
@@ -319,9 +326,29 @@ pub fn encode_cached(
         let nonempty: Vec<f32> = factors.into_iter().zip(&counts).filter(|x| *x.1 > 0).map(|x| x.0).collect();
         quantise::apply_level_factors(&mut q, &s, &order, &config.steps, &nonempty);
     }
+    // Rate-aware rounding (rdoq): the groups rounded to nearest above, then the DC once it has
+    // taken back what the coded SH rest lost.
+    let row_factor = q.row_factors();
+    let factor = |j: usize| row_factor[j];
+    if config.rate_rounding {
+        let mut which = vec![Group::Scale, Group::Rotation, Group::Opacity];
+        if view_basis.is_none() {
+            which.push(Group::ShDc);
+        }
+        if config.steps.rest_deadzone <= 0.0 {
+            which.extend([Group::Sh1, Group::Sh2, Group::Sh3]);
+        }
+        let targets = |g: Group| quantise::group_targets(&s, &order, g, &config.steps, &factor);
+        rdoq::round_groups(&mut q, &which, &targets, config.neighbour_tables, cache);
+    }
     if let Some(view_basis) = &view_basis {
         let trained = config.dc_fit_trained.then(|| quantise::rest_as_trained(&s, &config.steps));
-        quantise::compensate_dc(&mut q, trained.as_ref().unwrap_or(&s), &order, view_basis);
+        let dc = quantise::compensate_dc(&mut q, trained.as_ref().unwrap_or(&s), &order, view_basis);
+        if config.rate_rounding && !dc.is_empty() {
+            let step = config.steps.sh_dc;
+            let targets = |_: Group| (0..3).map(|c| dc.iter().enumerate().map(|(j, d)| d[c] / (step * factor(j))).collect()).collect();
+            rdoq::round_groups(&mut q, &[Group::ShDc], &targets, config.neighbour_tables, cache);
+        }
     }
     let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, config.neighbour_tables, cache);
     Ok((bytes, report, q))

@@ -133,6 +133,17 @@ impl Quantised {
         steps.iter().enumerate().map(scaled).collect()
     }
 
+    /// Per Gaussian (file order), the factor its level's steps are the base steps multiplied by
+    /// ([`Quantised::level_factors`]; 1 without importance classes).
+    pub fn row_factors(&self) -> Vec<f32> {
+        let ranges = self.level_ranges();
+        ranges
+            .iter()
+            .enumerate()
+            .flat_map(|(l, r)| std::iter::repeat_n(self.level_factors.get(l).copied().unwrap_or(1.0), r.len()))
+            .collect()
+    }
+
     /// The file's chunks and levels.
     pub fn layout(&self) -> Layout {
         if self.levels.is_empty() {
@@ -278,24 +289,38 @@ fn group_steps(g: Group, steps: &Steps) -> Vec<f32> {
 
 /// The integer channels of group `g` (not position) of `splats`' Gaussians `order` (file order),
 /// Gaussian `order[j]` quantised with the base steps times `factor(j)` (the rotation index is
-/// not a step).
+/// not a step): [`group_targets`] rounded to nearest (SH rest bands with the dead zone).
 fn quantise_group(splats: &Splats, order: &[usize], g: Group, steps: &Steps, factor: &dyn Fn(usize) -> f32) -> Vec<Vec<i32>> {
-    let per = |f: &dyn Fn(usize, f32) -> i32| order.iter().enumerate().map(|(j, &i)| f(i, factor(j))).collect::<Vec<i32>>();
+    let round: fn(f32) -> i32 = |t| t.round() as i32; // `as` saturates: no wrap-around for any value
+    let dz = steps.rest_deadzone;
+    let rest = g.sh_band() > 0 && dz > 0.0;
+    let targets = group_targets(splats, order, g, steps, factor);
+    targets
+        .iter()
+        .map(|c| if rest { c.iter().map(|&t| q_dz(t, 1.0, dz)).collect() } else { c.iter().map(|&t| round(t)).collect() })
+        .collect()
+}
+
+/// The values of group `g` (not position) of `splats`' Gaussians `order` (file order) in units
+/// of their steps (the base steps times `factor(j)` for file row j), before rounding; the
+/// rotation's index channel holds the index of its omitted component.
+pub(crate) fn group_targets(splats: &Splats, order: &[usize], g: Group, steps: &Steps, factor: &dyn Fn(usize) -> f32) -> Vec<Vec<f32>> {
+    let per = |f: &dyn Fn(usize, f32) -> f32| order.iter().enumerate().map(|(j, &i)| f(i, factor(j))).collect::<Vec<f32>>();
     match g {
-        Group::Scale => (0..3).map(|c| per(&|i, m| q(splats.log_scales[i][c], steps.scale * m))).collect(),
+        Group::Scale => (0..3).map(|c| per(&|i, m| splats.log_scales[i][c] / (steps.scale * m))).collect(),
         Group::Rotation => {
-            let rot: Vec<(usize, [i32; 3])> =
-                order.iter().enumerate().map(|(j, &i)| smallest_three(splats.rotations[i], steps.rotation * factor(j))).collect();
-            let mut ch = vec![rot.iter().map(|r| r.0 as i32).collect::<Vec<_>>()];
+            let rot: Vec<(usize, [f32; 3])> =
+                order.iter().enumerate().map(|(j, &i)| smallest_three_targets(splats.rotations[i], steps.rotation * factor(j))).collect();
+            let mut ch = vec![rot.iter().map(|r| r.0 as f32).collect::<Vec<_>>()];
             ch.extend((0..3).map(|c| rot.iter().map(|r| r.1[c]).collect()));
             ch
         }
-        Group::Opacity => vec![per(&|i, m| q(splats.opacity_logits[i], steps.opacity * m))],
-        Group::ShDc => (0..3).map(|c| per(&|i, m| q(splats.sh_dc[i][c], steps.sh_dc * m))).collect(),
+        Group::Opacity => vec![per(&|i, m| splats.opacity_logits[i] / (steps.opacity * m))],
+        Group::ShDc => (0..3).map(|c| per(&|i, m| splats.sh_dc[i][c] / (steps.sh_dc * m))).collect(),
         _ => {
             let b = usize::from(g.sh_band());
             let (k, first, s) = (splats.rest_coeffs(), b * b - 1, steps.sh_rest[b - 1]);
-            (0..g.channels()).map(|j| per(&|i, m| q_dz(splats.sh_rest[(i * k + first) * 3 + j], s * m, steps.rest_deadzone))).collect()
+            (0..g.channels()).map(|j| per(&|i, m| splats.sh_rest[(i * k + first) * 3 + j] / (s * m))).collect()
         }
     }
 }
@@ -486,6 +511,13 @@ pub fn cap_opacities(splats: &mut Splats, step: f32) {
 
 /// Normalises, makes the largest component positive and quantises the other three.
 pub fn smallest_three(r: [f32; 4], step: f32) -> (usize, [i32; 3]) {
+    let (largest, t) = smallest_three_targets(r, step);
+    (largest, t.map(|t| t.round() as i32))
+}
+
+/// [`smallest_three`] before rounding: the index of the largest component and the other three
+/// in units of `step`.
+fn smallest_three_targets(r: [f32; 4], step: f32) -> (usize, [f32; 3]) {
     let norm = r.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
     let u: [f64; 4] = std::array::from_fn(|i| f64::from(r[i]) / norm);
     let mut largest = 0;
@@ -495,11 +527,11 @@ pub fn smallest_three(r: [f32; 4], step: f32) -> (usize, [i32; 3]) {
         }
     }
     let sign = if u[largest] < 0.0 { -1.0 } else { 1.0 };
-    let mut c = [0i32; 3];
+    let mut c = [0f32; 3];
     let mut j = 0;
     for (i, &x) in u.iter().enumerate() {
         if i != largest {
-            c[j] = q((x * sign) as f32, step);
+            c[j] = (x * sign) as f32 / step;
             j += 1;
         }
     }
@@ -599,16 +631,17 @@ pub fn rest_as_trained(splats: &Splats, steps: &Steps) -> Splats {
 /// its file order, [`quantise_ordered`]) gets the DC of `splats` plus the [`dc_shift`] from
 /// `splats`' SH rest to the coded one (codebook rows, rounding with the dead zone), quantised
 /// with its level's DC step. `view_basis` has one entry per Gaussian of `splats`. The decoder
-/// is unchanged: these are the encoder's choice of DC values.
+/// is unchanged: these are the encoder's choice of DC values. Returns the DC values before
+/// rounding, in file order (none without a DC group).
 ///
 /// # Panics
 /// If `view_basis` is not one entry per Gaussian of `splats`.
-pub fn compensate_dc(q: &mut Quantised, splats: &Splats, order: &[usize], view_basis: &[[f32; 15]]) {
+pub fn compensate_dc(q: &mut Quantised, splats: &Splats, order: &[usize], view_basis: &[[f32; 15]]) -> Vec<[f32; 3]> {
     assert_eq!(view_basis.len(), splats.len(), "one view basis per Gaussian");
-    let Some(dc) = q.groups.iter().position(|g| g.0 == Group::ShDc) else { return };
+    let Some(dc) = q.groups.iter().position(|g| g.0 == Group::ShDc) else { return Vec::new() };
     let k_c = splats.rest_coeffs();
     let bands: Vec<usize> = (0..q.groups.len()).filter(|&gi| q.groups[gi].0.sh_band() > 0).collect();
-    let mut new_dc: Vec<[i32; 3]> = Vec::with_capacity(q.len());
+    let mut new_dc: Vec<[f32; 3]> = Vec::with_capacity(q.len());
     for (l, r) in q.level_ranges().into_iter().enumerate() {
         // The coded rest of this level's Gaussians, indexed by band (none: a band not coded).
         let mut coded: [Option<Vec<f32>>; 4] = Default::default();
@@ -626,12 +659,14 @@ pub fn compensate_dc(q: &mut Quantised, splats: &Splats, order: &[usize], view_b
                 coded[b].as_ref().map_or(0.0, |v| v[t * 3 * (2 * b + 1) + 3 * m + ch])
             };
             let shift = dc_shift(&splats.sh_rest[i * k_c * 3..][..k_c * 3], k_c, coded_at, &view_basis[i]);
-            new_dc.push(std::array::from_fn(|ch| self::q(splats.sh_dc[i][ch] + shift[ch], steps[ch])));
+            let target: [f32; 3] = std::array::from_fn(|ch| splats.sh_dc[i][ch] + shift[ch]);
+            new_dc.push(target);
+            for (ch, col) in q.groups[dc].2.iter_mut().enumerate() {
+                col[j] = self::q(target[ch], steps[ch]);
+            }
         }
     }
-    for (ch, col) in q.groups[dc].2.iter_mut().enumerate() {
-        col.iter_mut().zip(&new_dc).for_each(|(v, d)| *v = d[ch]);
-    }
+    new_dc
 }
 
 /// The scene a decoder will restore from `q`: the decoder's dequantisation and assembler.

@@ -831,9 +831,13 @@ pub fn search_with(
     let m = &trials.ev.importance;
     let errs = sorted((0..scene.len()).filter(|&i| opaque_enough(scene, i, &fine)).map(|i| m.removal[i]).collect());
     //    `D` on the pruning views ([`PRUNING_SIZE`]) where the trials have them.
-    let cands = prune_candidates(&errs, &fine);
+    //    Its trials round every value to nearest: rate-aware rounding fits each group's tables
+    //    once more, and a pruning trial changes every group (with it the stage took 1.5× as
+    //    long on the 124k proxy); the later stages round with it (docs/codec.md §35).
+    let nearest = EncodeConfig { rate_rounding: false, ..fine };
+    let cands = prune_candidates(&errs, &nearest);
     let outcomes = trials.run_pruning(&cands.iter().map(|c| c.1).collect::<Vec<_>>())?;
-    let base = log.pick((f64::INFINITY, fine), cands, outcomes).1;
+    let base = EncodeConfig { rate_rounding: fine.rate_rounding, ..log.pick((f64::INFINITY, nearest), cands, outcomes).1 };
     let b0 = trials.base(&base)?.bytes;
     clock.lap(trials, "pruning");
     if b0 < 200 {
