@@ -1129,8 +1129,10 @@ mod tests {
         let (fine, coarse) = (Evaluator::with_views(&scene, orbit(PRUNING_SIZE)), Evaluator::new(&scene));
         let fine_config =
             EncodeConfig { steps: fine_steps(), learned_tables: false, dc_fit: scene.sh_degree > 0, ..EncodeConfig::default() };
+        // The pruning trials round to nearest; the stages after them round with the tables.
+        let nearest = EncodeConfig { rate_rounding: false, ..fine_config };
         for (name, t) in [("prune none", 0.0), ("prune all", f32::INFINITY)] {
-            let config = EncodeConfig { min_removal_error: t, ..fine_config };
+            let config = EncodeConfig { min_removal_error: t, ..nearest };
             let trial = path.iter().find(|p| p.change == name).unwrap();
             let (bytes, d) = fine.eval(&config).unwrap();
             assert_eq!((trial.bytes, trial.d), (bytes, d), "{name}");
@@ -1143,10 +1145,10 @@ mod tests {
             sorted((0..scene.len()).filter(|&i| opaque_enough(&scene, i, &fine_config)).map(|i| trials.importance().removal[i]).collect());
         let pruned = path.iter().take_while(|p| p.change.starts_with("prune")).collect::<Vec<_>>();
         let best = pruned.iter().fold(pruned[0], |b, p| if p.j < b.j { p } else { b });
-        let (_, chosen) = prune_candidates(&errs, &fine_config).into_iter().find(|(n, _)| *n == best.change).unwrap();
+        let (_, chosen) = prune_candidates(&errs, &nearest).into_iter().find(|(n, _)| *n == best.change).unwrap();
         let deg = scene.sh_degree.min(3);
         let sh = path.iter().find(|p| p.change == format!("sh_degree={deg}")).unwrap();
-        assert_eq!((sh.bytes, sh.d), coarse.eval(&EncodeConfig { max_sh_degree: deg, ..chosen }).unwrap());
+        assert_eq!((sh.bytes, sh.d), coarse.eval(&EncodeConfig { max_sh_degree: deg, rate_rounding: true, ..chosen }).unwrap());
         // A dataset's trials have no separate pruning views.
         let cams = crate::views::training_cameras(&scene, 2, 50, 40, glam::Vec3::NEG_Y);
         assert!(Trials::with_views(&scene, RdViews::cameras(cams, [0.0; 3])).unwrap().pruning.is_none());
