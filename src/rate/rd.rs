@@ -822,7 +822,15 @@ pub fn search_with(
     let mut log = Log { path: Vec::new(), on_step: &mut on_step, lambda };
     // The DC fit from the start: with it, leaving SH bands out and coarser SH steps cost less,
     // which every choice below weighs (docs/codec.md §29).
-    let fine = EncodeConfig { steps: fine, learned_tables: false, dc_fit: dc_fit && scene.sh_degree > 0, ..EncodeConfig::default() };
+    // Rate-aware rounding weighs a bit at the exchange rate of steps chosen for a λ > 0; at
+    // λ = 0 bits are free and every value is rounded to nearest (docs/codec.md §35).
+    let fine = EncodeConfig {
+        steps: fine,
+        learned_tables: false,
+        dc_fit: dc_fit && scene.sh_degree > 0,
+        rate_rounding: lambda.get() > 0.0,
+        ..EncodeConfig::default()
+    };
     trials.calibrate(&fine)?;
     // 1. Pruning by removal error (at fine steps): the colour error that dropping the Gaussian
     //    alone causes in the views. It subsumes opacity, footprint and coverage thresholds,
