@@ -12,6 +12,7 @@ use gscodec_decoder::bitstream::info::{write_info, EncoderInfo};
 use std::ops::Range;
 
 use gscodec_decoder::bitstream::layout::{Group, CODEBOOK_KIND, INFO_KIND, LEVELS_KIND};
+use gscodec_decoder::bitstream::levels::Layout;
 use gscodec_decoder::bitstream::params::{write_channel_params, write_codebook, write_position_params};
 use gscodec_decoder::bitstream::positions::{delta_length, delta_raw_bits, morton_deltas, write_position_stream};
 use gscodec_decoder::bitstream::sections::write_padded;
@@ -319,6 +320,38 @@ fn level_part(q: &Quantised, l: usize, r: Range<usize>) -> Quantised {
     }
 }
 
+/// Whether each level of `q` has parameter sections of its own (SPEC §4): a 6.0 file
+/// (importance classes) or a 9.0 file (a shared SH index), like 8.0.
+fn params_per_level(q: &Quantised) -> bool {
+    !q.level_factors.is_empty() || q.shared_index
+}
+
+/// Whether `q`'s channels may take neighbour-context tables: they need a format-8.0 file, whose
+/// levels each have their own parameter sections, so not a progressive file whose levels share
+/// one set.
+pub(crate) fn neighbours_allowed(q: &Quantised) -> bool {
+    q.levels.is_empty() || params_per_level(q)
+}
+
+/// The parts of `q` (laid out as `layout`) coded with one set of parameter sections each (SPEC
+/// §4): every level where [`params_per_level`], else the whole scene. Per part: its Gaussians
+/// and its chunks, local to it.
+pub(crate) fn parameter_parts(q: &Quantised, layout: &Layout) -> Vec<(Range<usize>, Vec<Range<usize>>)> {
+    let chunks = layout.chunk_ranges();
+    if !params_per_level(q) {
+        return vec![(0..q.len(), chunks)];
+    }
+    layout
+        .level_ranges()
+        .into_iter()
+        .map(|cr| {
+            let r = chunks[cr.start].start..chunks[cr.end - 1].end;
+            let local = chunks[cr].iter().map(|c| c.start - r.start..c.end - r.start).collect();
+            (r, local)
+        })
+        .collect()
+}
+
 /// Encodes a quantised scene. `input` = (Gaussians, SH degree) of the encoder's input, for `info`.
 ///
 /// A scene with levels ([`Quantised::levels`]) is written as format 4.0 with a levels section,
@@ -348,11 +381,8 @@ pub fn write_cached(
     let progressive = !q.levels.is_empty();
     let codebooks = n > 0 && !q.codebooks.is_empty();
     let shared = n > 0 && q.shared_index;
-    // A 9.0 file (a shared index) has parameter sections per level, like 6.0 and 8.0.
-    let per_level = n > 0 && (!q.level_factors.is_empty() || shared);
-    // Neighbour contexts need a format-8.0 file, whose levels each have their own parameter
-    // sections: so not for a progressive file whose levels share one set.
-    let models = Models { learned: learned_tables, neighbours: neighbour_tables && (!progressive || per_level) };
+    let per_level = n > 0 && params_per_level(q);
+    let models = Models { learned: learned_tables, neighbours: neighbour_tables && neighbours_allowed(q) };
     let info = write_info(&EncoderInfo { input_gaussians: input.0.min(u32::MAX as usize) as u32, input_sh_degree: input.1 });
     let mut report = EncodeReport {
         gaussians: n,
@@ -370,22 +400,11 @@ pub fn write_cached(
         let layout = q.layout();
         levels = layout.write();
         let chunks = layout.chunk_ranges();
-        // The parts coded with one set of parameter sections each (SPEC §4): every level of a
-        // 6.0 file, else the whole scene. Per part: the scene and its chunks.
-        let parts: Vec<(Cow<Quantised>, Vec<Range<usize>>)> = if per_level {
-            layout
-                .level_ranges()
-                .into_iter()
-                .enumerate()
-                .map(|(l, cr)| {
-                    let r = chunks[cr.start].start..chunks[cr.end - 1].end;
-                    let local = chunks[cr.clone()].iter().map(|c| c.start - r.start..c.end - r.start).collect();
-                    (Cow::Owned(level_part(q, l, r)), local)
-                })
-                .collect()
-        } else {
-            vec![(Cow::Borrowed(q), chunks.clone())]
-        };
+        let parts: Vec<(Cow<Quantised>, Vec<Range<usize>>)> = parameter_parts(q, &layout)
+            .into_iter()
+            .enumerate()
+            .map(|(l, (r, local))| (if per_level { Cow::Owned(level_part(q, l, r)) } else { Cow::Borrowed(q) }, local))
+            .collect();
         coded = parts
             .iter()
             .map(|(pq, ch)| {

@@ -328,7 +328,7 @@ pub fn encode_cached(
     }
     // Rate-aware rounding (rdoq): the groups rounded to nearest above, then the DC once it has
     // taken back what the coded SH rest lost.
-    let row_factor = q.row_factors();
+    let row_factor = if config.rate_rounding { q.row_factors() } else { Vec::new() };
     let factor = |j: usize| row_factor[j];
     if config.rate_rounding {
         let mut which = vec![Group::Scale, Group::Rotation, Group::Opacity];

@@ -16,7 +16,7 @@ use gscodec_decoder::bitstream::layout::Group;
 use gscodec_decoder::entropy::{context, ChannelTable, SymbolEncoder};
 use rayon::prelude::*;
 
-use super::encode::{key128, GroupCache};
+use super::encode::{key128, neighbours_allowed, parameter_parts, GroupCache};
 use super::quantise::Quantised;
 use super::tables;
 
@@ -81,25 +81,8 @@ pub fn round_groups(
     neighbours: bool,
     cache: Option<&GroupCache>,
 ) {
-    let layout = q.layout();
-    let chunks = layout.chunk_ranges();
-    let per_level = !q.level_factors.is_empty() || q.shared_index;
-    // As `encode::write`: neighbour contexts need parameter sections per level.
-    let neighbours = neighbours && (q.levels.is_empty() || per_level);
-    // Per part: its Gaussians and its chunks, local to it.
-    let parts: Vec<(Range<usize>, Vec<Range<usize>>)> = if per_level {
-        layout
-            .level_ranges()
-            .into_iter()
-            .map(|cr| {
-                let r = chunks[cr.start].start..chunks[cr.end - 1].end;
-                let local = chunks[cr].iter().map(|c| c.start - r.start..c.end - r.start).collect();
-                (r, local)
-            })
-            .collect()
-    } else {
-        vec![(0..q.len(), chunks)]
-    };
+    let parts = parameter_parts(q, &q.layout());
+    let neighbours = neighbours && neighbours_allowed(q);
     let vq: Vec<Group> = q.codebooks.iter().map(|c| c.0).collect();
     let mut todo: Vec<(Group, &mut Vec<Vec<i32>>)> =
         q.groups.iter_mut().filter(|g| which.contains(&g.0) && !vq.contains(&g.0)).map(|g| (g.0, &mut g.2)).collect();
