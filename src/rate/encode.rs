@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use std::borrow::Cow;
 use std::collections::HashMap;
-use std::hash::{Hash, Hasher};
+use std::hash::{BuildHasher, Hash, Hasher};
 use std::sync::{Arc, Mutex};
 
 use gscodec_decoder::bitstream::info::{write_info, EncoderInfo};
@@ -219,11 +219,10 @@ impl GroupCache {
     }
 }
 
-/// A 128-bit cache key: two SipHash-1-3 digests (salted 1 and 2) of what `feed` hashes.
-pub(crate) fn key128(feed: impl Fn(&mut std::collections::hash_map::DefaultHasher)) -> (u64, u64) {
-    let hash = |salt: u8| {
-        let mut h = std::collections::hash_map::DefaultHasher::new();
-        salt.hash(&mut h);
+/// A 128-bit cache key: two foldhash (quality) digests, seeded 1 and 2, of what `feed` hashes.
+pub(crate) fn key128(feed: impl Fn(&mut foldhash::quality::FoldHasher<'static>)) -> (u64, u64) {
+    let hash = |seed: u64| {
+        let mut h = foldhash::quality::FixedState::with_seed(seed).build_hasher();
         feed(&mut h);
         h.finish()
     };

@@ -317,37 +317,38 @@ pub fn encode_cached(
     level.iter().for_each(|&l| counts[usize::from(l)] += 1);
     let factors = config.tail.level_factors(&counts);
     let coarser: Vec<u8> = factors.iter().flatten().map(|&f| CoarseTail::coarser_grid_bits(f)).collect();
-    let (mut q, order) = quantise::quantise_coarser_grids(&s, &config.steps, &level, &coarser);
+    // Rate-aware rounding (rdoq) takes the groups rounded to nearest here, then the DC once it
+    // has taken back what the coded SH rest lost.
+    let mut rounds = vec![Group::Scale, Group::Rotation, Group::Opacity];
+    if view_basis.is_none() {
+        rounds.push(Group::ShDc);
+    }
+    if config.steps.rest_deadzone <= 0.0 {
+        rounds.extend(
+            [Group::Sh1, Group::Sh2, Group::Sh3].into_iter().filter(|&g| !quantise::coded_by_codebook(g, config.sh_vq, config.sh_joint)),
+        );
+    }
+    let classes = quantise::Classes {
+        coarser: &coarser,
+        factors: factors.as_deref(),
+        at_base: &|g| quantise::coded_by_codebook(g, config.sh_vq, config.sh_joint),
+        targets: if config.rate_rounding { &rounds } else { &[] },
+    };
+    let quantise::Quantisation { mut q, order, targets } = quantise::quantise_classes(&s, &config.steps, &level, &classes);
     if config.sh_vq.iter().any(|&k| k > 0) {
         let w = sig.clone().unwrap_or_else(|| vec![1.0; s.len()]);
         quantise::apply_codebooks(&mut q, &order, &w, config.sh_vq, config.sh_joint, cache.map(|c| &c.codebooks));
     }
-    if let Some(factors) = factors {
-        let nonempty: Vec<f32> = factors.into_iter().zip(&counts).filter(|x| *x.1 > 0).map(|x| x.0).collect();
-        quantise::apply_level_factors(&mut q, &s, &order, &config.steps, &nonempty);
-    }
-    // Rate-aware rounding (rdoq): the groups rounded to nearest above, then the DC once it has
-    // taken back what the coded SH rest lost.
-    let row_factor = if config.rate_rounding { q.row_factors() } else { Vec::new() };
-    let factor = |j: usize| row_factor[j];
     if config.rate_rounding {
-        let mut which = vec![Group::Scale, Group::Rotation, Group::Opacity];
-        if view_basis.is_none() {
-            which.push(Group::ShDc);
-        }
-        if config.steps.rest_deadzone <= 0.0 {
-            which.extend([Group::Sh1, Group::Sh2, Group::Sh3]);
-        }
-        let targets = |g: Group| quantise::group_targets(&s, &order, g, &config.steps, &factor);
-        rdoq::round_groups(&mut q, &which, &targets, config.neighbour_tables, cache);
+        rdoq::round_groups(&mut q, &targets, config.neighbour_tables, cache);
     }
     if let Some(view_basis) = &view_basis {
         let trained = config.dc_fit_trained.then(|| quantise::rest_as_trained(&s, &config.steps));
         let dc = quantise::compensate_dc(&mut q, trained.as_ref().unwrap_or(&s), &order, view_basis);
         if config.rate_rounding && !dc.is_empty() {
-            let step = config.steps.sh_dc;
-            let targets = |_: Group| (0..3).map(|c| dc.iter().enumerate().map(|(j, d)| d[c] / (step * factor(j))).collect()).collect();
-            rdoq::round_groups(&mut q, &[Group::ShDc], &targets, config.neighbour_tables, cache);
+            let (step, factor) = (config.steps.sh_dc, q.row_factors());
+            let targets = (0..3).map(|c| dc.iter().zip(&factor).map(|(d, f)| d[c] / (step * f)).collect()).collect();
+            rdoq::round_groups(&mut q, &[(Group::ShDc, targets)], config.neighbour_tables, cache);
         }
     }
     let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, config.neighbour_tables, cache);

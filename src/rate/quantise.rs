@@ -215,12 +215,51 @@ pub(crate) fn grid(lo: [f32; 3], hi: [f32; 3], bits: u8) -> Grid {
 /// bits per axis (importance classes, SPEC §4: each level has its own position grid; missing
 /// entries are 0). [`Quantised::level_grids`] then holds each level's grid.
 pub fn quantise_coarser_grids(splats: &Splats, steps: &Steps, level: &[u8], coarser: &[u8]) -> (Quantised, Vec<usize>) {
+    let Quantisation { q, order, .. } = quantise_classes(splats, steps, level, &Classes { coarser, ..Classes::NONE });
+    (q, order)
+}
+
+/// How [`quantise_classes`] quantises the Gaussians' levels and groups.
+pub struct Classes<'a> {
+    /// Per level value, how many fewer position bits its grid has (missing entries are 0).
+    pub coarser: &'a [u8],
+    /// Importance classes (SPEC §4, format 6.0): per level value, the factor its steps are
+    /// the base steps multiplied by (position excepted: it has its grids). `None`: one set of
+    /// steps for every level.
+    pub factors: Option<&'a [f32]>,
+    /// The groups quantised with the base steps whatever `factors` say: the SH bands to be
+    /// coded by codebooks ([`apply_codebooks`]: their rows are shared by every level).
+    pub at_base: &'a dyn Fn(Group) -> bool,
+    /// The groups whose values before rounding [`Quantisation::targets`] returns.
+    pub targets: &'a [Group],
+}
+
+impl Classes<'_> {
+    /// No coarser grids, no step factors, no targets.
+    pub const NONE: Classes<'static> = Classes { coarser: &[], factors: None, at_base: &|_| false, targets: &[] };
+}
+
+/// What [`quantise_classes`] makes: the quantised scene, its file order (`q`'s Gaussian `j` is
+/// the scene's Gaussian `order[j]`) and the values before rounding of the groups asked for.
+pub struct Quantisation {
+    pub q: Quantised,
+    pub order: Vec<usize>,
+    /// Per group asked for and present, its channels in steps before rounding ([`group_targets`]
+    /// with the steps each row is rounded with), file order.
+    pub targets: Vec<(Group, Vec<Vec<f32>>)>,
+}
+
+/// Quantises `splats` (already pruned and validated) with `steps`: positions on each level's
+/// grid in Morton order within each level ([`quantise_ordered`], `level` as there), every other
+/// group rounded to nearest (SH rest bands with their dead zone) with the steps of `classes`.
+/// The SH bands whose coefficients all round to zero at the base steps are left out.
+pub fn quantise_classes(splats: &Splats, steps: &Steps, level: &[u8], classes: &Classes) -> Quantisation {
     let n = splats.len();
     let bits = steps.position_bits.unwrap_or_else(|| position_bits(splats, steps.position_rel)).min(MAX_POSITION_BITS);
     let (lo, hi) = splats.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
     let base = grid(lo, hi, bits);
     let grids: Vec<Grid> = (0..=level.iter().copied().max().unwrap_or(0))
-        .map(|l| coarser.get(usize::from(l)).map_or(base, |&c| grid(lo, hi, bits.saturating_sub(c))))
+        .map(|l| classes.coarser.get(usize::from(l)).map_or(base, |&c| grid(lo, hi, bits.saturating_sub(c))))
         .collect();
     let level_of = |i: usize| level.get(i).copied().unwrap_or(0);
     let mut keyed: Vec<(u8, u64, usize)> = (0..n)
@@ -244,36 +283,59 @@ pub fn quantise_coarser_grids(splats: &Splats, steps: &Steps, level: &[u8], coar
         }
     }
     // The grids of the levels that have Gaussians, in order (none without coarser grids).
-    let level_grids =
-        if coarser.iter().any(|&c| c > 0) { (0..levels.len()).filter(|&l| levels[l] > 0).map(|l| grids[l]).collect() } else { Vec::new() };
+    let level_grids = if classes.coarser.iter().any(|&c| c > 0) {
+        (0..levels.len()).filter(|&l| levels[l] > 0).map(|l| grids[l]).collect()
+    } else {
+        Vec::new()
+    };
+    // The step factors of the levels that have Gaussians, and of each file row.
+    let level_factors: Vec<f32> =
+        classes.factors.map_or(Vec::new(), |f| levels.iter().enumerate().filter(|x| *x.1 > 0).map(|(l, _)| f[l]).collect());
+    let row_factor: Vec<f32> = classes.factors.map_or(Vec::new(), |f| keyed.iter().map(|&(l, ..)| f[usize::from(l)]).collect());
     levels.retain(|&k| k > 0);
 
-    let groups = Group::present(splats.sh_degree)
+    // Leave out SH bands whose coefficients all quantise to zero.
+    let mut sh_degree = splats.sh_degree;
+    while sh_degree > 0 && band_rounds_to_zero(splats, sh_degree, steps) {
+        sh_degree -= 1;
+    }
+    let mut targets = Vec::new();
+    let groups = Group::present(sh_degree)
         .skip(1)
-        .map(|g| (g, group_steps(g, steps), quantise_group(splats, &order, g, steps, &|_| 1.0)))
+        .map(|g| {
+            let factor = |j: usize| if row_factor.is_empty() || (classes.at_base)(g) { 1.0 } else { row_factor[j] };
+            let t = group_targets(splats, &order, g, steps, &factor);
+            let values = rounded(g, &t, steps.rest_deadzone);
+            if classes.targets.contains(&g) {
+                targets.push((g, t));
+            }
+            (g, group_steps(g, steps), values)
+        })
         .collect();
-    let mut out = Quantised {
-        sh_degree: splats.sh_degree,
+    let q = Quantised {
+        sh_degree,
         grid: base,
         levels,
         morton: keyed.iter().map(|&(_, m, _)| m).collect(),
         groups,
         codebooks: Vec::new(),
         shared_index: false,
-        level_factors: Vec::new(),
+        level_factors,
         level_grids,
     };
-    // Leave out SH bands whose coefficients all quantise to zero.
-    while out.sh_degree > 0 {
-        let g = Group::for_band(out.sh_degree);
-        let all_zero = out.groups.iter().find(|x| x.0 == g).is_none_or(|x| x.2.iter().all(|c| c.iter().all(|&v| v == 0)));
-        if !all_zero {
-            break;
-        }
-        out.groups.retain(|x| x.0 != g);
-        out.sh_degree -= 1;
-    }
-    (out, order)
+    Quantisation { q, order, targets }
+}
+
+/// Whether every coefficient of SH band `b` (1..=3) of `splats` rounds to zero at the base
+/// steps (with the dead zone).
+fn band_rounds_to_zero(splats: &Splats, b: u8, steps: &Steps) -> bool {
+    let b = usize::from(b);
+    let (k, first, s) = (splats.rest_coeffs(), b * b - 1, steps.sh_rest[b - 1]);
+    let width = (2 * b + 1) * 3;
+    (0..splats.len()).all(|i| {
+        let row = &splats.sh_rest[(i * k + first) * 3..(i * k + first) * 3 + width];
+        row.iter().all(|&v| rounded_one(Group::for_band(b as u8), v / s, steps.rest_deadzone) == 0)
+    })
 }
 
 /// The base steps of group `g` (not position), one per channel.
@@ -287,61 +349,60 @@ fn group_steps(g: Group, steps: &Steps) -> Vec<f32> {
     }
 }
 
-/// The integer channels of group `g` (not position) of `splats`' Gaussians `order` (file order),
-/// Gaussian `order[j]` quantised with the base steps times `factor(j)` (the rotation index is
-/// not a step): [`group_targets`] rounded to nearest (SH rest bands with the dead zone).
-fn quantise_group(splats: &Splats, order: &[usize], g: Group, steps: &Steps, factor: &dyn Fn(usize) -> f32) -> Vec<Vec<i32>> {
-    let round: fn(f32) -> i32 = |t| t.round() as i32; // `as` saturates: no wrap-around for any value
-    let dz = steps.rest_deadzone;
-    let rest = g.sh_band() > 0 && dz > 0.0;
-    let targets = group_targets(splats, order, g, steps, factor);
-    targets
-        .iter()
-        .map(|c| if rest { c.iter().map(|&t| q_dz(t, 1.0, dz)).collect() } else { c.iter().map(|&t| round(t)).collect() })
-        .collect()
+/// A value of group `g` `t` steps from zero, rounded to nearest (SH rest bands with the dead
+/// zone `dz`).
+fn rounded_one(g: Group, t: f32, dz: f32) -> i32 {
+    if g.sh_band() > 0 && dz > 0.0 {
+        q_dz(t, 1.0, dz)
+    } else {
+        t.round() as i32 // `as` saturates: no wrap-around for any value
+    }
+}
+
+/// Group `g`'s channels of targets (in steps) rounded ([`rounded_one`]).
+fn rounded(g: Group, targets: &[Vec<f32>], dz: f32) -> Vec<Vec<i32>> {
+    targets.iter().map(|c| c.iter().map(|&t| rounded_one(g, t, dz)).collect()).collect()
 }
 
 /// The values of group `g` (not position) of `splats`' Gaussians `order` (file order) in units
 /// of their steps (the base steps times `factor(j)` for file row j), before rounding; the
 /// rotation's index channel holds the index of its omitted component.
-pub(crate) fn group_targets(splats: &Splats, order: &[usize], g: Group, steps: &Steps, factor: &dyn Fn(usize) -> f32) -> Vec<Vec<f32>> {
-    let per = |f: &dyn Fn(usize, f32) -> f32| order.iter().enumerate().map(|(j, &i)| f(i, factor(j))).collect::<Vec<f32>>();
+fn group_targets(splats: &Splats, order: &[usize], g: Group, steps: &Steps, factor: &dyn Fn(usize) -> f32) -> Vec<Vec<f32>> {
+    // One pass over the rows, each row's channels in turn (a row's values lie together).
+    fn rows<F: Fn(usize, usize, f32) -> f32>(order: &[usize], channels: usize, factor: &dyn Fn(usize) -> f32, f: F) -> Vec<Vec<f32>> {
+        let mut out: Vec<Vec<f32>> = (0..channels).map(|_| Vec::with_capacity(order.len())).collect();
+        for (j, &i) in order.iter().enumerate() {
+            let m = factor(j);
+            out.iter_mut().enumerate().for_each(|(c, ch)| ch.push(f(i, c, m)));
+        }
+        out
+    }
     match g {
-        Group::Scale => (0..3).map(|c| per(&|i, m| splats.log_scales[i][c] / (steps.scale * m))).collect(),
+        Group::Scale => rows(order, 3, factor, |i, c, m| splats.log_scales[i][c] / (steps.scale * m)),
         Group::Rotation => {
-            let rot: Vec<(usize, [f32; 3])> =
-                order.iter().enumerate().map(|(j, &i)| smallest_three_targets(splats.rotations[i], steps.rotation * factor(j))).collect();
-            let mut ch = vec![rot.iter().map(|r| r.0 as f32).collect::<Vec<_>>()];
-            ch.extend((0..3).map(|c| rot.iter().map(|r| r.1[c]).collect()));
+            let mut ch: Vec<Vec<f32>> = (0..4).map(|_| Vec::with_capacity(order.len())).collect();
+            for (j, &i) in order.iter().enumerate() {
+                let (largest, t) = smallest_three_targets(splats.rotations[i], steps.rotation * factor(j));
+                ch[0].push(largest as f32);
+                (0..3).for_each(|c| ch[c + 1].push(t[c]));
+            }
             ch
         }
-        Group::Opacity => vec![per(&|i, m| splats.opacity_logits[i] / (steps.opacity * m))],
-        Group::ShDc => (0..3).map(|c| per(&|i, m| splats.sh_dc[i][c] / (steps.sh_dc * m))).collect(),
+        Group::Opacity => rows(order, 1, factor, |i, _, m| splats.opacity_logits[i] / (steps.opacity * m)),
+        Group::ShDc => rows(order, 3, factor, |i, c, m| splats.sh_dc[i][c] / (steps.sh_dc * m)),
         _ => {
             let b = usize::from(g.sh_band());
             let (k, first, s) = (splats.rest_coeffs(), b * b - 1, steps.sh_rest[b - 1]);
-            (0..g.channels()).map(|j| per(&|i, m| splats.sh_rest[(i * k + first) * 3 + j] / (s * m))).collect()
+            rows(order, g.channels(), factor, |i, j, m| splats.sh_rest[(i * k + first) * 3 + j] / (s * m))
         }
     }
 }
 
-/// Importance classes (SPEC §4, format 6.0): quantises level `l`'s Gaussians of every group of
-/// `q` with `steps` times `factors[l]` ([`Quantised::level_steps`]), except position (one grid
-/// for all) and SH bands coded by codebooks (their rows are shared). `order` is the file order
-/// of `q` in `splats` ([`quantise_ordered`]), and `steps` the steps `q` was quantised with.
-///
-/// # Panics
-/// If `factors` is not one factor per level of `q`.
-pub fn apply_level_factors(q: &mut Quantised, splats: &Splats, order: &[usize], steps: &Steps, factors: &[f32]) {
-    let ranges = q.level_ranges();
-    assert_eq!(factors.len(), ranges.len(), "one factor per level");
-    let level_of: Vec<usize> = ranges.iter().enumerate().flat_map(|(l, r)| r.clone().map(move |_| l)).collect();
-    let factor = |j: usize| factors[level_of[j]];
-    q.level_factors = factors.to_vec();
-    let vq: Vec<Group> = q.codebooks.iter().map(|c| c.0).collect();
-    for (g, _, chans) in q.groups.iter_mut().filter(|x| !vq.contains(&x.0)) {
-        *chans = quantise_group(splats, order, *g, steps, &factor);
-    }
+/// Whether SH band `g` is coded by a codebook under the codebook sizes `ks` (per band, 0 =
+/// per coefficient) and `joint` ([`apply_codebooks`]).
+pub fn coded_by_codebook(g: Group, ks: [u32; 3], joint: bool) -> bool {
+    let b = usize::from(g.sh_band());
+    b > 0 && if joint { ks[0] > 0 } else { ks[b - 1] > 0 }
 }
 
 /// Codes SH band b (1..=3) of `q` by vector quantisation where `ks[b − 1] > 0`: a codebook of at
@@ -393,10 +454,10 @@ pub fn apply_codebooks(q: &mut Quantised, order: &[usize], weights: &[f32], ks: 
         return;
     }
     for (g, _, chans) in q.groups.iter_mut() {
-        let b = usize::from(g.sh_band());
-        if b == 0 || ks[b - 1] == 0 {
+        if !coded_by_codebook(*g, ks, false) {
             continue;
         }
+        let b = usize::from(g.sh_band());
         let rows: Vec<Vec<i32>> = chans.iter().map(|c| by_scene.iter().map(|&i| c[i]).collect()).collect();
         let cb = super::vq::band_codebook(memo, b, &rows, &vec![1.0; rows.len()], weights, ks[b - 1] as usize);
         let cb = super::vq::Codebook { channels: cb.channels, rows: cb.rows.clone(), index: in_file_order(&cb) };
@@ -786,6 +847,41 @@ mod tests {
         assert_eq!(memo.len(), 1, "the second call reused the first codebook");
         let distinct: std::collections::HashSet<&Vec<i32>> = plain.0.iter().collect();
         assert!(distinct.len() > 1 && distinct.len() <= 16, "{} rows", distinct.len());
+    }
+
+    /// Importance classes: a level's rows are its targets at the base steps divided by the
+    /// level's factor, rounded to nearest; the groups kept at the base steps and the file order
+    /// are those of a quantisation without classes, and the targets returned are the ones the
+    /// values were rounded from.
+    #[test]
+    fn class_factors_divide_their_levels_targets_and_spare_the_groups_at_base_steps() {
+        let s = crate::sample::scene(400, 5);
+        let level: Vec<u8> = (0..s.len()).map(|i| u8::from(i % 3 == 0)).collect();
+        let asked = [Group::Scale, Group::Rotation, Group::Sh1];
+        let plain = quantise_classes(&s, &Steps::default(), &level, &Classes { targets: &asked, ..Classes::NONE });
+        let classes = Classes { factors: Some(&[1.0, 2.5]), at_base: &|g| g == Group::Sh2, targets: &asked, ..Classes::NONE };
+        let coarse = quantise_classes(&s, &Steps::default(), &level, &classes);
+        assert_eq!(coarse.order, plain.order);
+        assert_eq!(coarse.q.level_factors, vec![1.0, 2.5]);
+        assert_eq!(coarse.q.row_factors().iter().filter(|&&f| f == 2.5).count(), level.iter().filter(|&&l| l == 1).count());
+        let group = |q: &Quantised, g: Group| q.groups.iter().find(|x| x.0 == g).expect("present").2.clone();
+        assert_eq!(group(&coarse.q, Group::Sh2), group(&plain.q, Group::Sh2));
+        let factor = coarse.q.row_factors();
+        let mut moved = 0;
+        for ((g, t), (g0, t0)) in coarse.targets.iter().zip(&plain.targets) {
+            assert_eq!(g, g0);
+            let (values, before) = (group(&coarse.q, *g), group(&plain.q, *g));
+            let first = usize::from(*g == Group::Rotation); // the index of the omitted component
+            assert_eq!(t[..first], t0[..first]);
+            for c in first..t.len() {
+                for j in 0..factor.len() {
+                    assert!((t[c][j] - t0[c][j] / factor[j]).abs() <= 1e-5 * (1.0 + t[c][j].abs()), "{g:?} channel {c} row {j}");
+                    assert_eq!(values[c][j], t[c][j].round() as i32);
+                    moved += usize::from(values[c][j] != before[c][j]);
+                }
+            }
+        }
+        assert!(moved > 0, "the coarser level's values changed");
     }
 
     #[test]

@@ -65,29 +65,26 @@ pub fn round_channel(targets: &[f32], values: &mut [i32], lower: &[i32], chunks:
     }
 }
 
-/// Re-rounds the coded channels of `q`'s groups `which` ([`round_channel`], `μ` =
+/// Re-rounds the coded channels of `q`'s groups that `targets` lists ([`round_channel`], `μ` =
 /// [`HIGH_RATE_MU`]), each part of the file with parameter sections of its own (a level of a
 /// file with importance classes or a shared SH index, else the whole scene) under the table
 /// fitted to its values rounded to nearest: the static histogram, context or (with
 /// `neighbours`, where the file may store them) neighbour-context table the file would store.
 /// The learned density is not fitted: the RD search's trials do not fit it either, so a trial
-/// and the final encode round alike. `targets(g)` gives group g's channels before rounding, in
+/// and the final encode round alike. `targets` gives each group's channels before rounding, in
 /// steps, file order. SH bands coded by codebooks, the rotation's index and constant channels
 /// are left as they are. `cache` holds the groups earlier calls rounded from the same targets.
-pub fn round_groups(
-    q: &mut Quantised,
-    which: &[Group],
-    targets: &(dyn Fn(Group) -> Vec<Vec<f32>> + Sync),
-    neighbours: bool,
-    cache: Option<&GroupCache>,
-) {
+pub fn round_groups(q: &mut Quantised, targets: &[(Group, Vec<Vec<f32>>)], neighbours: bool, cache: Option<&GroupCache>) {
     let parts = parameter_parts(q, &q.layout());
     let neighbours = neighbours && neighbours_allowed(q);
     let vq: Vec<Group> = q.codebooks.iter().map(|c| c.0).collect();
-    let mut todo: Vec<(Group, &mut Vec<Vec<i32>>)> =
-        q.groups.iter_mut().filter(|g| which.contains(&g.0) && !vq.contains(&g.0)).map(|g| (g.0, &mut g.2)).collect();
-    todo.par_iter_mut().for_each(|(g, chans)| {
-        let t = targets(*g);
+    let mut todo: Vec<(Group, &Vec<Vec<f32>>, &mut Vec<Vec<i32>>)> = q
+        .groups
+        .iter_mut()
+        .filter(|g| !vq.contains(&g.0))
+        .filter_map(|g| targets.iter().find(|t| t.0 == g.0).map(|t| (g.0, &t.1, &mut g.2)))
+        .collect();
+    todo.par_iter_mut().for_each(|(g, t, chans)| {
         let key = key128(|h| {
             (g.name(), &**chans, neighbours, HIGH_RATE_MU.to_bits()).hash(h);
             parts.iter().for_each(|(r, local)| (r.start, r.end, local.iter().map(|c| (c.start, c.end)).collect::<Vec<_>>()).hash(h));
