@@ -342,6 +342,7 @@ pub fn encode_cached(
     if config.rate_rounding {
         rdoq::round_groups(&mut q, &targets, config.neighbour_tables, cache);
     }
+    drop(targets);
     if let Some(view_basis) = &view_basis {
         let trained = config.dc_fit_trained.then(|| quantise::rest_as_trained(&s, &config.steps));
         let dc = quantise::compensate_dc(&mut q, trained.as_ref().unwrap_or(&s), &order, view_basis);
