@@ -326,16 +326,13 @@ pub fn quantise_classes(splats: &Splats, steps: &Steps, level: &[u8], classes: &
     Quantisation { q, order, targets }
 }
 
-/// Whether every coefficient of SH band `b` (1..=3) of `splats` rounds to zero at the base
+/// Whether every coefficient of SH band `band` (1..=3) of `splats` rounds to zero at the base
 /// steps (with the dead zone).
-fn band_rounds_to_zero(splats: &Splats, b: u8, steps: &Steps) -> bool {
-    let b = usize::from(b);
+fn band_rounds_to_zero(splats: &Splats, band: u8, steps: &Steps) -> bool {
+    let (g, b) = (Group::for_band(band), usize::from(band));
     let (k, first, s) = (splats.rest_coeffs(), b * b - 1, steps.sh_rest[b - 1]);
-    let width = (2 * b + 1) * 3;
-    (0..splats.len()).all(|i| {
-        let row = &splats.sh_rest[(i * k + first) * 3..(i * k + first) * 3 + width];
-        row.iter().all(|&v| rounded_one(Group::for_band(b as u8), v / s, steps.rest_deadzone) == 0)
-    })
+    let row = |i: usize| &splats.sh_rest[(i * k + first) * 3..(i * k + first + 2 * b + 1) * 3];
+    (0..splats.len()).all(|i| row(i).iter().all(|&v| rounded_one(g, v / s, steps.rest_deadzone) == 0))
 }
 
 /// The base steps of group `g` (not position), one per channel.
