@@ -120,22 +120,20 @@ pub fn with_contexts(values: &[i32], base: &ChosenTable, chunks: &[Range<usize>]
 }
 
 /// Bits of a difference of magnitude `d` under each window of reach `e` (SPEC §4.3):
-/// `bits[ρ][d]` for `d = 0..=e`, and at `d = e + 1` an escape (its symbol and 32 raw bits).
+/// `bits[d][ρ]` for `d = 0..=e`, and at `d = e + 1` an escape (its symbol and 32 raw bits).
 /// The tables depend on `e` alone, so they are kept for the `e` met (up to 32 MB of them; then
 /// the memo starts afresh).
-fn window_bits(e: u32) -> Arc<Vec<Vec<f64>>> {
-    static MEMO: Mutex<Option<HashMap<u32, Arc<Vec<Vec<f64>>>>>> = Mutex::new(None);
+fn window_bits(e: u32) -> Arc<Vec<WindowRow>> {
+    static MEMO: Mutex<Option<HashMap<u32, Arc<Vec<WindowRow>>>>> = Mutex::new(None);
     const MEMO_BYTES: usize = 32 << 20;
-    let size = |e: u32| RATIOS.len() * (e as usize + 2) * std::mem::size_of::<f64>();
+    let size = |e: u32| (e as usize + 2) * std::mem::size_of::<WindowRow>();
     if let Some(b) = MEMO.lock().expect("memo").get_or_insert_with(HashMap::new).get(&e) {
         return b.clone();
     }
     let eu = e as usize;
-    let bits: Vec<Vec<f64>> = (0..RATIOS.len() as u8)
-        .map(|r| {
-            let t = neighbour::window(r, e);
-            (0..=eu).map(|d| t.bits(eu + d)).chain([t.bits(2 * eu + 1) + 32.0]).collect()
-        })
+    let windows: Vec<FreqTable> = (0..RATIOS.len() as u8).map(|r| neighbour::window(r, e)).collect();
+    let bits: Vec<WindowRow> = (0..=eu + 1)
+        .map(|d| std::array::from_fn(|r| if d > eu { windows[r].bits(2 * eu + 1) + 32.0 } else { windows[r].bits(eu + d) }))
         .collect();
     let bits = Arc::new(bits);
     let mut memo = MEMO.lock().expect("memo");
@@ -146,6 +144,9 @@ fn window_bits(e: u32) -> Arc<Vec<Vec<f64>>> {
     memo.insert(e, bits.clone());
     bits
 }
+
+/// The bits of one difference under every window ratio ([`window_bits`]).
+type WindowRow = [f64; RATIOS.len()];
 
 /// Up to `buckets − 1` thresholds splitting the sorted `values` into about equal parts (each
 /// above the smallest value, none repeated).
@@ -162,7 +163,7 @@ type Pairs = Vec<(i32, i32, u32)>;
 
 /// One context's best prediction and window for its `(prev, value)` pairs: the centre is the
 /// values' median; every mix and (coarse to fine) every ratio is tried. With its bits.
-fn fit_context(pairs: &[(i32, i32, u32)], reach: u32, bits: &[Vec<f64>]) -> (NeighbourContext, f64) {
+fn fit_context(pairs: &[(i32, i32, u32)], reach: u32, bits: &[WindowRow]) -> (NeighbourContext, f64) {
     // The median: the value at position ⌊n/2⌋ of all n values in order.
     let mut vs: Vec<(i32, u32)> = pairs.iter().map(|p| (p.1, p.2)).collect();
     vs.sort_unstable();
@@ -188,17 +189,29 @@ fn fit_context(pairs: &[(i32, i32, u32)], reach: u32, bits: &[Vec<f64>]) -> (Nei
             counts[d] += times;
         }
         let runs: Vec<(usize, f64)> = seen.drain(..).map(|d| (d, f64::from(std::mem::take(&mut counts[d])))).collect();
-        // Each ratio's cost once; of equal costs the first ratio.
-        let cheapest = |ratios: &mut dyn Iterator<Item = usize>| {
-            ratios.map(|r| (r, runs.iter().map(|&(x, c)| c * bits[r][x]).sum::<f64>())).min_by(|a, b| a.1.total_cmp(&b.1)).expect("ratios")
-        };
-        let (coarse, _) = cheapest(&mut (0..RATIOS.len()).step_by(4));
-        let (fine, c) = cheapest(&mut (coarse.saturating_sub(3)..(coarse + 4).min(RATIOS.len())));
+        // Every fourth ratio, then the ratios around the cheapest of them; of equal costs the
+        // first ratio.
+        let (coarse, _) = cheapest(&runs, bits, 0, 4, RATIOS.len() / 4);
+        let first = coarse.saturating_sub(3);
+        let (fine, c) = cheapest(&runs, bits, first, 1, (coarse + 4).min(RATIOS.len()) - first);
         if c < best.1 {
             best = (NeighbourContext { mix, centre, ratio: fine as u8 }, c);
         }
     }
     best
+}
+
+/// Of the `n` (at most 16) ratios `first + k·stride`, the one whose window codes `runs` (each
+/// difference with how often it occurs) in the fewest bits, with those bits; of equal costs the
+/// first. Each ratio's bits are summed in the order of `runs`, all ratios in one pass.
+fn cheapest(runs: &[(usize, f64)], bits: &[WindowRow], first: usize, stride: usize, n: usize) -> (usize, f64) {
+    let mut cost = [0.0f64; 16];
+    for &(d, times) in runs {
+        let row = &bits[d];
+        cost[..n].iter_mut().enumerate().for_each(|(k, c)| *c += times * row[first + k * stride]);
+    }
+    let k = (1..n).fold(0, |best, k| if cost[k].total_cmp(&cost[best]).is_lt() { k } else { best });
+    (first + k * stride, cost[k])
 }
 
 /// A channel's distinct (previous value, value, octile of the value below) in the order they
@@ -215,17 +228,29 @@ impl DistinctPairs {
     fn new(values: &[i32], lower: &[i32], lower_sorted: &[i32], chunks: &[Range<usize>], start: i32) -> DistinctPairs {
         let octiles = if lower.is_empty() { vec![] } else { quantile_thresholds(lower_sorted, 8) };
         let mut list: Vec<(i32, i32, usize, u32)> = Vec::new();
-        let mut at: HashMap<(i32, i32, usize), usize, foldhash::fast::FixedState> = HashMap::default();
+        // Where each distinct triple is in `list` (u32::MAX: not yet): a table over every
+        // (previous value, value, octile) of the values' span where that is not much larger
+        // than the values, else a hash map.
+        let (lo, hi) = values.iter().fold((start, start), |(a, b), &v| (a.min(v), b.max(v)));
+        let span = (i64::from(hi) - i64::from(lo) + 1) as usize;
+        let buckets = octiles.len() + 1;
+        let dense = span.checked_mul(span).and_then(|x| x.checked_mul(buckets)).filter(|&size| size <= 4 * values.len() + 4096);
+        let mut table = vec![u32::MAX; dense.unwrap_or(0)];
+        let mut map: HashMap<(i32, i32, usize), u32, foldhash::fast::FixedState> = HashMap::default();
         for chunk in chunks {
             let mut prev = start;
             for i in chunk.clone() {
-                let octile = if lower.is_empty() { 0 } else { octiles.iter().filter(|&&t| lower[i] >= t).count() };
-                let j = *at.entry((prev, values[i], octile)).or_insert_with(|| {
-                    list.push((prev, values[i], octile, 0));
-                    list.len() - 1
-                });
-                list[j].3 += 1;
-                prev = values[i];
+                let (v, octile) = (values[i], if lower.is_empty() { 0 } else { octiles.iter().filter(|&&t| lower[i] >= t).count() });
+                let at = match dense {
+                    Some(_) => &mut table[((prev.abs_diff(lo) as usize) * span + v.abs_diff(lo) as usize) * buckets + octile],
+                    None => map.entry((prev, v, octile)).or_insert(u32::MAX),
+                };
+                if *at == u32::MAX {
+                    *at = list.len() as u32;
+                    list.push((prev, v, octile, 0));
+                }
+                list[*at as usize].3 += 1;
+                prev = v;
             }
         }
         DistinctPairs { list, octiles }
