@@ -347,9 +347,7 @@ pub fn encode_cached(
         let trained = config.dc_fit_trained.then(|| quantise::rest_as_trained(&s, &config.steps));
         let dc = quantise::compensate_dc(&mut q, trained.as_ref().unwrap_or(&s), &order, view_basis);
         if config.rate_rounding && !dc.is_empty() {
-            let (step, factor) = (config.steps.sh_dc, q.row_factors());
-            let targets = (0..3).map(|c| dc.iter().zip(&factor).map(|(d, f)| d[c] / (step * f)).collect()).collect();
-            rdoq::round_groups(&mut q, &[(Group::ShDc, targets)], config.neighbour_tables, cache);
+            rdoq::round_groups(&mut q, &[(Group::ShDc, dc)], config.neighbour_tables, cache);
         }
     }
     let (bytes, report) = encode::write_cached(&q, input, config.learned_tables, config.neighbour_tables, cache);

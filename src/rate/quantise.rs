@@ -689,17 +689,17 @@ pub fn rest_as_trained(splats: &Splats, steps: &Steps) -> Splats {
 /// its file order, [`quantise_ordered`]) gets the DC of `splats` plus the [`dc_shift`] from
 /// `splats`' SH rest to the coded one (codebook rows, rounding with the dead zone), quantised
 /// with its level's DC step. `view_basis` has one entry per Gaussian of `splats`. The decoder
-/// is unchanged: these are the encoder's choice of DC values. Returns the DC values before
-/// rounding, in file order (none without a DC group).
+/// is unchanged: these are the encoder's choice of DC values. Returns the DC channels before
+/// rounding, in units of each row's DC steps, file order (none without a DC group).
 ///
 /// # Panics
 /// If `view_basis` is not one entry per Gaussian of `splats`.
-pub fn compensate_dc(q: &mut Quantised, splats: &Splats, order: &[usize], view_basis: &[[f32; 15]]) -> Vec<[f32; 3]> {
+pub fn compensate_dc(q: &mut Quantised, splats: &Splats, order: &[usize], view_basis: &[[f32; 15]]) -> Vec<Vec<f32>> {
     assert_eq!(view_basis.len(), splats.len(), "one view basis per Gaussian");
     let Some(dc) = q.groups.iter().position(|g| g.0 == Group::ShDc) else { return Vec::new() };
     let k_c = splats.rest_coeffs();
     let bands: Vec<usize> = (0..q.groups.len()).filter(|&gi| q.groups[gi].0.sh_band() > 0).collect();
-    let mut new_dc: Vec<[f32; 3]> = Vec::with_capacity(q.len());
+    let mut targets: Vec<Vec<f32>> = (0..3).map(|_| Vec::with_capacity(q.len())).collect();
     for (l, r) in q.level_ranges().into_iter().enumerate() {
         // The coded rest of this level's Gaussians, indexed by band (none: a band not coded).
         let mut coded: [Option<Vec<f32>>; 4] = Default::default();
@@ -717,14 +717,14 @@ pub fn compensate_dc(q: &mut Quantised, splats: &Splats, order: &[usize], view_b
                 coded[b].as_ref().map_or(0.0, |v| v[t * 3 * (2 * b + 1) + 3 * m + ch])
             };
             let shift = dc_shift(&splats.sh_rest[i * k_c * 3..][..k_c * 3], k_c, coded_at, &view_basis[i]);
-            let target: [f32; 3] = std::array::from_fn(|ch| splats.sh_dc[i][ch] + shift[ch]);
-            new_dc.push(target);
             for (ch, col) in q.groups[dc].2.iter_mut().enumerate() {
-                col[j] = self::q(target[ch], steps[ch]);
+                let t = (splats.sh_dc[i][ch] + shift[ch]) / steps[ch];
+                targets[ch].push(t);
+                col[j] = t.round() as i32; // `as` saturates: no wrap-around for any value
             }
         }
     }
-    new_dc
+    targets
 }
 
 /// The scene a decoder will restore from `q`: the decoder's dequantisation and assembler.
