@@ -442,12 +442,7 @@ fn importance_classes_round_trip_bit_exactly() {
     use gscodec::rate::CoarseTail;
     use gscodec_decoder::bitstream::{layout::Group, params::read_all_params, parse};
     let s = scene(3000, 3, 1.0, 31);
-    let config = EncodeConfig {
-        sh_vq: [16, 0, 0],
-        tail: CoarseTail { share: 0.5, factor: 2.0 },
-        neighbour_tables: false,
-        ..EncodeConfig::default()
-    };
+    let config = EncodeConfig { sh_vq: [16, 0, 0], tail: CoarseTail::new(0.5, 2.0), neighbour_tables: false, ..EncodeConfig::default() };
     let (bytes, _, q) = rate::encode(&s, &config).unwrap();
     assert_eq!(bytes[4], 6, "parameters per level make a 6.0 file");
     let decoded = decode(&bytes).unwrap();
@@ -476,12 +471,35 @@ fn importance_classes_round_trip_bit_exactly() {
     let (plain, _, _) = rate::encode(&s, &EncodeConfig { tail: CoarseTail::OFF, ..config }).unwrap();
     assert!(bytes.len() < plain.len(), "{} bytes with the tail, {} without", bytes.len(), plain.len());
     assert_eq!(plain[4], 5);
+    // Each group's own multiplier of the factor (CoarseTail::groups): rotation ×2 and DC ×½ in
+    // the tail, its position grid following 2 × 2 (two bits fewer); still the encoder's scene.
+    let mut tail = CoarseTail::new(0.5, 2.0);
+    for (g, m) in [(Group::Position, 2.0), (Group::Rotation, 2.0), (Group::ShDc, 0.5)] {
+        tail.groups[g as usize] = m;
+    }
+    let (own, _, own_q) = rate::encode(&s, &EncodeConfig { tail, ..config }).unwrap();
+    assert_eq!(decode(&own).unwrap(), quantise::dequantise(&own_q));
+    let own_params = read_all_params(&parse(&own).unwrap(), 3, 2).unwrap();
+    for ((g, p0), (_, p1)) in own_params.of_level(0).iter().zip(own_params.of_level(1)) {
+        let m = match g {
+            Group::Position | Group::Sh1 => 1.0,
+            Group::Rotation => 4.0,
+            Group::ShDc => 1.0,
+            _ => 2.0,
+        };
+        for (j, (s0, s1)) in p0.steps.iter().zip(&p1.steps).enumerate() {
+            let m = if *g == Group::Rotation && j == 0 { 1.0 } else { m };
+            assert_eq!(*s1, m * s0, "{} channel {j}", g.name());
+        }
+    }
+    let (own0, own1) = (own_params.of_level(0)[0].1.grid.unwrap(), own_params.of_level(1)[0].1.grid.unwrap());
+    assert_eq!(own1.2, own0.2 - 2);
     // Fewer SH bands: the same scene truncated.
     let two = decode_with(&bytes, &Limits { max_sh_degree: 2, ..Limits::default() }).unwrap();
     assert_eq!(two, decoded.with_sh_degree(2));
     // Progressive: the levels wholly in the tail (the last two, 1/4 + 1/2) take the factor; every
     // prefix decodes to a prefix of the scene.
-    let progressive = EncodeConfig { progressive: true, tail: CoarseTail { share: 0.75, factor: 2.0 }, ..config };
+    let progressive = EncodeConfig { progressive: true, tail: CoarseTail::new(0.75, 2.0), ..config };
     let (pb, _, pq) = rate::encode(&s, &progressive).unwrap();
     assert_eq!((pb[4], pq.level_factors.clone()), (6, vec![1.0, 1.0, 1.0, 2.0, 2.0]));
     let full = decode(&pb).unwrap();
@@ -548,10 +566,9 @@ fn a_shared_sh_index_round_trips_bit_exactly() {
     let (separate, _, _) = rate::encode(&s, &EncodeConfig { sh_vq: [64, 64, 64], sh_joint: false, ..config }).unwrap();
     assert!(bytes.len() < separate.len(), "{} bytes joint, {} separate", bytes.len(), separate.len());
     // Importance classes and progressive levels: parameter sections per level.
-    for c in [
-        EncodeConfig { tail: CoarseTail { share: 0.5, factor: 2.0 }, ..config },
-        EncodeConfig { progressive: true, neighbour_tables: false, ..config },
-    ] {
+    for c in
+        [EncodeConfig { tail: CoarseTail::new(0.5, 2.0), ..config }, EncodeConfig { progressive: true, neighbour_tables: false, ..config }]
+    {
         let (b, _, q) = rate::encode(&s, &c).unwrap();
         assert_eq!(b[4], VERSION_MAJOR_SHARED);
         let full = decode(&b).unwrap();

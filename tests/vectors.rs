@@ -179,14 +179,14 @@ fn regenerate() {
             // level of its own (format 9.0, SPEC §3.2), without neighbour-context tables. The
             // others are written without them, in the format they stand for.
             let old = EncodeConfig { neighbour_tables: false, ..EncodeConfig::default() };
-            let classes = EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], tail: CoarseTail { share: 0.5, factor: 2.0 }, ..old };
+            let classes = EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], tail: CoarseTail::new(0.5, 2.0), ..old };
             let config = match name {
                 "levels" => EncodeConfig { progressive: true, ..old },
                 "vq" => EncodeConfig { max_sh_degree: 2, sh_vq: [16, 0, 0], ..old },
                 "classes" => classes,
                 "neighbour" => EncodeConfig { neighbour_tables: true, ..classes },
                 "nbedge" => EncodeConfig::default(),
-                "shared" => EncodeConfig { sh_vq: [32, 0, 0], sh_joint: true, tail: CoarseTail { share: 0.5, factor: 2.0 }, ..old },
+                "shared" => EncodeConfig { sh_vq: [32, 0, 0], sh_joint: true, tail: CoarseTail::new(0.5, 2.0), ..old },
                 _ => old,
             };
             rate::encode(&vector_scene(name), &config).unwrap().0

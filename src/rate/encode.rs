@@ -315,6 +315,7 @@ fn level_part(q: &Quantised, l: usize, r: Range<usize>) -> Quantised {
         codebooks,
         shared_index: q.shared_index,
         level_factors: Vec::new(),
+        tail_groups: [1.0; 8],
         level_grids: Vec::new(),
     }
 }

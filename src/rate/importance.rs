@@ -278,7 +278,7 @@ mod tests {
         let rank = m.tail_rank();
         assert!(rank[0] < rank[1], "{rank:?}");
         assert_eq!(rank[1], (m.removal[1] * m.significance[1]).sqrt());
-        let tail = crate::rate::CoarseTail { share: 0.5, factor: 2.0 };
+        let tail = crate::rate::CoarseTail::new(0.5, 2.0);
         assert_eq!(tail.levels(&rank), vec![1, 0], "the red one keeps the fine steps");
         assert_eq!(tail.levels(&m.significance), vec![0, 1], "by coverage alone it would not");
     }

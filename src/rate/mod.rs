@@ -83,21 +83,41 @@ pub struct EncodeConfig {
 
 /// Importance classes (format 6.0, SPEC §4): the least significant `share` of the Gaussians kept
 /// (by the input's significance, [`importance::significance`]) go into a level of their own,
-/// coded with every step `factor` times the others' and a position grid of
-/// [`CoarseTail::coarser_grid_bits`] fewer bits per axis (its own parameter sections). With
-/// `--progressive`, the importance levels that lie wholly within that share take the factor
-/// instead.
+/// coded with every step `factor` times the others' (each group's times its own multiplier,
+/// [`CoarseTail::group_factor`]) and a position grid of [`CoarseTail::coarser_grid_bits`] fewer
+/// bits per axis (its own parameter sections). With `--progressive`, the importance levels that
+/// lie wholly within that share take the factor instead.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct CoarseTail {
     /// Share of the kept Gaussians, in (0, 1); 0 = off.
     pub share: f32,
     /// Step factor of the tail (1 = off).
     pub factor: f32,
+    /// Per group (indexed by `Group as usize`), a multiplier of `factor` for that group's steps
+    /// in the tail (position: of the factor its grid's bits follow); 1 = the common factor. The
+    /// RD search sets them ([`rd`]'s stage after the classes).
+    pub groups: [f32; 8],
 }
 
 impl CoarseTail {
     /// No tail: one set of steps for every Gaussian.
-    pub const OFF: CoarseTail = CoarseTail { share: 0.0, factor: 1.0 };
+    pub const OFF: CoarseTail = CoarseTail::new(0.0, 1.0);
+
+    /// The least significant `share` at `factor` times the steps, every group alike.
+    pub const fn new(share: f32, factor: f32) -> CoarseTail {
+        CoarseTail { share, factor, groups: [1.0; 8] }
+    }
+
+    /// The factor of group `g`'s steps (position: of its grid) in a level whose steps are
+    /// `level_factor` times the base steps: that times the group's multiplier in a level of the
+    /// tail (`level_factor ≠ 1`), 1 elsewhere.
+    pub fn group_factor(groups: &[f32; 8], g: Group, level_factor: f32) -> f32 {
+        if level_factor == 1.0 {
+            1.0
+        } else {
+            level_factor * groups[g as usize]
+        }
+    }
 
     pub fn is_off(&self) -> bool {
         !(self.share > 0.0 && self.share < 1.0) || self.factor == 1.0
@@ -316,7 +336,11 @@ pub fn encode_cached(
     let mut counts = vec![0usize; level.iter().max().map_or(0, |&l| usize::from(l) + 1)];
     level.iter().for_each(|&l| counts[usize::from(l)] += 1);
     let factors = config.tail.level_factors(&counts);
-    let coarser: Vec<u8> = factors.iter().flatten().map(|&f| CoarseTail::coarser_grid_bits(f)).collect();
+    let coarser: Vec<u8> = factors
+        .iter()
+        .flatten()
+        .map(|&f| CoarseTail::coarser_grid_bits(CoarseTail::group_factor(&config.tail.groups, Group::Position, f)))
+        .collect();
     // Rate-aware rounding (rdoq) takes the groups rounded to nearest here, then the DC once it
     // has taken back what the coded SH rest lost.
     let mut rounds = vec![Group::Scale, Group::Rotation, Group::Opacity];
@@ -331,6 +355,7 @@ pub fn encode_cached(
     let classes = quantise::Classes {
         coarser: &coarser,
         factors: factors.as_deref(),
+        groups: config.tail.groups,
         at_base: &|g| quantise::coded_by_codebook(g, config.sh_vq, config.sh_joint),
         targets: if config.rate_rounding { &rounds } else { &[] },
     };
@@ -389,11 +414,11 @@ mod tests {
     #[test]
     fn the_tail_is_the_lowest_ranked_share() {
         let sig = [5.0, 1.0, 3.0, 1.0, 9.0, 0.0, 2.0, 7.0];
-        let tail = CoarseTail { share: 0.5, factor: 2.0 };
+        let tail = CoarseTail::new(0.5, 2.0);
         assert_eq!(tail.levels(&sig), vec![0, 1, 0, 1, 0, 1, 1, 0]);
         // ⌊0.25·8⌋ = 2: the 0.0 and, of the two 1.0, the later one.
         assert_eq!(CoarseTail { share: 0.25, ..tail }.levels(&sig), vec![0, 0, 0, 1, 0, 1, 0, 0]);
-        for off in [CoarseTail::OFF, CoarseTail { share: 0.5, factor: 1.0 }, CoarseTail { share: 1.0, factor: 2.0 }] {
+        for off in [CoarseTail::OFF, CoarseTail::new(0.5, 1.0), CoarseTail::new(1.0, 2.0)] {
             assert!(off.is_off() && off.levels(&sig).is_empty());
         }
         assert!(CoarseTail { share: 0.1, ..tail }.levels(&sig).is_empty(), "⌊0.8⌋ = 0: no tail");

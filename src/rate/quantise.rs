@@ -10,6 +10,7 @@ use gscodec_decoder::math::{sigmoid, MAX_ALPHA};
 use gscodec_decoder::Splats;
 
 use super::group::{layout, values, values_mut};
+use super::CoarseTail;
 
 /// Step sizes (quantisation bins) of every stored attribute.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -88,6 +89,8 @@ pub struct Quantised {
     /// ([`Quantised::level_steps`]). Empty: every level uses those steps, and the file has one
     /// set of parameter sections.
     pub level_factors: Vec<f32>,
+    /// Per group, the multiplier of a level factor other than 1 ([`super::CoarseTail::groups`]).
+    pub tail_groups: [f32; 8],
     /// Per level, its position grid ([`quantise_coarser_grids`]; [`Quantised::level_grid`]);
     /// empty: [`Quantised::grid`] for every level.
     pub level_grids: Vec<Grid>,
@@ -121,11 +124,12 @@ impl Quantised {
     }
 
     /// The steps of group `gi` (an index into [`Quantised::groups`]) in level `level`: the
-    /// group's steps times the level's factor, except the rotation index (step 1) and an SH band
+    /// group's steps times the level's factor (and the group's multiplier of it,
+    /// [`super::CoarseTail::group_factor`]), except the rotation index (step 1) and an SH band
     /// coded by a codebook, whose rows are shared by every level.
     pub fn level_steps(&self, gi: usize, level: usize) -> Vec<f32> {
         let (g, steps, _) = &self.groups[gi];
-        let f = self.level_factors.get(level).copied().unwrap_or(1.0);
+        let f = CoarseTail::group_factor(&self.tail_groups, *g, self.level_factors.get(level).copied().unwrap_or(1.0));
         if f == 1.0 || self.codebooks.iter().any(|c| c.0 == *g) {
             return steps.clone();
         }
@@ -133,8 +137,8 @@ impl Quantised {
         steps.iter().enumerate().map(scaled).collect()
     }
 
-    /// Per Gaussian (file order), the factor its level's steps are the base steps multiplied by
-    /// ([`Quantised::level_factors`]; 1 without importance classes).
+    /// Per Gaussian (file order), its level's factor ([`Quantised::level_factors`]; 1 without
+    /// importance classes), before a group's multiplier ([`Quantised::tail_groups`]).
     pub fn row_factors(&self) -> Vec<f32> {
         let ranges = self.level_ranges();
         ranges
@@ -227,6 +231,8 @@ pub struct Classes<'a> {
     /// the base steps multiplied by (position excepted: it has its grids). `None`: one set of
     /// steps for every level.
     pub factors: Option<&'a [f32]>,
+    /// Per group, the multiplier of a factor other than 1 ([`super::CoarseTail::groups`]).
+    pub groups: [f32; 8],
     /// The groups quantised with the base steps whatever `factors` say: the SH bands to be
     /// coded by codebooks ([`apply_codebooks`]: their rows are shared by every level).
     pub at_base: &'a dyn Fn(Group) -> bool,
@@ -236,7 +242,7 @@ pub struct Classes<'a> {
 
 impl Classes<'_> {
     /// No coarser grids, no step factors, no targets.
-    pub const NONE: Classes<'static> = Classes { coarser: &[], factors: None, at_base: &|_| false, targets: &[] };
+    pub const NONE: Classes<'static> = Classes { coarser: &[], factors: None, groups: [1.0; 8], at_base: &|_| false, targets: &[] };
 }
 
 /// What [`quantise_classes`] makes: the quantised scene, its file order (`q`'s Gaussian `j` is
@@ -303,7 +309,13 @@ pub fn quantise_classes(splats: &Splats, steps: &Steps, level: &[u8], classes: &
     let groups = Group::present(sh_degree)
         .skip(1)
         .map(|g| {
-            let factor = |j: usize| if row_factor.is_empty() || (classes.at_base)(g) { 1.0 } else { row_factor[j] };
+            let factor = |j: usize| {
+                if row_factor.is_empty() || (classes.at_base)(g) {
+                    1.0
+                } else {
+                    CoarseTail::group_factor(&classes.groups, g, row_factor[j])
+                }
+            };
             let t = group_targets(splats, &order, g, steps, &factor);
             let values = rounded(g, &t, steps.rest_deadzone);
             if classes.targets.contains(&g) {
@@ -321,6 +333,7 @@ pub fn quantise_classes(splats: &Splats, steps: &Steps, level: &[u8], classes: &
         codebooks: Vec::new(),
         shared_index: false,
         level_factors,
+        tail_groups: classes.groups,
         level_grids,
     };
     Quantisation { q, order, targets }
@@ -847,29 +860,39 @@ mod tests {
     }
 
     /// Importance classes: a level's rows are its targets at the base steps divided by the
-    /// level's factor, rounded to nearest; the groups kept at the base steps and the file order
-    /// are those of a quantisation without classes, and the targets returned are the ones the
-    /// values were rounded from.
+    /// level's factor (times the group's multiplier of it: rotation's ×2 here), rounded to
+    /// nearest, and the level's steps are the base steps times the same; the groups kept at the
+    /// base steps and the file order are those of a quantisation without classes, and the
+    /// targets returned are the ones the values were rounded from.
     #[test]
     fn class_factors_divide_their_levels_targets_and_spare_the_groups_at_base_steps() {
         let s = crate::sample::scene(400, 5);
         let level: Vec<u8> = (0..s.len()).map(|i| u8::from(i % 3 == 0)).collect();
         let asked = [Group::Scale, Group::Rotation, Group::Sh1];
         let plain = quantise_classes(&s, &Steps::default(), &level, &Classes { targets: &asked, ..Classes::NONE });
-        let classes = Classes { factors: Some(&[1.0, 2.5]), at_base: &|g| g == Group::Sh2, targets: &asked, ..Classes::NONE };
+        let mut groups = [1.0; 8];
+        groups[Group::Rotation as usize] = 2.0;
+        let classes = Classes { factors: Some(&[1.0, 2.5]), groups, at_base: &|g| g == Group::Sh2, targets: &asked, ..Classes::NONE };
         let coarse = quantise_classes(&s, &Steps::default(), &level, &classes);
         assert_eq!(coarse.order, plain.order);
         assert_eq!(coarse.q.level_factors, vec![1.0, 2.5]);
         assert_eq!(coarse.q.row_factors().iter().filter(|&&f| f == 2.5).count(), level.iter().filter(|&&l| l == 1).count());
         let group = |q: &Quantised, g: Group| q.groups.iter().find(|x| x.0 == g).expect("present").2.clone();
         assert_eq!(group(&coarse.q, Group::Sh2), group(&plain.q, Group::Sh2));
-        let factor = coarse.q.row_factors();
+        let gi = |g: Group| coarse.q.groups.iter().position(|x| x.0 == g).expect("present");
+        let base = |g: Group| plain.q.level_steps(gi(g), 0);
+        assert_eq!(coarse.q.level_steps(gi(Group::Scale), 1), base(Group::Scale).iter().map(|s| s * 2.5).collect::<Vec<_>>());
+        let rotation = coarse.q.level_steps(gi(Group::Rotation), 1);
+        assert_eq!(rotation[0], 1.0, "the index is never scaled");
+        assert_eq!(rotation[1..], base(Group::Rotation)[1..].iter().map(|s| s * 5.0).collect::<Vec<_>>());
+        assert_eq!(coarse.q.level_steps(gi(Group::Rotation), 0), base(Group::Rotation));
         let mut moved = 0;
         for ((g, t), (g0, t0)) in coarse.targets.iter().zip(&plain.targets) {
             assert_eq!(g, g0);
             let (values, before) = (group(&coarse.q, *g), group(&plain.q, *g));
             let first = usize::from(*g == Group::Rotation); // the index of the omitted component
             assert_eq!(t[..first], t0[..first]);
+            let factor: Vec<f32> = coarse.q.row_factors().iter().map(|&f| CoarseTail::group_factor(&groups, *g, f)).collect();
             for c in first..t.len() {
                 for j in 0..factor.len() {
                     assert!((t[c][j] - t0[c][j] / factor[j]).abs() <= 1e-5 * (1.0 + t[c][j].abs()), "{g:?} channel {c} row {j}");

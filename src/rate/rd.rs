@@ -411,6 +411,9 @@ const DEADZONES: [f32; 4] = [0.1, 0.2, 0.3, 0.4];
 /// kept Gaussians, and the factor of its steps (docs/codec.md, "Importance classes").
 const TAIL_SHARES: [f32; 3] = [0.25, 0.5, 0.75];
 const TAIL_FACTORS: [f32; 5] = [1.5, 2.0, 3.0, 4.0, 6.0];
+/// Multipliers of one group's tail factor ([`CoarseTail::groups`]) tried after the tail is
+/// chosen ([`tail_stage`]; docs/codec.md §36).
+const TAIL_GROUP_MULTIPLIERS: [f32; 2] = [0.5, 2.0];
 const REFINE: [f32; 3] = [std::f32::consts::FRAC_1_SQRT_2, 1.0, std::f32::consts::SQRT_2];
 /// Quarter-octave moves of the last pass.
 const REFINE_FINE: [f32; 3] = [0.840_896_4, 1.0, 1.189_207_1];
@@ -733,17 +736,47 @@ pub fn step_nudges(from: &EncodeConfig, coarser: bool, sh_degree: u8) -> Vec<(St
 pub fn tail_variants(from: &EncodeConfig) -> Vec<(String, EncodeConfig)> {
     TAIL_SHARES
         .iter()
-        .flat_map(|&share| TAIL_FACTORS.iter().map(move |&factor| CoarseTail { share, factor }))
+        .flat_map(|&share| TAIL_FACTORS.iter().map(move |&factor| CoarseTail::new(share, factor)))
         .filter(|&tail| tail != from.tail)
         .map(|tail| (format!("tail {}x{}", tail.share, tail.factor), EncodeConfig { tail, ..*from }))
         .collect()
 }
 
-/// Importance classes ([`CoarseTail`]): each of [`tail_variants`], or none as in `start`
-/// (whole-file J; the start stays a candidate, so the result's J is never above it).
+/// `from` with one group's multiplier of its tail's factor ([`CoarseTail::groups`]) times each
+/// of [`TAIL_GROUP_MULTIPLIERS`], for every group that a scene of SH degree `sh_degree` coded
+/// with `from` has, but the SH bands coded by codebooks (their rows are shared by every level);
+/// none without a tail.
+fn tail_group_variants(from: &EncodeConfig, sh_degree: u8) -> Vec<(String, EncodeConfig)> {
+    if from.tail.is_off() {
+        return Vec::new();
+    }
+    Group::present(sh_degree.min(from.max_sh_degree))
+        .filter(|&g| !super::quantise::coded_by_codebook(g, from.sh_vq, from.sh_joint))
+        .flat_map(|g| {
+            TAIL_GROUP_MULTIPLIERS.iter().map(move |&m| {
+                let mut c = *from;
+                c.tail.groups[g as usize] *= m;
+                (format!("tail {} ×{m}", g.name()), c)
+            })
+        })
+        .collect()
+}
+
+/// Importance classes ([`CoarseTail`]): each of [`tail_variants`], or none as in `start`; then,
+/// with a tail, each of [`tail_group_variants`], and where one lowers J, the same group's move
+/// once more (whole-file J; each step's start stays a candidate, so the result's J is never
+/// above `start`'s).
 fn tail_stage<F: FnMut(&Trial)>(trials: &mut Trials, log: &mut Log<F>, start: EncodeConfig) -> Result<EncodeConfig, SceneError> {
     let Outcome { bytes: b, d, .. } = trials.one(&start)?;
-    Ok(log.stage(trials, (log.j(b, d), start), tail_variants(&start))?.1)
+    let (j, chosen) = log.stage(trials, (log.j(b, d), start), tail_variants(&start))?;
+    let (j_group, moved) = log.stage(trials, (j, chosen), tail_group_variants(&chosen, trials.ev.scene.sh_degree))?;
+    let Some(g) = (0..8).find(|&g| moved.tail.groups[g] != chosen.tail.groups[g]) else {
+        return Ok(chosen);
+    };
+    let mut again = moved;
+    again.tail.groups[g] *= moved.tail.groups[g] / chosen.tail.groups[g];
+    let name = format!("tail {} ×{} again", Group::ALL[g].name(), again.tail.groups[g]);
+    Ok(log.stage(trials, (j_group, moved), vec![(name, again)])?.1)
 }
 
 /// The search's last stage: [`EncodeConfig::dc_fit`] turned off where that lowers `J` (the
@@ -1331,7 +1364,7 @@ mod tests {
     fn stage_lowers_j(
         scene: &Splats,
         lambdas: [f64; 3],
-        candidates: usize,
+        candidates: impl Fn(&EncodeConfig) -> usize,
         changed: impl Fn(&EncodeConfig) -> bool,
         stage: impl Fn(&mut Trials, &mut Log<fn(&Trial)>, EncodeConfig) -> Result<EncodeConfig, SceneError>,
     ) -> bool {
@@ -1349,7 +1382,7 @@ mod tests {
             assert!(j <= log.j(b0, d0));
             assert!(log.path.iter().all(|t| t.j >= j - 1e-9), "λ {l}: a candidate had a lower J than the choice");
             assert!(!changed(&out) || j < log.j(b0, d0), "λ {l}: changed without lowering J");
-            assert_eq!(log.path.len(), candidates);
+            assert_eq!(log.path.len(), candidates(&out), "λ {l}: candidates tried");
             picked |= changed(&out);
         }
         picked
@@ -1364,17 +1397,25 @@ mod tests {
         assert!(scene.sh_degree >= 2);
         let candidates = (usize::from(scene.sh_degree) + 1) * VQ_ROWS.len() * VQ_STEPS.len();
         let vq = |c: &EncodeConfig| c.sh_vq != [0; 3];
-        let picked = stage_lowers_j(&scene, [0.0, 50.0, 2000.0], candidates, vq, |t, log, start| vq_stage(t, log, start, scene.sh_degree));
+        let picked =
+            stage_lowers_j(&scene, [0.0, 50.0, 2000.0], |_| candidates, vq, |t, log, start| vq_stage(t, log, start, scene.sh_degree));
         assert!(picked, "no λ chose a codebook");
     }
 
     /// The tail stage picks importance classes only when they lower J (then the candidate of
-    /// lowest J), and picks them for some λ.
+    /// lowest J), and picks them for some λ. Its candidates: every share and factor, then with a
+    /// tail every group's multiplier ([`tail_group_variants`]), then, where one was taken, that
+    /// group's move once more.
     #[test]
     fn the_search_picks_a_tail_only_when_j_is_lower() {
         let scene = crate::sample::scene(600, 4);
         let tail = |c: &EncodeConfig| !c.tail.is_off();
-        let picked = stage_lowers_j(&scene, [0.0, 50.0, 500.0], TAIL_SHARES.len() * TAIL_FACTORS.len(), tail, tail_stage);
+        let candidates = |out: &EncodeConfig| {
+            let common = EncodeConfig { tail: CoarseTail::new(out.tail.share, out.tail.factor), ..*out };
+            let moved = out.tail.groups.iter().any(|&m| m != 1.0);
+            TAIL_SHARES.len() * TAIL_FACTORS.len() + tail_group_variants(&common, scene.sh_degree).len() + usize::from(moved)
+        };
+        let picked = stage_lowers_j(&scene, [0.0, 50.0, 500.0], candidates, tail, tail_stage);
         assert!(picked, "no λ chose a tail");
     }
 
@@ -1384,7 +1425,7 @@ mod tests {
     fn retuned_tail_keeps_the_rest_and_lowers_j() {
         let scene = crate::sample::scene(600, 4);
         let given = EncodeConfig {
-            tail: CoarseTail { share: TAIL_SHARES[0], factor: TAIL_FACTORS[TAIL_FACTORS.len() - 1] },
+            tail: CoarseTail::new(TAIL_SHARES[0], TAIL_FACTORS[TAIL_FACTORS.len() - 1]),
             max_sh_degree: 2,
             ..EncodeConfig::default()
         };
